@@ -1,0 +1,1 @@
+"""Environments as pure, jittable functions over levels and states."""

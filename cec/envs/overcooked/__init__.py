@@ -1,0 +1,36 @@
+"""Overcooked (JaxMARL v1 dynamics) as pure functions over levels: `reset`, `step`, `step_autoreset`."""
+
+from cec.envs.overcooked.dynamics import reset, step, step_autoreset
+from cec.envs.overcooked.layouts import CLASSIC_ASCII, CLASSIC_NAMES, classic_level, classic_levels
+from cec.envs.overcooked.observation import get_obs
+from cec.envs.overcooked.state import (
+    NUM_ACTIONS,
+    NUM_CHANNELS,
+    POT_EMPTY,
+    POT_FULL,
+    POT_READY,
+    Action,
+    EnvParams,
+    EnvState,
+    StepOutput,
+)
+
+__all__ = [
+    "CLASSIC_ASCII",
+    "CLASSIC_NAMES",
+    "NUM_ACTIONS",
+    "NUM_CHANNELS",
+    "POT_EMPTY",
+    "POT_FULL",
+    "POT_READY",
+    "Action",
+    "EnvParams",
+    "EnvState",
+    "StepOutput",
+    "classic_level",
+    "classic_levels",
+    "get_obs",
+    "reset",
+    "step",
+    "step_autoreset",
+]

@@ -1,0 +1,100 @@
+"""Overcooked state, parameters, actions and step output types."""
+
+from __future__ import annotations
+
+from enum import IntEnum
+from typing import NamedTuple
+
+import jax
+from flax import struct
+
+from cec.levels import Level
+
+# Pot status, as in the paper's code: 23 empty, 22/21 one/two onions, 20 full (cooking starts at once),
+# below 20 a countdown, 0 soup ready.
+POT_EMPTY = 23
+POT_FULL = 20
+POT_READY = 0
+MAX_ONIONS = 3
+URGENCY_STEPS = 40  # the urgency channel turns on when fewer than this many steps remain
+NUM_CHANNELS = 26
+NUM_ACTIONS = 6
+
+
+class Action(IntEnum):
+    """Per-seat actions. Movement indices equal `Direction` indices (names match the movement)."""
+
+    UP = 0  # north, row - 1
+    DOWN = 1  # south, row + 1
+    RIGHT = 2  # east, col + 1
+    LEFT = 3  # west, col - 1
+    STAY = 4
+    INTERACT = 5
+
+
+@struct.dataclass
+class EnvParams:
+    """Traced (vmappable) dynamics settings. Defaults are those of the paper's code.
+
+    Attributes:
+        max_steps: episode length; `done` when `time >= max_steps` (400 as in Overcooked-AI; the paper's
+            CEC runs use 100, its evaluation 256).
+        delivery_reward: team (sparse) reward per delivered soup, paid to both seats.
+        onion_in_pot_reward: shaped reward to the seat that puts an onion in a pot.
+        soup_pickup_reward: shaped reward to the seat that plates a ready soup.
+        plate_pickup_reward: shaped reward to the seat that picks up a plate while no loose plate lies
+            on a counter and fewer plates are in hands than pots hold onions or soup.
+        random_start_facing: if true, `reset` draws each seat's facing uniformly (as the paper's code);
+            otherwise it uses the level's `agent_dir`.
+    """
+
+    max_steps: int = 400
+    delivery_reward: float = 20.0
+    onion_in_pot_reward: float = 10.0
+    soup_pickup_reward: float = 15.0
+    plate_pickup_reward: float = 3.0
+    random_start_facing: bool = True
+
+
+class EnvState(struct.PyTreeNode):
+    """Everything that changes during an episode, plus the level being played.
+
+    Attributes:
+        level: the kitchen (static during the episode).
+        agent_pos: int32[2, 2] `(row, col)` per seat.
+        agent_dir: int32[2] facing per seat (`Direction`).
+        agent_inv: int32[2] held `Item` per seat.
+        items: uint8[9, 9] loose `Item` lying on each counter cell.
+        pot: uint8[9, 9] pot status on pot cells (see `POT_*`), 0 elsewhere.
+        time: int32 steps taken in this episode.
+        episode: int32 index of this episode in the env's life (auto-reset plays buffer[episode % K]).
+    """
+
+    level: Level
+    agent_pos: jax.Array
+    agent_dir: jax.Array
+    agent_inv: jax.Array
+    items: jax.Array
+    pot: jax.Array
+    time: jax.Array
+    episode: jax.Array
+
+
+class StepOutput(NamedTuple):
+    """What `step` returns.
+
+    Attributes:
+        obs: uint8[2, 9, 9, 26] each seat's observation from its own perspective.
+        state: the next `EnvState` (after auto-reset, for `step_autoreset`).
+        reward: float32[] team sparse reward of this step (the same for both seats).
+        shaped_reward: float32[2] per-seat shaped reward of this step (unscaled).
+        done: bool[] the episode ended with this step.
+        collision: bool[] a move was cancelled because both seats wanted the same cell or to swap.
+    """
+
+    obs: jax.Array
+    state: EnvState
+    reward: jax.Array
+    shaped_reward: jax.Array
+    done: jax.Array
+    collision: jax.Array
