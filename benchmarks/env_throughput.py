@@ -48,9 +48,7 @@ CONSUMERS: dict[str, Callable[[jax.Array], jax.Array]] = {
 }
 
 
-def ours_fn(
-    levels: Level, n_envs: int, steps: int, consumer: str
-) -> Callable[[jax.Array], jax.Array]:
+def ours_fn(levels: Level, n_envs: int, steps: int, consumer: str) -> Callable[[jax.Array], jax.Array]:
     """Scan of `steps` vmapped auto-reset steps; env i plays levels[i % K] (buffer of one level)."""
     params = oc.EnvParams()
     k = levels.grid.shape[0]
@@ -76,9 +74,7 @@ def ours_fn(
     return run
 
 
-def jaxmarl_fn(
-    layout: Any, n_envs: int, steps: int, consumer: str
-) -> Callable[[jax.Array], jax.Array]:
+def jaxmarl_fn(layout: Any, n_envs: int, steps: int, consumer: str) -> Callable[[jax.Array], jax.Array]:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         from jaxmarl.environments.overcooked import Overcooked
@@ -188,8 +184,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--n", type=int, nargs="+", default=[256, 1024, 4096], help="numbers of envs")
     ap.add_argument("--steps", type=int, default=128, help="scan length")
     ap.add_argument("--repeats", type=int, default=9, help="timed runs per case (median reported)")
-    ap.add_argument("--consumer", choices=sorted(CONSUMERS), default="sum_i32",
-                    help="how observations are consumed (default: int32 sum)")
+    ap.add_argument(
+        "--consumer",
+        choices=sorted(CONSUMERS),
+        default="sum_i32",
+        help="how observations are consumed (default: int32 sum)",
+    )
     ap.add_argument("--no-peer", action="store_true", help="skip JaxMARL")
     ap.add_argument("--out", type=Path, default=None, help="results JSON (default: benchmarks/results/)")
     args = ap.parse_args(argv)
@@ -199,7 +199,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             import jaxmarl  # noqa: F401
         except ImportError:
-            print("jaxmarl not installed (pip install -e .[peers]); measuring ours only", file=sys.stderr)
+            print(
+                "jaxmarl not installed (pip install -e .[peers]); measuring ours only",
+                file=sys.stderr,
+            )
             peer = False
 
     from jaxmarl.environments.overcooked import overcooked_layouts as jm_layouts  # type: ignore
@@ -224,8 +227,11 @@ def main(argv: list[str] | None = None) -> int:
         ),
     ]
     rows = []
-    print(f"{'case':38s} {'N':>5s} {'ours steps/s':>14s} {'jaxmarl steps/s':>16s} {'ratio':>7s} "
-          f"{'compile ours/jm':>16s}", flush=True)
+    print(
+        f"{'case':38s} {'N':>5s} {'ours steps/s':>14s} {'jaxmarl steps/s':>16s} {'ratio':>7s} "
+        f"{'compile ours/jm':>16s}",
+        flush=True,
+    )
     for name, make_ours, make_peer in cases:
         for n in args.n:
             fns = {"ours": make_ours(n)}
@@ -238,8 +244,10 @@ def main(argv: list[str] | None = None) -> int:
             if "jaxmarl" in m:
                 theirs = m["jaxmarl"]
                 row["ratio"] = ours["steps_per_s"] / theirs["steps_per_s"]
-                line += (f" {theirs['steps_per_s']:16,.0f} {row['ratio']:6.2f}x "
-                         f"{ours['compile_s']:7.1f}/{theirs['compile_s']:.1f}s")
+                line += (
+                    f" {theirs['steps_per_s']:16,.0f} {row['ratio']:6.2f}x "
+                    f"{ours['compile_s']:7.1f}/{theirs['compile_s']:.1f}s"
+                )
             else:
                 line += f" {'-':>16s} {'-':>7s} {ours['compile_s']:7.1f}/-"
             print(line, flush=True)

@@ -25,7 +25,12 @@ TILE_CHARS: dict[str, Tile] = {
 }
 CHAR_OF_TILE: dict[Tile, str] = {t: c for c, t in TILE_CHARS.items()}
 AGENT_CHARS = "01A"
-FACING_CHARS = {"N": Direction.NORTH, "S": Direction.SOUTH, "E": Direction.EAST, "W": Direction.WEST}
+FACING_CHARS = {
+    "N": Direction.NORTH,
+    "S": Direction.SOUTH,
+    "E": Direction.EAST,
+    "W": Direction.WEST,
+}
 CHAR_OF_FACING = {d: c for c, d in FACING_CHARS.items()}
 
 

@@ -109,8 +109,7 @@ class Level:
             size=jnp.asarray(size if size is not None else (h, w), dtype=jnp.int32),
         )
         # Validate the raw inputs (before any dtype cast could wrap out-of-range values).
-        validate_level(level, _raw_grid=frame, _raw_pos=np.asarray(agent_pos),
-                       _raw_dir=np.asarray(agent_dir))
+        validate_level(level, _raw_grid=frame, _raw_pos=np.asarray(agent_pos), _raw_dir=np.asarray(agent_dir))
         return level
 
     def kitchen(self) -> np.ndarray:
@@ -169,9 +168,7 @@ def validate_level(
         raise LevelError(f"agent_pos must have shape (2, 2) as (row, col) per seat, got {pos.shape}")
     for seat, (r, c) in enumerate(pos.tolist()):
         if not (0 <= r < h and 0 <= c < w):
-            raise LevelError(
-                f"agent {seat} start cell (row={r}, col={c}) lies outside the {h}x{w} kitchen"
-            )
+            raise LevelError(f"agent {seat} start cell (row={r}, col={c}) lies outside the {h}x{w} kitchen")
         if grid[r, c] != Tile.FLOOR:
             raise LevelError(
                 f"agent {seat} starts on a {Tile(int(grid[r, c])).name.lower()} at (row={r}, col={c}); "

@@ -109,15 +109,15 @@ def run_parity(
         k_reset, k_steps = jax.random.split(key)
         _, jm_state = jm_env.reset(k_reset)
         # Same start facings as JaxMARL's random ones.
-        _, state = oc.reset(k_reset, level.replace(agent_dir=jm_state.agent_dir_idx.astype(jnp.int32)), params)
+        _, state = oc.reset(
+            k_reset, level.replace(agent_dir=jm_state.agent_dir_idx.astype(jnp.int32)), params
+        )
 
         def body(carry, k):  # noqa: ANN001, ANN202
             state, jm_state = carry
             k_pol, k_uni, k_int, k_step = jax.random.split(k, 4)
             uniform = jax.random.randint(k_uni, (2,), 0, oc.NUM_ACTIONS)
-            interact_heavy = jnp.where(
-                jax.random.uniform(k_int, (2,)) < 0.5, oc.Action.INTERACT, uniform
-            )
+            interact_heavy = jnp.where(jax.random.uniform(k_int, (2,)) < 0.5, oc.Action.INTERACT, uniform)
             eps = 0.1 + 0.3 * (mode - 2) / 2.0
             scripted = scripted_actions(k_pol, state, eps)
             actions = jnp.select([mode == 0, mode == 1], [uniform, interact_heavy], scripted)

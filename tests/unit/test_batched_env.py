@@ -67,7 +67,13 @@ def test_autoreset_takes_the_next_level_from_the_buffer() -> None:
     step = jax.jit(oc.step_autoreset)
     seen = []
     for t in range(10):
-        out = step(jax.random.PRNGKey(t), state, jnp.asarray([oc.Action.INTERACT, oc.Action.RIGHT]), buffer, params)
+        out = step(
+            jax.random.PRNGKey(t),
+            state,
+            jnp.asarray([oc.Action.INTERACT, oc.Action.RIGHT]),
+            buffer,
+            params,
+        )
         state = out.state
         assert bool(out.done) == (t % 3 == 2)
         if out.done:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -20,7 +21,7 @@ from cec.levels import (
 
 
 def assert_same_level(a: Level, b: Level) -> None:
-    for x, y in zip((a.grid, a.agent_pos, a.agent_dir, a.size), (b.grid, b.agent_pos, b.agent_dir, b.size)):
+    for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
 
 
@@ -100,7 +101,7 @@ def test_stack_and_unstack() -> None:
     levels = list(oc.classic_levels().values())
     batch = stack_levels(levels)
     assert batch.grid.shape == (5, 9, 9)
-    for a, b in zip(unstack_levels(batch), levels):
+    for a, b in zip(unstack_levels(batch), levels, strict=True):
         assert_same_level(a, b)
     with pytest.raises(LevelError):
         stack_levels([])

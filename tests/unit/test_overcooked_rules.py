@@ -157,8 +157,11 @@ WBWXW
 WWWWW
 """
     s = make_state(
-        kitchen=kitchen, pos=((1, 1), (1, 3)), facing=(D.EAST, D.WEST),
-        inv=(Item.NONE, Item.PLATE), items={(1, 2): Item.ONION},
+        kitchen=kitchen,
+        pos=((1, 1), (1, 3)),
+        facing=(D.EAST, D.WEST),
+        inv=(Item.NONE, Item.PLATE),
+        items={(1, 2): Item.ONION},
     )
     out = act(s, A.INTERACT, A.INTERACT)
     assert np.asarray(out.state.agent_inv).tolist() == [Item.ONION, Item.NONE]
@@ -177,7 +180,11 @@ def test_three_onions_start_cooking_and_fourth_is_refused() -> None:
         assert int(out.state.agent_inv[1]) == Item.NONE
         statuses.append(int(out.state.pot[0, 3]))
         s = out.state.replace(agent_inv=jnp.asarray([Item.NONE, Item.ONION], jnp.int32))
-    assert statuses == [22, 21, 19]  # the third onion fills the pot (20) and it cooks on the same step
+    assert statuses == [
+        22,
+        21,
+        19,
+    ]  # the third onion fills the pot (20) and it cooks on the same step
     out = act(s, A.STAY, A.INTERACT)
     assert int(out.state.agent_inv[1]) == Item.ONION
     assert float(out.shaped_reward[1]) == 0.0
@@ -276,7 +283,11 @@ def test_observation_perspective_swap() -> None:
 
 def test_observation_pot_channels() -> None:
     for status, in_pot, in_soup, timer, ready in [
-        (23, 0, 0, 0, 0), (22, 1, 0, 0, 0), (20, 3, 0, 0, 0), (12, 0, 3, 12, 0), (0, 0, 3, 0, 1),
+        (23, 0, 0, 0, 0),
+        (22, 1, 0, 0, 0),
+        (20, 3, 0, 0, 0),
+        (12, 0, 3, 12, 0),
+        (0, 0, 3, 0, 1),
     ]:
         obs = np.asarray(oc.get_obs(make_state(pot=status), PARAMS))[0, 0, 3]
         assert (obs[16], obs[18], obs[20], obs[21]) == (in_pot, in_soup, timer, ready), status
@@ -296,3 +307,10 @@ def test_bad_action_shape_and_dtype_raise() -> None:
         oc.step(KEY, make_state(), jnp.asarray([1, 2, 3]), PARAMS)
     with pytest.raises(ValueError, match="integers"):
         oc.step(KEY, make_state(), jnp.asarray([1.0, 2.0]), PARAMS)
+
+
+def test_out_of_range_actions_under_jit_act_as_stay() -> None:
+    s = make_state(pos=((2, 2), (1, 3)), facing=(D.SOUTH, D.NORTH))
+    out = jax.jit(oc.step)(KEY, s, jnp.asarray([-1, 9], jnp.int32), PARAMS)
+    assert pos_of(out) == [(2, 2), (1, 3)]
+    assert np.asarray(out.state.agent_dir).tolist() == [D.SOUTH, D.NORTH]

@@ -98,9 +98,7 @@ def test_frame_changes_when_agent_turns() -> None:
 
 
 def test_frame_changes_when_agent_picks_up() -> None:
-    state = act(
-        start(CLASSIC["cramped_room"]), Action.LEFT
-    )  # seat 0 turns to the onion pile at (1, 0)
+    state = act(start(CLASSIC["cramped_room"]), Action.LEFT)  # seat 0 turns to the onion pile at (1, 0)
     picked = act(state, Action.INTERACT)
     assert int(picked.agent_inv[0]) == Item.ONION
     before, after = render_frame(state), render_frame(picked)
@@ -200,9 +198,7 @@ def walk(level: Level, moves: list[int]) -> oc.EnvState:
 
 def test_rollout_frames_and_gif(tmp_path: Path) -> None:
     level = CLASSIC["cramped_room"]
-    states = walk(
-        level, [Action.DOWN, Action.RIGHT, Action.UP, Action.LEFT]
-    )  # every step moves seat 0
+    states = walk(level, [Action.DOWN, Action.RIGHT, Action.UP, Action.LEFT])  # every step moves seat 0
     frames = rollout_frames(states)
     assert len(frames) == 5
     assert all(f.shape == (128, 160, 3) and f.dtype == np.uint8 for f in frames)

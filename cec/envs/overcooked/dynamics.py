@@ -78,9 +78,7 @@ def _initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
     )
 
 
-def reset(
-    key: jax.Array, level: Level, params: EnvParams = EnvParams()
-) -> tuple[jax.Array, EnvState]:
+def reset(key: jax.Array, level: Level, params: EnvParams = EnvParams()) -> tuple[jax.Array, EnvState]:
     """Starts an episode on `level`: agents at the level's start cells, empty hands, pots and counters.
 
     Args:
@@ -165,7 +163,7 @@ def _interact(
     plate_bonus = picked_plate & no_loose_plates & (plates_in_hands < nonempty_pots)
 
     # GRID UPDATES at the cell in front
-    here = (_ROWS == cell[0]) & (_COLS == cell[1])
+    here = (cell[0] == _ROWS) & (cell[1] == _COLS)
     items = jnp.where(here & from_counter, jnp.uint8(Item.NONE), items)
     items = jnp.where(here & drop, held.astype(jnp.uint8), items)
     pot = jnp.where(here & add_onion, (status - 1).astype(jnp.uint8), pot)
@@ -180,13 +178,11 @@ def _interact(
     return items, pot, inv.at[seat].set(new_held), reward, shaped
 
 
-def _transition(
-    state: EnvState, actions: jax.Array, params: EnvParams
-) -> _Transition:
+def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> _Transition:
     acts = actions.astype(jnp.int32)
     grid = state.level.grid
     pos = state.agent_pos
-    is_move = acts < 4
+    is_move = (acts >= 0) & (acts < 4)  # under jit an out-of-range action acts as stay
 
     # MOVEMENT: a move succeeds if the target is floor, unless both seats want the same cell
     # ("no collision, no move") or would swap cells. Moves turn the agent even when blocked.
@@ -219,9 +215,7 @@ def _transition(
     return _Transition(next_state, reward, shaped, time >= params.max_steps, collision)
 
 
-def step(
-    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams = EnvParams()
-) -> StepOutput:
+def step(key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams = EnvParams()) -> StepOutput:
     """Advances one joint step, without auto-reset.
 
     Args:
@@ -260,6 +254,4 @@ def step_autoreset(
     next_level = jax.tree.map(lambda x: x[0] if n_levels == 1 else x[episode % n_levels], levels)
     fresh = _initial_state(key, next_level, params).replace(episode=episode)
     new_state = jax.tree.map(lambda a, b: jnp.where(t.done, a, b), fresh, t.state)
-    return StepOutput(
-        get_obs(new_state, params), new_state, t.reward, t.shaped, t.done, t.collision
-    )
+    return StepOutput(get_obs(new_state, params), new_state, t.reward, t.shaped, t.done, t.collision)

@@ -116,7 +116,7 @@ def cell_codes(state: EnvState, params: EnvParams) -> jax.Array:
     urgent = jnp.where((params.max_steps - state.time) < URGENCY_STEPS, u8(_URGENT), u8(0))
     base = static + dynamic + urgent
     pos = state.agent_pos
-    at = (_ROWS == pos[:, 0, None, None]) & (_COLS == pos[:, 1, None, None])  # (2, 9, 9)
+    at = (pos[:, 0, None, None] == _ROWS) & (pos[:, 1, None, None] == _COLS)  # (2, 9, 9)
     seat_code = (_AGENT_BASE + 4 * state.agent_dir + state.agent_inv).astype(u8)  # (2,)
 
     def view(me: jax.Array) -> jax.Array:
@@ -138,4 +138,7 @@ def get_obs(state: EnvState, params: EnvParams) -> jax.Array:
     Returns:
         uint8[2, 9, 9, 26]: index 0 is seat 0's view, index 1 seat 1's.
     """
-    return _OBS_TABLE.at[cell_codes(state, params)].get(mode="promise_in_bounds")
+    obs = _OBS_TABLE.at[cell_codes(state, params)].get(mode="promise_in_bounds")
+    # Write the observation out once: fused into a consumer (a float conversion, a sum) XLA:CPU would
+    # re-run the gather per element, several times slower than reading the materialised 4 KB.
+    return jax.lax.optimization_barrier(obs)

@@ -46,6 +46,7 @@ __all__ = [
     "rollout_frames",
     "save_gif",
     "save_png",
+    "side_by_side",
     "state_to_ascii",
 ]
 
@@ -56,6 +57,7 @@ MIN_TILE_SIZE = 8
 _SUPERSAMPLE = 2  # draw at this multiple of the tile size, then downsample (smooth edges)
 
 RGB = tuple[int, int, int]
+BACKGROUND: RGB = (255, 255, 255)  # between panels of a side-by-side GIF
 _FLOOR: RGB = (238, 232, 218)
 _FLOOR_LINE: RGB = (220, 212, 194)
 _COUNTER: RGB = (168, 128, 88)
@@ -99,9 +101,7 @@ def _host(state: EnvState, what: str) -> EnvState:
 
 def _check_tile_size(tile_size: int) -> None:
     if not isinstance(tile_size, int | np.integer) or tile_size < MIN_TILE_SIZE:
-        raise ValueError(
-            f"tile_size must be an integer >= {MIN_TILE_SIZE} pixels, got {tile_size!r}"
-        )
+        raise ValueError(f"tile_size must be an integer >= {MIN_TILE_SIZE} pixels, got {tile_size!r}")
 
 
 def _kitchen_shape(host: EnvState) -> tuple[int, int]:
@@ -302,9 +302,7 @@ def render_frame(state: EnvState, tile_size: int = 32) -> np.ndarray:
 def render_level(level: Level, tile_size: int = 32) -> np.ndarray:
     """Draws a level's start state: agents at their start cells and facings, empty pots, hands."""
     if np.ndim(level.grid) != 2:
-        raise ValueError(
-            f"render_level takes one unbatched Level, got grid of shape {np.shape(level.grid)}"
-        )
+        raise ValueError(f"render_level takes one unbatched Level, got grid of shape {np.shape(level.grid)}")
     _, state = reset(jax.random.PRNGKey(0), level, EnvParams(random_start_facing=False))
     return render_frame(state, tile_size)
 
@@ -353,8 +351,7 @@ def _as_frame(frame: np.ndarray, what: str) -> np.ndarray:
     arr = np.asarray(frame)
     if arr.ndim != 3 or arr.shape[2] != 3 or arr.dtype != np.uint8:
         raise ValueError(
-            f"{what} must be RGB uint8 arrays of shape (H, W, 3), got dtype {arr.dtype} and shape "
-            f"{arr.shape}"
+            f"{what} must be RGB uint8 arrays of shape (H, W, 3), got dtype {arr.dtype} and shape {arr.shape}"
         )
     return arr
 
@@ -378,9 +375,7 @@ def save_gif(frames: Sequence[np.ndarray], path: str | Path, fps: int = 8) -> Pa
     _check_fps(fps)
     arrays = [_as_frame(f, "frames") for f in frames]
     if len({a.shape for a in arrays}) != 1:
-        raise ValueError(
-            f"all frames must have the same shape, got {sorted({a.shape for a in arrays})}"
-        )
+        raise ValueError(f"all frames must have the same shape, got {sorted({a.shape for a in arrays})}")
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     images = [Image.fromarray(a) for a in arrays]
@@ -416,9 +411,7 @@ def rollout_frames(states: EnvState, tile_size: int = 32) -> list[np.ndarray]:
 
 
 @partial(jax.jit, static_argnames=("policy", "steps"))
-def _rollout(
-    key: jax.Array, level: Level, params: EnvParams, *, policy: str, steps: int
-) -> EnvState:
+def _rollout(key: jax.Array, level: Level, params: EnvParams, *, policy: str, steps: int) -> EnvState:
     """The reset state and the `steps` states after it, stacked on a leading time axis."""
     k_reset, k_run = jax.random.split(key)
     _, first = reset(k_reset, level, params)
@@ -432,14 +425,25 @@ def _rollout(
         return nxt, nxt
 
     _, rest = jax.lax.scan(body, first, jax.random.split(k_run, steps))
-    stacked: EnvState = jax.tree.map(
-        lambda a, b: jnp.concatenate([a[None], b], axis=0), first, rest
-    )
+    stacked: EnvState = jax.tree.map(lambda a, b: jnp.concatenate([a[None], b], axis=0), first, rest)
     return stacked
 
 
+def side_by_side(panels: Sequence[np.ndarray], gap: int = 8) -> np.ndarray:
+    """Joins RGB frames left to right, top-aligned, on the background colour, `gap` pixels apart."""
+    height = max(p.shape[0] for p in panels)
+    width = sum(p.shape[1] for p in panels) + gap * (len(panels) - 1)
+    out = np.empty((height, width, 3), np.uint8)
+    out[:] = BACKGROUND
+    x = 0
+    for p in panels:
+        out[: p.shape[0], x : x + p.shape[1]] = p
+        x += p.shape[1] + gap
+    return out
+
+
 def render_episode_gif(
-    level: Level,
+    level: Level | Sequence[Level],
     path: str | Path,
     *,
     steps: int = 100,
@@ -451,7 +455,8 @@ def render_episode_gif(
     """Plays one episode of `steps` steps on `level` and saves it as a GIF (the reset state first).
 
     Args:
-        level: a single `Level`.
+        level: a single `Level`, or several, played side by side in one GIF (one compiled rollout
+            serves them all).
         path: where to write the GIF (parent folders are created).
         steps: episode length (`EnvParams.max_steps`); the GIF shows `steps + 1` states.
         policy: "random" (uniform actions, both seats) or "scripted" (the greedy cook of
@@ -464,18 +469,28 @@ def render_episode_gif(
         ValueError: for an unknown policy, `steps < 1`, a bad tile size or fps, or a batched level;
         `LevelError` for a malformed level.
     """
+    levels = [level] if isinstance(level, Level) else list(level)
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)}")
     if not isinstance(steps, int | np.integer) or isinstance(steps, bool) or steps < 1:
         raise ValueError(f"steps must be an integer >= 1, got {steps!r}")
     _check_tile_size(tile_size)
     _check_fps(fps)
-    if np.ndim(level.grid) != 2:
-        raise ValueError(
-            "render_episode_gif takes one unbatched Level, got grid of shape "
-            f"{np.shape(level.grid)}"
-        )
-    validate_level(level)
+    if not levels:
+        raise ValueError("render_episode_gif needs at least one level")
+    for lv in levels:
+        if np.ndim(lv.grid) != 2:
+            raise ValueError(
+                f"render_episode_gif takes unbatched Levels, got grid of shape {np.shape(lv.grid)}"
+            )
+        validate_level(lv)
     params = EnvParams(max_steps=int(steps))
-    states = _rollout(jax.random.PRNGKey(seed), level, params, policy=policy, steps=int(steps))
-    return save_gif(rollout_frames(states, tile_size), path, fps=fps)
+    panels = [
+        rollout_frames(
+            _rollout(jax.random.PRNGKey(seed), lv, params, policy=policy, steps=int(steps)),
+            tile_size,
+        )
+        for lv in levels
+    ]
+    frames = [side_by_side(list(at_t)) for at_t in zip(*panels, strict=True)]
+    return save_gif(frames, path, fps=fps)

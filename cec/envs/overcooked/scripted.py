@@ -81,7 +81,7 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
     here = dist[pos[0], pos[1]]
     # Unreachable with something in hand: hand it over on a bare counter the partner can reach.
     partner = state.agent_pos[1 - seat]
-    partner_cell = (_ROWS == partner[0]) & (_COLS == partner[1])
+    partner_cell = (partner[0] == _ROWS) & (partner[1] == _COLS)
     partner_side = _adjacent(_distances(floor, partner_cell) < _INF)
     shared = bare_counter & partner_side
     drop_spot = jnp.where(jnp.any(shared), shared, bare_counter)

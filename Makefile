@@ -1,0 +1,39 @@
+# One-command set-up and entry points. Every target creates the virtual environment on first use.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+
+.PHONY: install demo test lint typecheck unit bench clean
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[dev,peers]'
+	touch $@
+
+install: $(VENV)/.installed
+
+## Main job (for now: random agents in every classic kitchen, side by side, written to out/demo.gif)
+demo: install
+	$(BIN)/cec demo --out out/demo.gif
+
+## Lint, type checks and the whole test suite (unit + JaxMARL parity)
+test: lint typecheck
+	$(BIN)/python -m pytest -q tests
+
+lint: install
+	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
+
+typecheck: install
+	$(BIN)/mypy
+
+unit: install
+	$(BIN)/python -m pytest -q tests/unit
+
+## Env throughput vs JaxMARL (N = 256, 1024, 4096); results land in benchmarks/results/
+bench: install
+	$(BIN)/python benchmarks/env_throughput.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache

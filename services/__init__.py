@@ -1,0 +1,1 @@
+"""Service adapters (gRPC, Ray, Redis) around the `cec` library; each service also runs in-process."""

@@ -1,0 +1,1 @@
+"""Evaluator: cross-play scoring of new checkpoints against the partner zoo (not built yet)."""

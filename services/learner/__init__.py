@@ -1,0 +1,1 @@
+"""IPPO learner: trajectory intake, updates, weight publication, checkpoints (not built yet)."""

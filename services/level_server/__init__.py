@@ -1,0 +1,1 @@
+"""Level server: gRPC streaming of generated kitchens over `cec.levels` (not built yet)."""

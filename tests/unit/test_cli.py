@@ -1,0 +1,46 @@
+"""The `cec` command line: the demo writes its GIF, render writes PNG/GIF, bad input fails cleanly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from PIL import Image
+
+from cec.cli import main
+from cec.envs import overcooked as oc
+
+
+def test_demo_writes_one_gif_with_every_classic_kitchen(tmp_path: Path) -> None:
+    out = tmp_path / "demo.gif"
+    assert main(["demo", "--out", str(out), "--steps", "5"]) == 0
+    with Image.open(out) as gif:
+        width, height = gif.size
+    # five kitchens side by side, 32 px per cell, 8 px apart; the tallest kitchens have 5 rows
+    widths = [int(oc.classic_level(n).size[1]) for n in oc.CLASSIC_ASCII]
+    assert width == 32 * sum(widths) + 8 * 4
+    assert height == 32 * 5
+
+
+def test_render_png_and_gif_from_an_ascii_file(tmp_path: Path) -> None:
+    kitchen = tmp_path / "k.txt"
+    kitchen.write_text("WWPWW\nO0 1O\nW   W\nWBWXW\n")
+    png, gif = tmp_path / "k.png", tmp_path / "k.gif"
+    assert main(["render", str(kitchen), "--png", str(png), "--gif", str(gif), "--steps", "3"]) == 0
+    with Image.open(png) as im:
+        assert im.size == (5 * 32, 4 * 32)
+    assert gif.stat().st_size > 0
+
+
+def test_render_rejects_a_malformed_kitchen(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    kitchen = tmp_path / "bad.txt"
+    kitchen.write_text("WWPWW\nO0 1Q\nW   W\nWBWXW\n")
+    assert main(["render", str(kitchen), "--png", str(tmp_path / "x.png")]) == 2
+    err = capsys.readouterr().err
+    assert "unknown character 'Q' at row 1, column 4" in err
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_render_rejects_an_unknown_layout(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["render", "no_such_kitchen", "--png", "x.png"]) == 2
+    assert "neither a classic layout" in capsys.readouterr().err
