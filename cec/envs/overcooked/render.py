@@ -15,6 +15,7 @@ state and tile size always give the same pixels.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from functools import partial
 from pathlib import Path
@@ -446,11 +447,12 @@ def render_episode_gif(
     level: Level | Sequence[Level],
     path: str | Path,
     *,
-    steps: int = 100,
+    steps: int | None = None,
     policy: str = "random",
     seed: int = 0,
     tile_size: int = 32,
     fps: int = 8,
+    params: EnvParams | None = None,
 ) -> Path:
     """Plays one episode of `steps` steps on `level` and saves it as a GIF (the reset state first).
 
@@ -458,18 +460,22 @@ def render_episode_gif(
         level: a single `Level`, or several, played side by side in one GIF (one compiled rollout
             serves them all).
         path: where to write the GIF (parent folders are created).
-        steps: episode length (`EnvParams.max_steps`); the GIF shows `steps + 1` states.
+        steps: episode length (default: `params.max_steps`, else 100); the GIF shows `steps + 1`
+            states.
         policy: "random" (uniform actions, both seats) or "scripted" (the greedy cook of
             `cec.envs.overcooked.scripted`, with epsilon 0.1).
         seed: PRNG seed for the start facings and the policy.
         tile_size: pixels per cell side.
         fps: GIF frames per second.
+        params: dynamics settings (default `EnvParams()`); `max_steps` is set to `steps`.
 
     Raises:
         ValueError: for an unknown policy, `steps < 1`, a bad tile size or fps, or a batched level;
         `LevelError` for a malformed level.
     """
     levels = [level] if isinstance(level, Level) else list(level)
+    if steps is None:
+        steps = int(params.max_steps) if params is not None else 100
     if policy not in POLICIES:
         raise ValueError(f"unknown policy {policy!r}; choose one of {', '.join(POLICIES)}")
     if not isinstance(steps, int | np.integer) or isinstance(steps, bool) or steps < 1:
@@ -484,7 +490,7 @@ def render_episode_gif(
                 f"render_episode_gif takes unbatched Levels, got grid of shape {np.shape(lv.grid)}"
             )
         validate_level(lv)
-    params = EnvParams(max_steps=int(steps))
+    params = dataclasses.replace(params or EnvParams(), max_steps=int(steps))
     panels = [
         rollout_frames(
             _rollout(jax.random.PRNGKey(seed), lv, params, policy=policy, steps=int(steps)),

@@ -62,21 +62,27 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
     needs_onion = is_pot & (pot > POT_FULL)
     soup_coming = is_pot & (pot <= POT_FULL)
     bare_counter = (grid == Tile.COUNTER) & (items == Item.NONE)
-    loose = lambda item: (grid == Tile.COUNTER) & (items == item)  # noqa: E731
+    floor = grid == Tile.FLOOR
+    me = (_ROWS == pos[0]) & (_COLS == pos[1])
+    within_reach = _adjacent(_distances(floor, me) < _INF)  # cells this seat can interact with
+
+    def loose(item: Item, destination: jax.Array) -> jax.Array:
+        # A loose item is worth picking up only if this seat can take it where it is needed
+        # (otherwise a seat would pick back up what it just handed over).
+        return (grid == Tile.COUNTER) & (items == item) & jnp.any(destination & within_reach)
 
     want_onions = jnp.any(needs_onion)
     want_plates = jnp.any(soup_coming) & ~want_onions
     empty_hand_target = (
-        (want_onions & ((grid == Tile.ONION_PILE) | loose(Item.ONION)))
-        | (want_plates & ((grid == Tile.PLATE_PILE) | loose(Item.PLATE)))
-        | loose(Item.DISH)
+        (want_onions & ((grid == Tile.ONION_PILE) | loose(Item.ONION, needs_onion)))
+        | (want_plates & ((grid == Tile.PLATE_PILE) | loose(Item.PLATE, soup_coming)))
+        | loose(Item.DISH, grid == Tile.GOAL)
     )
     target = jnp.select(
         [held == Item.ONION, held == Item.PLATE, held == Item.DISH],
-        [needs_onion, soup_coming & (pot >= POT_READY), grid == Tile.GOAL],
+        [needs_onion, soup_coming, grid == Tile.GOAL],
         empty_hand_target,
     )
-    floor = grid == Tile.FLOOR
     dist = _distance_to_front(floor, target)
     here = dist[pos[0], pos[1]]
     # Unreachable with something in hand: hand it over on a bare counter the partner can reach.

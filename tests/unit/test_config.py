@@ -1,0 +1,59 @@
+"""Strict typed config loading: presets, overrides, and clear errors for every kind of mistake."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from cec.config import ConfigError, load_config
+from cec.envs.overcooked import EnvParams
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "env"
+
+
+@pytest.mark.parametrize("preset", sorted(p.name for p in CONFIGS.glob("*.yaml")))
+def test_every_env_preset_loads(preset: str) -> None:
+    params = load_config(EnvParams, CONFIGS / preset)
+    assert params.max_steps in (100, 200, 256, 400)
+
+
+def test_presets_set_the_paper_episode_lengths() -> None:
+    assert load_config(EnvParams, CONFIGS / "cec_paper.yaml").max_steps == 100
+    assert load_config(EnvParams, CONFIGS / "reference_eval.yaml").max_steps == 256
+    assert load_config(EnvParams).max_steps == 400
+    human = load_config(EnvParams, CONFIGS / "human_study.yaml")
+    assert human.max_steps == 200 and human.random_start_facing is False
+
+
+def test_overrides_apply_after_the_file() -> None:
+    params = load_config(EnvParams, CONFIGS / "cec_paper.yaml", ["max_steps=256", "soup_pickup_reward=5"])
+    assert params.max_steps == 256 and params.soup_pickup_reward == 5.0
+    assert isinstance(params.soup_pickup_reward, float)
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["max_step=3"], "unknown key 'max_step' for EnvParams; did you mean 'max_steps'"),
+        (["max_steps=1.5"], "max_steps must be an integer"),
+        (["max_steps=true"], "max_steps must be an integer"),
+        (["random_start_facing=1"], "random_start_facing must be true or false"),
+        (["delivery_reward=lots"], "delivery_reward must be a number"),
+        (["max_steps"], "not of the form key=value"),
+    ],
+)
+def test_bad_overrides_name_the_key(overrides: list[str], message: str) -> None:
+    with pytest.raises(ConfigError, match=message):
+        load_config(EnvParams, None, overrides)
+
+
+def test_bad_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match="does not exist"):
+        load_config(EnvParams, tmp_path / "missing.yaml")
+    (tmp_path / "list.yaml").write_text("- 1\n- 2\n")
+    with pytest.raises(ConfigError, match="mapping of fields"):
+        load_config(EnvParams, tmp_path / "list.yaml")
+    (tmp_path / "broken.yaml").write_text("max_steps: [1,\n")
+    with pytest.raises(ConfigError, match="not valid YAML"):
+        load_config(EnvParams, tmp_path / "broken.yaml")
