@@ -264,7 +264,8 @@ def main(argv: list[str] | None = None) -> int:
         "repeats": args.repeats,
         "rows": rows,
     }
-    out = args.out or RESULTS / f"env_throughput_{info['device'].split(':')[0]}_{info['cpu_count']}cpu.json"
+    device = info["device"].split(":")[0]
+    out = args.out or RESULTS / f"env_throughput_{device}_{info['cpu_count']}cpu_{args.consumer}.json"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"results written to {out}")
