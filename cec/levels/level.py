@@ -55,6 +55,15 @@ class Direction(IntEnum):
 # (d_row, d_col) per Direction, in Direction order.
 DIR_VEC = np.array([(-1, 0), (1, 0), (0, 1), (0, -1)], dtype=np.int32)
 
+_ROWS = np.arange(GRID_SIZE, dtype=np.int32)[:, None]
+_COLS = np.arange(GRID_SIZE, dtype=np.int32)[None, :]
+
+
+def cell_mask(cell: jax.Array) -> jax.Array:
+    """bool[..., 9, 9]: True at `cell` = (row, col) in the last axis; all False outside the frame."""
+    return (cell[..., 0, None, None] == _ROWS) & (cell[..., 1, None, None] == _COLS)
+
+
 #: Tiles every solvable kitchen needs at least one of.
 REQUIRED_TILES = (Tile.ONION_PILE, Tile.PLATE_PILE, Tile.POT, Tile.GOAL)
 

@@ -26,10 +26,9 @@ from cec.envs.overcooked.state import (
     EnvState,
     StepOutput,
 )
-from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, validate_level
+from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, cell_mask, validate_level
 
 _DIR_VEC = jnp.asarray(DIR_VEC)
-_ROWS, _COLS = (jnp.asarray(a) for a in np.indices((GRID_SIZE, GRID_SIZE), dtype=np.int32))
 
 
 def _is_concrete(*xs: object) -> bool:
@@ -163,7 +162,7 @@ def _interact(
     plate_bonus = picked_plate & no_loose_plates & (plates_in_hands < nonempty_pots)
 
     # GRID UPDATES at the cell in front
-    here = (cell[0] == _ROWS) & (cell[1] == _COLS)
+    here = cell_mask(cell)
     items = jnp.where(here & from_counter, jnp.uint8(Item.NONE), items)
     items = jnp.where(here & drop, held.astype(jnp.uint8), items)
     pot = jnp.where(here & add_onion, (status - 1).astype(jnp.uint8), pot)

@@ -36,7 +36,7 @@ from cec.envs.overcooked.state import (
     EnvParams,
     EnvState,
 )
-from cec.levels import GRID_SIZE, Item, Tile
+from cec.levels import Item, Tile, cell_mask
 
 # CELL CODES: floor 0 (empty) or 1 + 16*is_other + 4*facing + held (a seat stands there), counters
 # 33 + item, onion pile 37, plate pile 38, goal 39, pots 40 + status; +64 when urgent.
@@ -97,8 +97,6 @@ def _build_table() -> np.ndarray:
 OBS_TABLE = _build_table()
 
 _OBS_TABLE = jnp.asarray(OBS_TABLE)
-_ROWS = jnp.arange(GRID_SIZE, dtype=jnp.int32)[:, None]
-_COLS = jnp.arange(GRID_SIZE, dtype=jnp.int32)[None, :]
 
 
 def cell_codes(state: EnvState, params: EnvParams) -> jax.Array:
@@ -116,7 +114,7 @@ def cell_codes(state: EnvState, params: EnvParams) -> jax.Array:
     urgent = jnp.where((params.max_steps - state.time) < URGENCY_STEPS, u8(_URGENT), u8(0))
     base = static + dynamic + urgent
     pos = state.agent_pos
-    at = (pos[:, 0, None, None] == _ROWS) & (pos[:, 1, None, None] == _COLS)  # (2, 9, 9)
+    at = cell_mask(pos)  # (2, 9, 9)
     seat_code = (_AGENT_BASE + 4 * state.agent_dir + state.agent_inv).astype(u8)  # (2,)
 
     def view(me: jax.Array) -> jax.Array:

@@ -13,13 +13,11 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from cec.envs.overcooked.state import NUM_ACTIONS, POT_FULL, POT_READY, Action, EnvState
-from cec.levels import DIR_VEC, GRID_SIZE, Item, Tile
+from cec.envs.overcooked.state import NUM_ACTIONS, POT_FULL, Action, EnvState
+from cec.levels import DIR_VEC, GRID_SIZE, Item, Tile, cell_mask
 
 _INF = 1_000
 _DIR_VEC = jnp.asarray(DIR_VEC)
-_ROWS = jnp.arange(GRID_SIZE)[:, None]
-_COLS = jnp.arange(GRID_SIZE)[None, :]
 
 
 def _shift(mask: jax.Array, d_row: int, d_col: int) -> jax.Array:
@@ -63,7 +61,7 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
     soup_coming = is_pot & (pot <= POT_FULL)
     bare_counter = (grid == Tile.COUNTER) & (items == Item.NONE)
     floor = grid == Tile.FLOOR
-    me = (_ROWS == pos[0]) & (_COLS == pos[1])
+    me = cell_mask(pos)
     within_reach = _adjacent(_distances(floor, me) < _INF)  # cells this seat can interact with
 
     def loose(item: Item, destination: jax.Array) -> jax.Array:
@@ -87,7 +85,7 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
     here = dist[pos[0], pos[1]]
     # Unreachable with something in hand: hand it over on a bare counter the partner can reach.
     partner = state.agent_pos[1 - seat]
-    partner_cell = (partner[0] == _ROWS) & (partner[1] == _COLS)
+    partner_cell = cell_mask(partner)
     partner_side = _adjacent(_distances(floor, partner_cell) < _INF)
     shared = bare_counter & partner_side
     drop_spot = jnp.where(jnp.any(shared), shared, bare_counter)
