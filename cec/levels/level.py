@@ -111,15 +111,20 @@ class Level:
         h, w = g.shape
         frame = np.full((GRID_SIZE, GRID_SIZE), Tile.COUNTER, dtype=np.int64)
         frame[:h, :w] = g
-        level = cls(
-            grid=jnp.asarray(frame, dtype=jnp.uint8),
-            agent_pos=jnp.asarray(np.asarray(agent_pos), dtype=jnp.int32),
-            agent_dir=jnp.asarray(np.asarray(agent_dir), dtype=jnp.int32),
-            size=jnp.asarray(size if size is not None else (h, w), dtype=jnp.int32),
+        raw = cls(
+            grid=frame,  # type: ignore[arg-type]
+            agent_pos=np.asarray(agent_pos),  # type: ignore[arg-type]
+            agent_dir=np.asarray(agent_dir),  # type: ignore[arg-type]
+            size=np.asarray(size if size is not None else (h, w)),  # type: ignore[arg-type]
         )
         # Validate the raw inputs (before any dtype cast could wrap out-of-range values).
-        validate_level(level, _raw_grid=frame, _raw_pos=np.asarray(agent_pos), _raw_dir=np.asarray(agent_dir))
-        return level
+        validate_level(raw)
+        return cls(
+            grid=jnp.asarray(frame, dtype=jnp.uint8),
+            agent_pos=jnp.asarray(raw.agent_pos, dtype=jnp.int32),
+            agent_dir=jnp.asarray(raw.agent_dir, dtype=jnp.int32),
+            size=jnp.asarray(raw.size, dtype=jnp.int32),
+        )
 
     def kitchen(self) -> np.ndarray:
         """The kitchen's own tiles (without the counter padding), as a NumPy array."""
@@ -127,23 +132,16 @@ class Level:
         return np.asarray(self.grid)[:h, :w]
 
 
-def validate_level(
-    level: Level,
-    *,
-    _raw_grid: np.ndarray | None = None,
-    _raw_pos: np.ndarray | None = None,
-    _raw_dir: np.ndarray | None = None,
-) -> None:
+def validate_level(level: Level) -> None:
     """Checks a single (unbatched, concrete) level and raises `LevelError` naming the first problem.
 
     Checks: shapes, tile codes, the kitchen size, the padding being counters, at least one onion pile,
     plate pile, pot and goal, and both agents on distinct floor cells with valid facings. Reachability and
-    solvability are the job of `cec.levels` solvability checks, not of this structural check.
+    solvability are the job of `cec.levels.solvability`, not of this structural check.
     """
-    grid = np.asarray(level.grid if _raw_grid is None else _raw_grid)
-    pos = np.asarray(level.agent_pos if _raw_pos is None else _raw_pos)
-    dirs = np.asarray(level.agent_dir if _raw_dir is None else _raw_dir)
-    size = np.asarray(level.size)
+    grid, pos, dirs, size = (
+        np.asarray(x) for x in (level.grid, level.agent_pos, level.agent_dir, level.size)
+    )
 
     if grid.shape != (GRID_SIZE, GRID_SIZE):
         raise LevelError(
