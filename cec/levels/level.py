@@ -61,6 +61,7 @@ _COLS = np.arange(GRID_SIZE, dtype=np.int32)[None, :]
 
 def cell_mask(cell: jax.Array) -> jax.Array:
     """bool[..., 9, 9]: True at `cell` = (row, col) in the last axis; all False outside the frame."""
+    cell = jnp.asarray(cell)
     return (cell[..., 0, None, None] == _ROWS) & (cell[..., 1, None, None] == _COLS)
 
 

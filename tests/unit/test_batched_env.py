@@ -84,3 +84,10 @@ def test_autoreset_takes_the_next_level_from_the_buffer() -> None:
     assert seen[:3] == ["cramped_room"] * 2 + ["coord_ring"]
     assert seen[5] == "counter_circuit" and seen[8] == "cramped_room"
     assert int(state.episode) == 3
+
+
+def test_reset_accepts_levels_held_as_numpy_arrays() -> None:
+    level = jax.device_get(oc.classic_level("coord_ring"))
+    obs, state = oc.reset(jax.random.PRNGKey(0), level, PARAMS)
+    out = oc.step(jax.random.PRNGKey(1), state, jnp.asarray([4, 5]), PARAMS)
+    assert obs.shape == out.obs.shape == (2, 9, 9, 26)

@@ -44,3 +44,32 @@ def test_render_rejects_a_malformed_kitchen(tmp_path: Path, capsys: pytest.Captu
 def test_render_rejects_an_unknown_layout(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["render", "no_such_kitchen", "--png", "x.png"]) == 2
     assert "neither a classic layout" in capsys.readouterr().err
+
+
+def test_levels_sample_writes_a_contact_sheet_and_ascii(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "levels.png"
+    assert main(["levels", "sample", "--n", "6", "--columns", "3", "--out", str(out), "--ascii"]) == 0
+    with Image.open(out) as im:
+        assert im.size[0] > 3 * 5 * 24  # three kitchens per row, at least 5 cells wide each
+    kitchens = capsys.readouterr().out.split("\n\n")
+    assert len(kitchens) == 6
+
+
+def test_levels_sample_rejects_an_impossible_config(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["levels", "sample", "--n", "2", "--set", "pots=[0, 1]"]) == 2
+    assert "1 <= min <= max" in capsys.readouterr().err
+
+
+def test_levels_validate_reports_solvability_and_reasons(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    split = tmp_path / "split.txt"
+    split.write_text("WWWWW\nO0B1P\nW X W\nWWWWW\n")
+    assert main(["levels", "validate", str(split)]) == 1
+    assert "NOT solvable" in capsys.readouterr().out
+    assert main(["levels", "validate", "coord_ring"]) == 0
+    out = capsys.readouterr().out
+    assert "solvable" in out and "held-out evaluation kitchen 'coord_ring'" in out
+    bad = tmp_path / "bad.txt"
+    bad.write_text("WWPWW\nO0  O\nW   W\nWBWXW\n")
+    assert main(["levels", "validate", str(bad)]) == 2

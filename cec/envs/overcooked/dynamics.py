@@ -89,7 +89,7 @@ def reset(key: jax.Array, level: Level, params: EnvParams = EnvParams()) -> tupl
         obs: uint8[2, 9, 9, 26]; state: the initial `EnvState`.
     """
     _check_level(level)
-    state = _initial_state(key, level, params)
+    state = _initial_state(key, jax.tree.map(jnp.asarray, level), params)
     return get_obs(state, params), state
 
 

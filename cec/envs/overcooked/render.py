@@ -41,6 +41,7 @@ from cec.levels.ascii import CHAR_OF_TILE
 
 __all__ = [
     "POLICIES",
+    "contact_sheet",
     "render_episode_gif",
     "render_frame",
     "render_level",
@@ -440,6 +441,22 @@ def side_by_side(panels: Sequence[np.ndarray], gap: int = 8) -> np.ndarray:
     for p in panels:
         out[: p.shape[0], x : x + p.shape[1]] = p
         x += p.shape[1] + gap
+    return out
+
+
+def contact_sheet(frames: Sequence[np.ndarray], columns: int = 4, gap: int = 8) -> np.ndarray:
+    """Lays frames out in rows of `columns` (each row as `side_by_side`), rows `gap` pixels apart."""
+    if not frames or columns < 1:
+        raise ValueError("contact_sheet needs at least one frame and columns >= 1")
+    rows = [side_by_side(list(frames[i : i + columns]), gap) for i in range(0, len(frames), columns)]
+    width = max(r.shape[1] for r in rows)
+    height = sum(r.shape[0] for r in rows) + gap * (len(rows) - 1)
+    out = np.empty((height, width, 3), np.uint8)
+    out[:] = BACKGROUND
+    y = 0
+    for r in rows:
+        out[y : y + r.shape[0], : r.shape[1]] = r
+        y += r.shape[0] + gap
     return out
 
 
