@@ -197,7 +197,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--set", action="append", default=[], metavar="KEY=VALUE", help="override a GeneratorConfig field"
     )
     sample.set_defaults(func=_cmd_levels_sample)
-    validate = levels_sub.add_parser("validate", help="check an ASCII kitchen: exit 0 solvable, 1 not, 2 malformed")
+    validate = levels_sub.add_parser(
+        "validate", help="check an ASCII kitchen: exit 0 solvable, 1 not, 2 malformed"
+    )
     validate.add_argument("file", help="ASCII kitchen file (or a classic layout name)")
     validate.add_argument("--allow-decoys", action="store_true", help="accept objects no agent can reach")
     validate.set_defaults(func=_cmd_levels_validate)

@@ -46,7 +46,9 @@ def test_render_rejects_an_unknown_layout(capsys: pytest.CaptureFixture[str]) ->
     assert "neither a classic layout" in capsys.readouterr().err
 
 
-def test_levels_sample_writes_a_contact_sheet_and_ascii(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_levels_sample_writes_a_contact_sheet_and_ascii(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "levels.png"
     assert main(["levels", "sample", "--n", "6", "--columns", "3", "--out", str(out), "--ascii"]) == 0
     with Image.open(out) as im:

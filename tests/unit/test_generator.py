@@ -66,7 +66,9 @@ def test_every_generated_level_runs_in_the_env() -> None:
     batch = generate_batch(jax.random.PRNGKey(6), 64)
     keys = jax.random.split(jax.random.PRNGKey(0), 64)
     _, state = jax.vmap(oc.reset, in_axes=(0, 0, None))(keys, batch, oc.EnvParams())
-    out = jax.vmap(oc.step, in_axes=(0, 0, 0, None))(keys, state, jnp.full((64, 2), 5, jnp.int32), oc.EnvParams())
+    out = jax.vmap(oc.step, in_axes=(0, 0, 0, None))(
+        keys, state, jnp.full((64, 2), 5, jnp.int32), oc.EnvParams()
+    )
     assert out.obs.shape == (64, 2, 9, 9, 26)
 
 
@@ -107,7 +109,9 @@ def test_split_kitchens_get_one_agent_per_side_in_both_seat_orders() -> None:
 
 
 def test_decoys_only_when_allowed() -> None:
-    with_decoys = jax.device_get(generate_batch(jax.random.PRNGKey(9), 2000, CONFIG.replace(allow_decoys=True)))
+    with_decoys = jax.device_get(
+        generate_batch(jax.random.PRNGKey(9), 2000, CONFIG.replace(allow_decoys=True))
+    )
     reports = jax.vmap(check)(with_decoys)
     assert np.any(np.asarray(reports.reasons) & 32)  # some levels carry unreachable decoys...
     assert np.all(np.asarray(jax.vmap(lambda lv: check(lv, True))(with_decoys).solvable))  # ...all solvable
@@ -133,4 +137,6 @@ def test_config_loads_from_yaml_overrides() -> None:
     config = load_config(GeneratorConfig, None, ["pots=[1, 2]", "structures=[cramped_room, forced_coord]"])
     assert config.pots == (1, 2) and config.structures == ("cramped_room", "forced_coord")
     with pytest.raises(ConfigError, match="forced_coord"):
-        load_config(GeneratorConfig, None, ["structures=[forced_coord]", "onion_piles=[6, 6]", "plate_piles=[5, 5]"])
+        load_config(
+            GeneratorConfig, None, ["structures=[forced_coord]", "onion_piles=[6, 6]", "plate_piles=[5, 5]"]
+        )

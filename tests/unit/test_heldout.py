@@ -30,7 +30,9 @@ def test_file_matches_its_seeds() -> None:
 
 def test_host_and_jax_fingerprints_agree() -> None:
     batch = heldout.heldout_batch()
-    np.testing.assert_array_equal(np.asarray(jax.vmap(heldout.fingerprint)(batch)), heldout.heldout_fingerprints())
+    np.testing.assert_array_equal(
+        np.asarray(jax.vmap(heldout.fingerprint)(batch)), heldout.heldout_fingerprints()
+    )
     assert len({tuple(r) for r in heldout.heldout_fingerprints().tolist()}) == 105
 
 
