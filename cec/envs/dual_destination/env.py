@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from cec.envs.checks import check_actions, is_concrete
 from cec.envs.dual_destination.level import DD_SIZE, DDLevel, validate_dd_level
 from cec.levels import LevelError
 
@@ -104,15 +105,11 @@ class DDStepOutput(NamedTuple):
 # ---------------------------------------------------------------------------------------------------
 
 
-def _is_concrete(*xs: object) -> bool:
-    return not any(isinstance(leaf, jax.core.Tracer) for x in xs for leaf in jax.tree.leaves(x))
-
-
 def _check_level(level: DDLevel, params: DDParams) -> None:
-    if not _is_concrete(level) or np.ndim(level.agent_pos) != 2:
+    if not is_concrete(level) or np.ndim(level.agent_pos) != 2:
         return
     validate_dd_level(level)
-    if _is_concrete(params.multi_task) and bool(params.multi_task) and not bool(level.has_pink):
+    if is_concrete(params.multi_task) and bool(params.multi_task) and not bool(level.has_pink):
         raise LevelError(
             "DDParams(multi_task=True) needs a level with pink goals, but this level has none "
             "(has_pink=False); use multi_task_level(), fixed_level(), DDLevel.create(..., pink_goals=...) "
@@ -121,18 +118,7 @@ def _check_level(level: DDLevel, params: DDParams) -> None:
 
 
 def _check_actions(actions: jax.Array) -> None:
-    if not _is_concrete(actions):
-        return
-    a = np.asarray(actions)
-    if a.shape[-1:] != (2,):
-        raise ValueError(f"actions must have shape (..., 2), one per seat, got shape {a.shape}")
-    if not np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got dtype {a.dtype}")
-    if a.size and (a.min() < 0 or a.max() >= NUM_ACTIONS):
-        raise ValueError(
-            f"actions must lie in 0..{NUM_ACTIONS - 1} (up, down, right, left, stay), got values "
-            f"{np.unique(a[(a < 0) | (a >= NUM_ACTIONS)]).tolist()}; nothing is clipped"
-        )
+    check_actions(actions, [a.name.lower() for a in Action])
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -15,9 +15,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cec.envs.checks import check_actions, is_concrete
 from cec.envs.overcooked.observation import get_obs
 from cec.envs.overcooked.state import (
-    NUM_ACTIONS,
     POT_EMPTY,
     POT_FULL,
     POT_READY,
@@ -31,28 +31,13 @@ from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, cell_mask, validat
 _DIR_VEC = jnp.asarray(DIR_VEC)
 
 
-def _is_concrete(*xs: object) -> bool:
-    return not any(isinstance(leaf, jax.core.Tracer) for x in xs for leaf in jax.tree.leaves(x))
-
-
 def _check_level(level: Level) -> None:
-    if _is_concrete(level) and np.ndim(level.grid) == 2:
+    if is_concrete(level) and np.ndim(level.grid) == 2:
         validate_level(level)
 
 
 def _check_actions(actions: jax.Array) -> None:
-    if not _is_concrete(actions):
-        return
-    a = np.asarray(actions)
-    if a.shape[-1:] != (2,):
-        raise ValueError(f"actions must have shape (..., 2), one per seat, got shape {a.shape}")
-    if not np.issubdtype(a.dtype, np.integer):
-        raise ValueError(f"actions must be integers in 0..{NUM_ACTIONS - 1}, got dtype {a.dtype}")
-    if a.size and (a.min() < 0 or a.max() >= NUM_ACTIONS):
-        raise ValueError(
-            f"actions must lie in 0..{NUM_ACTIONS - 1} (up, down, right, left, stay, interact), got "
-            f"values {np.unique(a[(a < 0) | (a >= NUM_ACTIONS)]).tolist()}; nothing is clipped"
-        )
+    check_actions(actions, [a.name.lower() for a in Action])
 
 
 # ---------------------------------------------------------------------------------------------------

@@ -431,17 +431,28 @@ def _rollout(key: jax.Array, level: Level, params: EnvParams, *, policy: str, st
     return stacked
 
 
+def _join(panels: Sequence[np.ndarray], gap: int, axis: int) -> np.ndarray:
+    """Joins RGB frames along `axis` (1: left to right, 0: top to bottom), aligned at the start of the
+    other axis, `gap` pixels apart, on the background colour."""
+    other = 1 - axis
+    shape = [0, 0, 3]
+    shape[axis] = sum(p.shape[axis] for p in panels) + gap * (len(panels) - 1)
+    shape[other] = max(p.shape[other] for p in panels)
+    out = np.empty(shape, np.uint8)
+    out[:] = BACKGROUND
+    at = 0
+    for p in panels:
+        if axis == 1:
+            out[: p.shape[0], at : at + p.shape[1]] = p
+        else:
+            out[at : at + p.shape[0], : p.shape[1]] = p
+        at += p.shape[axis] + gap
+    return out
+
+
 def side_by_side(panels: Sequence[np.ndarray], gap: int = 8) -> np.ndarray:
     """Joins RGB frames left to right, top-aligned, on the background colour, `gap` pixels apart."""
-    height = max(p.shape[0] for p in panels)
-    width = sum(p.shape[1] for p in panels) + gap * (len(panels) - 1)
-    out = np.empty((height, width, 3), np.uint8)
-    out[:] = BACKGROUND
-    x = 0
-    for p in panels:
-        out[: p.shape[0], x : x + p.shape[1]] = p
-        x += p.shape[1] + gap
-    return out
+    return _join(panels, gap, axis=1)
 
 
 def contact_sheet(frames: Sequence[np.ndarray], columns: int = 4, gap: int = 8) -> np.ndarray:
@@ -449,15 +460,7 @@ def contact_sheet(frames: Sequence[np.ndarray], columns: int = 4, gap: int = 8) 
     if not frames or columns < 1:
         raise ValueError("contact_sheet needs at least one frame and columns >= 1")
     rows = [side_by_side(list(frames[i : i + columns]), gap) for i in range(0, len(frames), columns)]
-    width = max(r.shape[1] for r in rows)
-    height = sum(r.shape[0] for r in rows) + gap * (len(rows) - 1)
-    out = np.empty((height, width, 3), np.uint8)
-    out[:] = BACKGROUND
-    y = 0
-    for r in rows:
-        out[y : y + r.shape[0], : r.shape[1]] = r
-        y += r.shape[0] + gap
-    return out
+    return _join(rows, gap, axis=0)
 
 
 def render_episode_gif(
