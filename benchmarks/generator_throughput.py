@@ -1,7 +1,7 @@
 """Levels per second of the procedural generator, what its solvability check and held-out exclusion cost,
 and what generating a fresh level for every episode adds to a CEC-mode env step.
 
-    python benchmarks/generator_throughput.py              # about 2-3 minutes on 2 CPU cores
+    python benchmarks/generator_throughput.py              # about a minute on 2 CPU cores
     python benchmarks/generator_throughput.py --repeats 3 --batches 1 1024
     python benchmarks/generator_throughput.py --reference-repo ~/crossEnvCooperation \\
         --reference-python ~/venvs/cec-ref/bin/python     # + the paper authors' generator (slow compile)
@@ -24,8 +24,8 @@ alike, median per function):
    runs exactly once per env per episode, as it would in training.
 4. Optional peer: the paper authors' generator (`Overcooked.reset` with `random_reset=True`,
    `random_reset_fn='reset_all'`, vmapped) run by its own Python (their pinned jax 0.4.18) in a subprocess.
-   It is not interleaved with ours (its compile alone takes minutes); ours is timed again right after it
-   and the ratio uses our samples from before and after.
+   It is not interleaved with ours (its compile alone takes minutes); ours is timed again at the same
+   batch right after it, and the ratio uses those figures.
 """
 
 from __future__ import annotations
@@ -232,17 +232,23 @@ print("RESULT " + json.dumps({
 """
 
 
+def reference_path_error(repo: Path, python: Path) -> str | None:
+    """Why the peer cannot run with these paths, or None."""
+    repo, python = repo.expanduser().resolve(), python.expanduser()
+    env_file = Path("jaxmarl", "environments", "overcooked", "overcooked.py")
+    if not (repo / env_file).is_file():
+        return f"--reference-repo {repo}: no {env_file} there; give a checkout of KJha02/crossEnvCooperation"
+    if not (python.is_file() and os.access(python, os.X_OK)):
+        return f"--reference-python {python}: not an executable file"
+    return None
+
+
 def run_reference(repo: Path, python: Path, batch: int, repeats: int, timeout_s: float) -> dict[str, Any]:
     """Runs REFERENCE_SCRIPT; returns its result, or {"error": ...} with a readable reason."""
+    error = reference_path_error(repo, python)
+    if error:
+        return {"error": error}
     repo, python = repo.expanduser().resolve(), python.expanduser()
-    env_file = repo / "jaxmarl" / "environments" / "overcooked" / "overcooked.py"
-    if not env_file.is_file():
-        return {
-            "error": f"--reference-repo {repo}: no {env_file.relative_to(repo)} there; give a checkout of "
-            "KJha02/crossEnvCooperation"
-        }
-    if not (python.is_file() and os.access(python, os.X_OK)):
-        return {"error": f"--reference-python {python}: not an executable file"}
     with tempfile.NamedTemporaryFile("w", suffix="_cec_reference_reset.py", delete=False) as f:
         f.write(REFERENCE_SCRIPT)
         script = f.name
@@ -260,7 +266,7 @@ def run_reference(repo: Path, python: Path, batch: int, repeats: int, timeout_s:
     except subprocess.TimeoutExpired:
         return {
             "error": f"the reference run did not finish within --reference-timeout {timeout_s:.0f} s "
-            "(its XLA compile alone takes about 11 minutes on 2 CPU cores)"
+            "(its XLA compile alone took 4-11 minutes on 2 CPU cores)"
         }
     finally:
         Path(script).unlink(missing_ok=True)
@@ -271,6 +277,11 @@ def run_reference(repo: Path, python: Path, batch: int, repeats: int, timeout_s:
         return {"error": f"the reference run failed (exit {proc.returncode}):\n{tail}"}
     out: dict[str, Any] = json.loads(lines[-1][len("RESULT ") :])
     out["wall_s"] = wall
+    out["repo"] = str(repo)
+    rev = subprocess.run(
+        ["git", "-C", str(repo), "rev-parse", "--short", "HEAD"], capture_output=True, text=True
+    )
+    out["repo_git"] = rev.stdout.strip() or "unknown (not a git checkout)"
     return out
 
 
@@ -291,7 +302,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--episodes", type=int, default=2, help="episodes per measured CEC-mode run")
     ap.add_argument("--max-steps", type=int, default=100, help="episode length (the paper's CEC: 100)")
     ap.add_argument("--repeats", type=int, default=9, help="timed samples per function (median reported)")
-    ap.add_argument("--cec-repeats", type=int, default=15, help="timed rounds of the CEC-mode step")
+    ap.add_argument("--breakdown-repeats", type=int, default=25, help="timed rounds of the breakdown")
+    ap.add_argument("--cec-repeats", type=int, default=25, help="timed rounds of the CEC-mode step")
     ap.add_argument("--min-sample-s", type=float, default=0.05, help="shortest timed sample (batch 1)")
     ap.add_argument("--reference-repo", type=Path, help="checkout of KJha02/crossEnvCooperation")
     ap.add_argument("--reference-python", type=Path, help="python of a venv with that repo's jax 0.4.18")
@@ -302,6 +314,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if (args.reference_repo is None) != (args.reference_python is None):
         ap.error("--reference-repo and --reference-python go together")
+    if args.reference_repo is not None:
+        error = reference_path_error(args.reference_repo, args.reference_python)
+        if error:
+            ap.error(error)
 
     config = GeneratorConfig()
     result: dict[str, Any] = {
@@ -309,8 +325,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         "git": git_rev(),
         "machine": machine(),
+        "argv": sys.argv[1:] if argv is None else list(argv),
         "config": "GeneratorConfig() (default)",
-        "repeats": args.repeats,
+        "repeats": {
+            "generation": args.repeats,
+            "breakdown": args.breakdown_repeats,
+            "cec_step": args.cec_repeats,
+        },
     }
 
     # 1. Levels/s per batch size.
@@ -341,7 +362,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "+exclusion": ("+ held-out exclusion (105 fingerprints)", stage_fn(nb, config, "+exclusion")),
         "generate": ("= generate_batch (+ resampling loop)", generate_fn(nb, config)),
     }
-    bd = measure({k: (fn, ()) for k, (_, fn) in stages.items()}, args.repeats, args.min_sample_s)
+    bd = measure({k: (fn, ()) for k, (_, fn) in stages.items()}, args.breakdown_repeats, args.min_sample_s)
     print(
         f"{'stage':42s} {'levels/s':>12s} {'us/level':>10s} {'added us':>9s} {'compile s':>10s}", flush=True
     )
@@ -463,17 +484,23 @@ def main(argv: Sequence[str] | None = None) -> int:
             result["reference"] = {"measured": False, **peer}
             rc = 1
         else:
-            before = gen.get(f"batch {b}")
+            # Ours again at the peer's batch, right after its timed runs (closest in time; the two
+            # interpreters cannot share interleaved rounds).
             after = measure({"after": (generate_fn(b, config), ())}, args.repeats, args.min_sample_s)["after"]
-            samples = after["samples_s"] + (before["samples_s"] if before else [])
-            ours = b / statistics.median(samples)
+            ours = b / after["median_s"]
             ratio = ours / peer["levels_per_s"]
             print(f"{'':34s} {'levels/s':>12s} {'compile s':>10s}")
             theirs = f"paper authors (jax {peer['jax']})"
             print(f"{theirs:34s} {peer['levels_per_s']:12,.0f} {peer['compile_s']:10.1f}")
-            print(f"{'ours (before and after the peer)':34s} {ours:12,.0f} {after['compile_s']:10.1f}")
+            print(f"{'ours (right after the peer)':34s} {ours:12,.0f} {after['compile_s']:10.1f}")
             print(f"ratio ours / theirs at batch {b}: {ratio:.1f}x", flush=True)
-            result["reference"] = {"measured": True, **peer, "ours_levels_per_s": ours, "ratio": ratio}
+            result["reference"] = {
+                "measured": True,
+                **peer,
+                "ours_after": {**after, **rate(b, after["median_s"])},
+                "ours_levels_per_s": ours,
+                "ratio": ratio,
+            }
 
     info = result["machine"]
     device = info["device"].split(":")[0]

@@ -210,6 +210,40 @@ def _sample(key: jax.Array, config: GeneratorConfig) -> tuple[Level, jax.Array, 
     return level, s, t
 
 
+def _exclusions(config: GeneratorConfig, exclude: jax.Array | None) -> jax.Array:
+    from cec.levels.heldout import heldout_fingerprints
+
+    if exclude is not None:
+        return exclude
+    with jax.ensure_compile_time_eval():
+        fps = heldout_fingerprints() if config.exclude_heldout else np.zeros((0, 2), np.uint32)
+    return jnp.asarray(fps)
+
+
+def _rejected(level: Level, config: GeneratorConfig, exclude: jax.Array) -> jax.Array:
+    """Unsolvable (never, by construction) or one of the excluded (held-out) kitchens."""
+    from cec.levels.heldout import fingerprint
+
+    excluded = jnp.any(jnp.all(fingerprint(level)[None, :] == exclude, axis=-1))
+    return excluded | ~check(level, config.allow_decoys).solvable
+
+
+def _draw(key: jax.Array, config: GeneratorConfig, exclude: jax.Array) -> tuple[Level, GenerationInfo]:
+    """Samples from `key`, then resamples from `fold_in(key, i)` while the level is rejected."""
+
+    def body(
+        carry: tuple[Level, jax.Array, jax.Array, jax.Array],
+    ) -> tuple[Level, jax.Array, jax.Array, jax.Array]:
+        n = carry[3] + 1
+        level, s, t = _sample(jax.random.fold_in(key, n), config)
+        return level, s, t, n
+
+    level, s, t = _sample(key, config)
+    carry = (level, s, t, jnp.int32(0))
+    level, s, t, n = jax.lax.while_loop(lambda c: _rejected(c[0], config, exclude), body, carry)
+    return level, GenerationInfo(structure=s, transform=t, resamples=n)
+
+
 @partial(jax.jit, static_argnames=("config",))
 def generate_with_info(
     key: jax.Array, config: GeneratorConfig = GeneratorConfig(), exclude: jax.Array | None = None
@@ -220,27 +254,7 @@ def generate_with_info(
         exclude: uint32[E, 2] fingerprints (`cec.levels.heldout.fingerprint`) never to emit; default: the
             held-out set when `config.exclude_heldout`, else nothing.
     """
-    from cec.levels.heldout import fingerprint, heldout_fingerprints
-
-    if exclude is None:
-        with jax.ensure_compile_time_eval():
-            fps = heldout_fingerprints() if config.exclude_heldout else np.zeros((0, 2), np.uint32)
-        exclude = jnp.asarray(fps)
-
-    def rejected(level: Level) -> jax.Array:
-        excluded = jnp.any(jnp.all(fingerprint(level)[None, :] == exclude, axis=-1))
-        return excluded | ~check(level, config.allow_decoys).solvable
-
-    def body(
-        carry: tuple[Level, jax.Array, jax.Array, jax.Array],
-    ) -> tuple[Level, jax.Array, jax.Array, jax.Array]:
-        _, _, _, n = carry
-        level, s, t = _sample(jax.random.fold_in(key, n + 1), config)
-        return level, s, t, n + 1
-
-    level, s, t = _sample(key, config)
-    level, s, t, n = jax.lax.while_loop(lambda c: rejected(c[0]), body, (level, s, t, jnp.int32(0)))
-    return level, GenerationInfo(structure=s, transform=t, resamples=n)
+    return _draw(key, config, _exclusions(config, exclude))
 
 
 def generate(key: jax.Array, config: GeneratorConfig = GeneratorConfig()) -> Level:
@@ -253,5 +267,13 @@ def generate(key: jax.Array, config: GeneratorConfig = GeneratorConfig()) -> Lev
 
 @partial(jax.jit, static_argnames=("n", "config"))
 def generate_batch(key: jax.Array, n: int, config: GeneratorConfig = GeneratorConfig()) -> Level:
-    """`n` kitchens from one key (a batched `Level` with leading axis n)."""
-    return jax.vmap(lambda k: generate_with_info(k, config)[0])(jax.random.split(key, n))
+    """`n` kitchens from one key (a batched `Level` with leading axis n); the same levels as vmapping
+    `generate` over `split(key, n)`, but the resampling loop only runs when some level needs it (under
+    vmap a while loop costs ~15% even when it never iterates)."""
+    keys = jax.random.split(key, n)
+    exclude = _exclusions(config, None)
+    first = jax.vmap(lambda k: _sample(k, config)[0])(keys)
+    any_rejected = jnp.any(jax.vmap(lambda lv: _rejected(lv, config, exclude))(first))
+    return jax.lax.cond(
+        any_rejected, lambda: jax.vmap(lambda k: _draw(k, config, exclude)[0])(keys), lambda: first
+    )

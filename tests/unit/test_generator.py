@@ -141,3 +141,11 @@ def test_config_loads_from_yaml_overrides() -> None:
         load_config(
             GeneratorConfig, None, ["structures=[forced_coord]", "onion_piles=[6, 6]", "plate_piles=[5, 5]"]
         )
+
+
+def test_generate_batch_equals_vmapped_generate() -> None:
+    keys = jax.random.split(jax.random.PRNGKey(21), 64)
+    batch = generate_batch(jax.random.PRNGKey(21), 64)
+    single = jax.vmap(generate, in_axes=(0, None))(keys, CONFIG)
+    np.testing.assert_array_equal(np.asarray(batch.grid), np.asarray(single.grid))
+    np.testing.assert_array_equal(np.asarray(batch.agent_pos), np.asarray(single.agent_pos))
