@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cec.levels.ascii import from_ascii, to_ascii
+from cec.levels.classic import classic_levels
 from cec.levels.level import GRID_SIZE, Level, stack_levels
 
 DATA = Path(__file__).with_name("data") / "heldout.txt"
@@ -73,8 +74,6 @@ def _parse(text: str) -> list[tuple[str, str, Level]]:
 @cache
 def heldout_levels() -> tuple[tuple[str, Level], ...]:
     """The 105 held-out kitchens as (name, level): the 5 classic ones, then generated_000..099."""
-    from cec.envs.overcooked.layouts import classic_levels
-
     with jax.ensure_compile_time_eval():  # may first run while the generator is being traced
         levels = list(classic_levels().items())
         if DATA.exists():
@@ -100,7 +99,6 @@ def heldout_fingerprints() -> np.ndarray:
 
 def build_generated() -> list[tuple[str, Level]]:
     """Draws the 100 generated held-out kitchens from their fixed seeds (the classic ones excluded)."""
-    from cec.envs.overcooked.layouts import classic_levels
     from cec.levels.generator import GeneratorConfig, generate_with_info
 
     classic = np.stack([fingerprint_host(lv) for lv in classic_levels().values()])

@@ -21,6 +21,7 @@ from functools import cache
 
 import numpy as np
 
+from cec.levels.classic import CLASSIC_NAMES, classic_level
 from cec.levels.level import GRID_SIZE, Tile
 
 CELLS = GRID_SIZE * GRID_SIZE
@@ -114,8 +115,6 @@ def structure_from_kitchen(name: str, kitchen: np.ndarray) -> Structure:
 @cache
 def base_structures() -> tuple[Structure, ...]:
     """The five classic kitchens' wall structures, in the paper's order."""
-    from cec.envs.overcooked.layouts import CLASSIC_NAMES, classic_level
-
     return tuple(structure_from_kitchen(n, classic_level(n).kitchen()) for n in CLASSIC_NAMES)
 
 

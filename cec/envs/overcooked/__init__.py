@@ -1,7 +1,6 @@
 """Overcooked (JaxMARL v1 dynamics) as pure functions over levels: `reset`, `step`, `step_autoreset`."""
 
 from cec.envs.overcooked.dynamics import reset, step, step_autoreset
-from cec.envs.overcooked.layouts import CLASSIC_ASCII, CLASSIC_NAMES, classic_level, classic_levels
 from cec.envs.overcooked.observation import get_obs
 from cec.envs.overcooked.state import (
     NUM_ACTIONS,
@@ -14,6 +13,7 @@ from cec.envs.overcooked.state import (
     EnvState,
     StepOutput,
 )
+from cec.levels.classic import CLASSIC_ASCII, CLASSIC_NAMES, classic_level, classic_levels
 
 __all__ = [
     "CLASSIC_ASCII",

@@ -8,7 +8,8 @@ play exactly as the originals.
 
 from __future__ import annotations
 
-from cec.levels import Level, from_ascii
+from cec.levels.ascii import from_ascii
+from cec.levels.level import Level
 
 CLASSIC_ASCII: dict[str, str] = {
     "cramped_room": """
