@@ -18,7 +18,7 @@ from cec.levels.solvability import check, flood
 from cec.levels.structures import NUM_TRANSFORMS
 
 CONFIG = GeneratorConfig()
-N_LEVELS = 1_000_000
+N_LEVELS = 2_000_000
 CHUNK = 1 << 17
 
 
@@ -38,7 +38,7 @@ def _summarise(key: jax.Array) -> dict[str, jax.Array]:
     }
 
 
-def test_a_million_levels_are_solvable_never_heldout_within_bounds_and_uniform() -> None:
+def test_two_million_levels_are_solvable_never_heldout_within_bounds_and_uniform() -> None:
     chunks = [jax.device_get(_summarise(jax.random.PRNGKey(100 + i))) for i in range(-(-N_LEVELS // CHUNK))]
     total = CHUNK * len(chunks)
     assert total >= N_LEVELS
