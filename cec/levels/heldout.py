@@ -47,14 +47,11 @@ def fingerprint(level: Level) -> jax.Array:
 
 def fingerprint_host(level: Level) -> np.ndarray:
     """`fingerprint` computed with NumPy on the host (usable while JAX is tracing); the same values."""
-    grid = np.asarray(level.grid).reshape(-1).astype(np.uint64)
+    grid = np.asarray(level.grid).reshape(-1)
     pos = np.asarray(level.agent_pos)
-    cells = np.sort(pos[:, 0] * GRID_SIZE + pos[:, 1]).astype(np.uint64)
-    values = np.concatenate([grid, cells]) + np.uint64(1)
-    w = _WEIGHTS.astype(np.uint64)
-    return (
-        ((values[None, :] * w) % np.uint64(2**32)).sum(-1).astype(np.uint64).__mod__(2**32).astype(np.uint32)
-    )
+    cells = np.sort(pos[:, 0] * GRID_SIZE + pos[:, 1])
+    values = (np.concatenate([grid, cells]) + 1).astype(np.uint32)
+    return (values[None, :] * _WEIGHTS).sum(-1, dtype=np.uint32)  # uint32 arithmetic wraps as in JAX
 
 
 def content_hash(level: Level) -> str:

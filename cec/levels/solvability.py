@@ -55,7 +55,8 @@ class SolvabilityReport(NamedTuple):
     reasons: jax.Array
 
 
-def _adjacent(mask: jax.Array) -> jax.Array:
+def adjacent(mask: jax.Array) -> jax.Array:
+    """bool[9, 9]: cells with a `mask` cell among their four neighbours (jittable)."""
     p = jnp.pad(mask, 1)
     return p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
 
@@ -65,7 +66,7 @@ def flood(floor: jax.Array, start: jax.Array) -> jax.Array:
 
     def grow(state: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         region, _ = state
-        bigger = (region | _adjacent(region)) & floor
+        bigger = (region | adjacent(region)) & floor
         return bigger, jnp.any(bigger != region)
 
     seed = cell_mask(start) & floor
@@ -83,7 +84,7 @@ def check(level: Level, allow_decoys: bool | jax.Array = False) -> SolvabilityRe
     grid = level.grid
     floor = grid == Tile.FLOOR
     reach = [flood(floor, level.agent_pos[i]) for i in (0, 1)]
-    usable = [_adjacent(r) & ~floor for r in reach]  # counters each agent can interact with
+    usable = [adjacent(r) & ~floor for r in reach]  # counters each agent can interact with
     connected = jnp.any(reach[0] & reach[1])
 
     def has(tile: Tile, side: int) -> jax.Array:

@@ -15,23 +15,10 @@ import jax.numpy as jnp
 
 from cec.envs.overcooked.state import NUM_ACTIONS, POT_FULL, Action, EnvState
 from cec.levels import DIR_VEC, GRID_SIZE, Item, Tile, cell_mask
+from cec.levels.solvability import adjacent
 
 _INF = 1_000
 _DIR_VEC = jnp.asarray(DIR_VEC)
-
-
-def _shift(mask: jax.Array, d_row: int, d_col: int) -> jax.Array:
-    """out[r, c] = mask[r + d_row, c + d_col], False outside the frame."""
-    padded = jnp.pad(mask, 1)
-    return jax.lax.dynamic_slice(padded, (1 + d_row, 1 + d_col), (GRID_SIZE, GRID_SIZE))
-
-
-def _adjacent(mask: jax.Array) -> jax.Array:
-    """Cells with a `mask` cell among their four neighbours."""
-    out = jnp.zeros_like(mask)
-    for dr, dc in DIR_VEC.tolist():
-        out = out | _shift(mask, dr, dc)
-    return out
 
 
 def _distances(floor: jax.Array, seeds: jax.Array) -> jax.Array:
@@ -50,7 +37,7 @@ def _distances(floor: jax.Array, seeds: jax.Array) -> jax.Array:
 
 def _distance_to_front(floor: jax.Array, target: jax.Array) -> jax.Array:
     """Steps from each floor cell to the nearest floor cell that has a `target` cell next to it."""
-    return _distances(floor, _adjacent(target))
+    return _distances(floor, adjacent(target))
 
 
 def _seat_action(state: EnvState, seat: int) -> jax.Array:
@@ -62,7 +49,7 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
     bare_counter = (grid == Tile.COUNTER) & (items == Item.NONE)
     floor = grid == Tile.FLOOR
     me = cell_mask(pos)
-    within_reach = _adjacent(_distances(floor, me) < _INF)  # cells this seat can interact with
+    within_reach = adjacent(_distances(floor, me) < _INF)  # cells this seat can interact with
 
     def loose(item: Item, destination: jax.Array) -> jax.Array:
         # A loose item is worth picking up only if this seat can take it where it is needed
@@ -86,7 +73,7 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
     # Unreachable with something in hand: hand it over on a bare counter the partner can reach.
     partner = state.agent_pos[1 - seat]
     partner_cell = cell_mask(partner)
-    partner_side = _adjacent(_distances(floor, partner_cell) < _INF)
+    partner_side = adjacent(_distances(floor, partner_cell) < _INF)
     shared = bare_counter & partner_side
     drop_spot = jnp.where(jnp.any(shared), shared, bare_counter)
     fallback = _distance_to_front(floor, drop_spot)
