@@ -6,6 +6,7 @@ cec render LAYOUT --gif FILE [--steps N]     an episode on that kitchen -> GIF
 cec layouts                                  list the classic kitchens with their ASCII
 cec levels sample --n 16 --out levels.png     a contact sheet of generated kitchens
 cec levels validate FILE                      is an ASCII kitchen well-formed and solvable? why not?
+cec train --config configs/train/X.yaml [k=v]  train (IPPO / CEC) in one process; --resume RUN_DIR continues
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from cec.checkpoints import CheckpointError
 from cec.config import ConfigError
 from cec.levels import Level, LevelError, from_ascii
 
@@ -153,6 +155,30 @@ def _cmd_levels_validate(args: argparse.Namespace) -> int:
     return 0 if not problems else 1
 
 
+def _cmd_train(args: argparse.Namespace) -> int:
+    from cec.config import load_config
+    from cec.training.config import TrainConfig
+    from cec.training.trainer import train
+
+    if args.resume:
+        if args.config or args.overrides:
+            raise ConfigError(
+                "--resume continues a run with its own config.yaml; drop --config and overrides"
+            )
+        config_file = Path(args.resume) / "config.yaml"
+        if not config_file.is_file():
+            raise CheckpointError(f"{args.resume} is not a run directory (no config.yaml)")
+        config = load_config(TrainConfig, config_file)
+    else:
+        if not args.config:
+            raise ConfigError("give --config configs/train/<preset>.yaml (or --resume RUN_DIR)")
+        config = load_config(TrainConfig, args.config, args.overrides)
+    result = train(config, resume=bool(args.resume), max_updates=args.max_updates, progress=not args.quiet)
+    state = "interrupted" if result.interrupted else "finished"
+    print(f"{state} after {result.updates_done} updates; run directory: {result.run_dir}")
+    return 130 if result.interrupted else 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from cec.envs.overcooked.render import POLICIES
 
@@ -203,6 +229,18 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("file", help="ASCII kitchen file (or a classic layout name)")
     validate.add_argument("--allow-decoys", action="store_true", help="accept objects no agent can reach")
     validate.set_defaults(func=_cmd_levels_validate)
+
+    tr = sub.add_parser("train", help="train agents in one process (rollout + PPO update jitted together)")
+    tr.add_argument(
+        "--config", metavar="YAML", help="training preset, e.g. configs/train/cec_overcooked.yaml"
+    )
+    tr.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. num_envs=64")
+    tr.add_argument(
+        "--resume", metavar="RUN_DIR", help="continue an interrupted run from its latest checkpoint"
+    )
+    tr.add_argument("--max-updates", type=int, help="stop (with a checkpoint) after this many more updates")
+    tr.add_argument("--quiet", action="store_true", help="no progress lines")
+    tr.set_defaults(func=_cmd_train)
     return parser
 
 
@@ -214,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     try:
         return int(args.func(args))
-    except (LevelError, ConfigError, ValueError) as err:
+    except (LevelError, ConfigError, ValueError, CheckpointError) as err:
         print(f"cec {args.command}: error: {err}", file=sys.stderr)
         return 2
 

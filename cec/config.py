@@ -45,6 +45,11 @@ def from_dict(cls: type[T], data: Mapping[str, Any], *, where: str = "") -> T:
 
 
 def _check_value(kind: Any, value: Any, path: str) -> Any:
+    args = typing.get_args(kind)
+    if type(None) in args and len(args) == 2:  # Optional[X]: null or an X
+        return (
+            None if value is None else _check_value(next(a for a in args if a is not type(None)), value, path)
+        )
     if dataclasses.is_dataclass(kind) and isinstance(kind, type):
         return from_dict(kind, value, where=path)
     if kind is bool:

@@ -1,0 +1,229 @@
+"""The actor-critic network: CNN encoder, LSTM core with resets at episode starts, separate actor and critic.
+
+One network serves both seats (parameter-shared self-play); each seat feeds its own observation, so the
+batch axis below is "env x seat". The `paper` preset is the paper's appendix table; `small` trains in
+minutes on a 2-core CPU; `reference` is what the authors' released script builds (no CNN, FC 256, LSTM 128).
+
+Shapes: observations are `[T, B, H, W, C]` (any dtype; cast to float32), resets `bool[T, B]` (True where
+the observation is the first of an episode: the LSTM state is zeroed before that step), the LSTM carry
+is `LSTMState(c, h)` with `float32[B, lstm]` each. The encoder and heads run on all `T * B` inputs at
+once; only the recurrent matmul is inside the time scan.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax.linen.initializers import constant, orthogonal
+
+from cec.config import ConfigError
+
+SQRT2 = float(np.sqrt(2.0))
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """Layer widths of the actor-critic. Every hidden layer is followed by ReLU.
+
+    Attributes:
+        conv_features: filters of each 2x2 convolution (stride 1, SAME padding); empty: no CNN (the
+            observation is flattened).
+        encoder_features: widths of the fully connected layers after the convolutions.
+        lstm_features: LSTM state size (0: no recurrence, the encoder output feeds the heads directly).
+        actor_features: hidden widths of the actor head (the output layer has one logit per action).
+        critic_features: hidden widths of the critic head (the output layer is one value).
+    """
+
+    conv_features: tuple[int, ...] = (64, 32)
+    encoder_features: tuple[int, ...] = (512, 512)
+    lstm_features: int = 256
+    actor_features: tuple[int, ...] = (256, 192, 128, 64)
+    critic_features: tuple[int, ...] = (512, 256, 192, 128)
+
+    def __post_init__(self) -> None:
+        widths = (*self.conv_features, *self.encoder_features, *self.actor_features, *self.critic_features)
+        if any(w <= 0 for w in widths) or self.lstm_features < 0:
+            raise ConfigError(f"network widths must be positive (lstm_features may be 0), got {self}")
+        if self.lstm_features == 0 and not self.encoder_features:
+            raise ConfigError("a network without an LSTM needs at least one encoder layer")
+
+
+#: Named presets per environment. Dual Destination drops the actor's last layer and the critic's last two
+#: ("Overcooked only" rows of the paper's table).
+NETWORK_PRESETS: dict[str, dict[str, NetworkConfig]] = {
+    "paper": {
+        "overcooked": NetworkConfig(),
+        "dual_destination": NetworkConfig(actor_features=(256, 192, 128), critic_features=(512, 256)),
+    },
+    "reference": {
+        "overcooked": NetworkConfig(
+            conv_features=(),
+            encoder_features=(256, 256),
+            lstm_features=128,
+            actor_features=(128, 96, 64, 32),
+            critic_features=(256, 128, 96, 64),
+        ),
+        "dual_destination": NetworkConfig(
+            conv_features=(),
+            encoder_features=(256, 256),
+            lstm_features=128,
+            actor_features=(128, 96, 64),
+            critic_features=(256, 128),
+        ),
+    },
+    "small": {
+        "overcooked": NetworkConfig(
+            conv_features=(16,),
+            encoder_features=(128,),
+            lstm_features=64,
+            actor_features=(64,),
+            critic_features=(64,),
+        ),
+        "dual_destination": NetworkConfig(
+            conv_features=(),
+            encoder_features=(64,),
+            lstm_features=32,
+            actor_features=(64,),
+            critic_features=(64,),
+        ),
+    },
+}
+
+
+def network_preset(name: str, env: str) -> NetworkConfig:
+    """The `NetworkConfig` of preset `name` for environment `env`; `ConfigError` if either is unknown."""
+    if name not in NETWORK_PRESETS:
+        raise ConfigError(f"unknown network preset {name!r}; choose one of {sorted(NETWORK_PRESETS)}")
+    per_env = NETWORK_PRESETS[name]
+    if env not in per_env:
+        raise ConfigError(f"network preset {name!r} has no variant for env {env!r}; envs: {sorted(per_env)}")
+    return per_env[env]
+
+
+class LSTMState(NamedTuple):
+    """The recurrent carry: cell `c` and hidden `h`, float32[..., lstm_features] each."""
+
+    c: jax.Array
+    h: jax.Array
+
+
+def zero_lstm_state(batch_shape: tuple[int, ...], features: int) -> LSTMState:
+    """Zeros for a batch of LSTM carries (also what an episode start resets to)."""
+    zeros = jnp.zeros((*batch_shape, features), jnp.float32)
+    return LSTMState(zeros, zeros)
+
+
+def _dense(features: int, gain: float, name: str) -> nn.Dense:
+    return nn.Dense(features, kernel_init=orthogonal(gain), bias_init=constant(0.0), name=name)
+
+
+class Conv2x2(nn.Module):
+    """A 2x2 convolution, stride 1, SAME padding (as `nn.Conv(features, (2, 2), padding="SAME")`), computed
+    as one matmul over the four shifted copies of the input (im2col). XLA:CPU's convolution gradients are
+    orders of magnitude slower than this for the network's shapes; on every backend it is one big matmul.
+    The kernel has `nn.Conv`'s layout [2, 2, in, out]."""
+
+    features: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        kernel = self.param("kernel", orthogonal(SQRT2), (2, 2, x.shape[-1], self.features), jnp.float32)
+        bias = self.param("bias", constant(0.0), (self.features,), jnp.float32)
+        h, w = x.shape[-3], x.shape[-2]
+        padded = jnp.pad(x, [(0, 0)] * (x.ndim - 3) + [(0, 1), (0, 1), (0, 0)])  # SAME for an even kernel
+        patches = jnp.concatenate(
+            [padded[..., di : di + h, dj : dj + w, :] for di in (0, 1) for dj in (0, 1)], axis=-1
+        )
+        return patches @ kernel.reshape((-1, self.features)) + bias
+
+
+class LSTMCore(nn.Module):
+    """An LSTM over time with the state zeroed where `reset` is set (before that step's update).
+
+    The input projection runs on the whole sequence at once; the scan only does `h @ W_h`.
+    Gate order i, f, g, o; zero biases.
+    """
+
+    features: int
+
+    @nn.compact
+    def __call__(self, carry: LSTMState, x: jax.Array, reset: jax.Array) -> tuple[LSTMState, jax.Array]:
+        n = self.features
+        w_x = self.param("w_x", nn.initializers.lecun_normal(), (x.shape[-1], 4 * n), jnp.float32)
+        w_h = self.param("w_h", orthogonal(1.0), (n, 4 * n), jnp.float32)
+        bias = self.param("bias", constant(0.0), (4 * n,), jnp.float32)
+        x_proj = x @ w_x + bias  # [T, B, 4n]
+
+        def cell(state: LSTMState, inputs: tuple[jax.Array, jax.Array]) -> tuple[LSTMState, jax.Array]:
+            xp, r = inputs
+            keep = (~r)[:, None].astype(jnp.float32)
+            c, h = state.c * keep, state.h * keep
+            gates = xp + h @ w_h
+            i, f, g, o = jnp.split(gates, 4, axis=-1)
+            c = jax.nn.sigmoid(f) * c + jax.nn.sigmoid(i) * jnp.tanh(g)
+            h = jax.nn.sigmoid(o) * jnp.tanh(c)
+            return LSTMState(c, h), h
+
+        return jax.lax.scan(cell, carry, (x_proj, reset))
+
+
+class ActorCritic(nn.Module):
+    """CNN encoder -> LSTM -> (actor logits, value). See the module docstring for shapes."""
+
+    config: NetworkConfig
+    num_actions: int
+
+    @nn.compact
+    def __call__(
+        self, carry: LSTMState, obs: jax.Array, reset: jax.Array
+    ) -> tuple[LSTMState, jax.Array, jax.Array]:
+        """Returns (carry after the last step, logits float32[T, B, A], values float32[T, B])."""
+        cfg = self.config
+        t, b = obs.shape[:2]
+        x = obs.reshape((t * b, *obs.shape[2:])).astype(jnp.float32)
+
+        # ENCODER: 2x2 convolutions, flatten, fully connected.
+        for i, filters in enumerate(cfg.conv_features):
+            x = nn.relu(Conv2x2(filters, name=f"conv{i}")(x))
+        x = x.reshape((t * b, -1))
+        for i, width in enumerate(cfg.encoder_features):
+            x = nn.relu(_dense(width, SQRT2, f"fc{i}")(x))
+
+        # RECURRENT CORE.
+        if cfg.lstm_features:
+            carry, x = LSTMCore(cfg.lstm_features, name="lstm")(carry, x.reshape((t, b, -1)), reset)
+            x = x.reshape((t * b, -1))
+
+        # HEADS.
+        actor = x
+        for i, width in enumerate(cfg.actor_features):
+            actor = nn.relu(_dense(width, 2.0, f"actor{i}")(actor))
+        logits = _dense(self.num_actions, 0.01, "actor_out")(actor)
+        critic = x
+        for i, width in enumerate(cfg.critic_features):
+            critic = nn.relu(_dense(width, 2.0, f"critic{i}")(critic))
+        value = _dense(1, 1.0, "critic_out")(critic)
+        return carry, logits.reshape((t, b, -1)), value.reshape((t, b))
+
+    def initial_carry(self, batch_shape: tuple[int, ...]) -> LSTMState:
+        """Zero LSTM carries for `batch_shape` (a 1-wide dummy carry when the network has no LSTM)."""
+        return zero_lstm_state(batch_shape, max(self.config.lstm_features, 1))
+
+
+def init_params(network: ActorCritic, key: jax.Array, obs_shape: tuple[int, ...]) -> dict:
+    """Initial parameters for observations of shape `obs_shape` (one seat, no batch axes)."""
+    obs = jnp.zeros((1, 1, *obs_shape), jnp.float32)
+    return dict(network.init(key, network.initial_carry((1,)), obs, jnp.zeros((1, 1), bool)))
+
+
+def forward(
+    network: ActorCritic, params: Any, carry: LSTMState, obs: jax.Array, reset: jax.Array
+) -> tuple[LSTMState, jax.Array, jax.Array]:
+    """`network.apply` with its types: (carry after the last step, logits [T, B, A], values [T, B])."""
+    out: tuple[LSTMState, jax.Array, jax.Array] = network.apply(params, carry, obs, reset)  # type: ignore[assignment]
+    return out

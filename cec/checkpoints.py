@@ -1,0 +1,209 @@
+"""Checkpoints in a safe format: msgpack state (flax.serialization, never pickle), JSON metadata, SHA-256.
+
+A checkpoint is a directory `<run>/checkpoints/update_<N>/` holding
+
+    state.msgpack   the training state pytree (params, optimizer state, RNG keys, env and LSTM carries, ...)
+    meta.json       {"format", "sha256", "update", "env_steps", "milestone", "config", "metadata"}
+
+It is written to a temporary directory and renamed into place, so a crash never leaves a half-written
+checkpoint under its final name. Loading checks the checksum (corruption), then every leaf's shape and
+dtype against the caller's template (a checkpoint of another network or batch size), and refuses with a
+`CheckpointError` that says what is wrong and what to do.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, TypeVar
+
+import jax
+import numpy as np
+from flax import serialization
+
+FORMAT = "cec-checkpoint/1"
+STATE_FILE = "state.msgpack"
+META_FILE = "meta.json"
+
+T = TypeVar("T")
+
+
+class CheckpointError(RuntimeError):
+    """A checkpoint is missing, corrupt or does not match what the caller expects."""
+
+
+def code_version() -> str:
+    """The git commit of the code (with `+dirty` if the tree has changes), or `unknown`."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        rev = subprocess.run(
+            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+            timeout=5,
+            check=True,
+        ).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return rev + ("+dirty" if dirty else "")
+
+
+def save(
+    path: str | Path,
+    state: Any,
+    *,
+    update: int,
+    env_steps: int,
+    config: dict,
+    metadata: dict,
+    milestone: bool = False,
+) -> Path:
+    """Writes `state` (a pytree of arrays) and its metadata to the checkpoint directory `path`, atomically."""
+    path = Path(path)
+    data = serialization.to_bytes(jax.device_get(state))
+    meta = {
+        "format": FORMAT,
+        "sha256": hashlib.sha256(data).hexdigest(),
+        "update": int(update),
+        "env_steps": int(env_steps),
+        "milestone": bool(milestone),
+        "config": config,
+        "metadata": metadata,
+    }
+    tmp = path.with_name(path.name + ".tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    (tmp / STATE_FILE).write_bytes(data)
+    (tmp / META_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
+    for f in (tmp / STATE_FILE, tmp / META_FILE):
+        with open(f, "rb") as fh:
+            os.fsync(fh.fileno())
+    if path.exists():
+        shutil.rmtree(path)
+    tmp.rename(path)
+    return path
+
+
+def read_meta(path: str | Path) -> dict:
+    """The metadata of the checkpoint at `path` (no state loaded)."""
+    meta_file = Path(path) / META_FILE
+    if not meta_file.is_file():
+        raise CheckpointError(f"{path} is not a checkpoint: {META_FILE} is missing")
+    try:
+        meta: dict = json.loads(meta_file.read_text())
+    except json.JSONDecodeError as err:
+        raise CheckpointError(
+            f"checkpoint metadata {meta_file} is corrupt ({err}); use another checkpoint"
+        ) from err
+    if meta.get("format") != FORMAT:
+        raise CheckpointError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    return meta
+
+
+def load(path: str | Path, template: T) -> tuple[T, dict]:
+    """Loads the state at `path` into the structure of `template` and returns (state, meta).
+
+    Raises `CheckpointError` if the files are missing, the checksum does not match (corruption or
+    tampering), or the stored tree does not have `template`'s structure, shapes and dtypes.
+    """
+    path = Path(path)
+    meta = read_meta(path)
+    state_file = path / STATE_FILE
+    if not state_file.is_file():
+        raise CheckpointError(f"checkpoint {path} has no {STATE_FILE}")
+    data = state_file.read_bytes()
+    digest = hashlib.sha256(data).hexdigest()
+    if digest != meta["sha256"]:
+        raise CheckpointError(
+            f"checkpoint {path} is corrupt: {STATE_FILE} has SHA-256 {digest[:12]}..., its metadata says "
+            f"{meta['sha256'][:12]}...; it was not loaded. "
+            "Resume from an earlier checkpoint or delete this one"
+        )
+    try:
+        raw = serialization.msgpack_restore(data)
+        state = serialization.from_state_dict(template, raw)
+    except (ValueError, KeyError, TypeError) as err:
+        raise CheckpointError(
+            f"checkpoint {path} does not match the expected state structure: {err}"
+        ) from err
+    _check_leaves(path, template, state)
+    return state, meta
+
+
+def _check_leaves(path: Path, template: Any, state: Any) -> None:
+    want = jax.tree_util.tree_flatten_with_path(template)[0]
+    got = jax.tree.leaves(state)
+    if len(want) != len(got):
+        raise CheckpointError(f"checkpoint {path} has {len(got)} arrays, expected {len(want)}")
+    for (key_path, w), g in zip(want, got, strict=True):
+        w_shape, g_shape = tuple(np.shape(w)), tuple(np.shape(g))
+        w_dtype, g_dtype = np.dtype(w.dtype), np.asarray(g).dtype
+        if w_shape != g_shape or w_dtype != g_dtype:
+            name = jax.tree_util.keystr(key_path)
+            raise CheckpointError(
+                f"checkpoint {path} does not fit this run: {name} is {g_dtype}{list(g_shape)} in the "
+                f"checkpoint but {w_dtype}{list(w_shape)} here "
+                "(different network, batch size or number of seeds?)"
+            )
+
+
+@dataclass(frozen=True)
+class CheckpointInfo:
+    path: Path
+    update: int
+    milestone: bool
+
+
+class CheckpointStore:
+    """The checkpoints of one run: `<run_dir>/checkpoints/update_<N>/`, keep-last-N plus milestones."""
+
+    def __init__(self, run_dir: str | Path, keep_last: int) -> None:
+        self.root = Path(run_dir) / "checkpoints"
+        self.keep_last = keep_last
+
+    def path(self, update: int) -> Path:
+        return self.root / f"update_{update:09d}"
+
+    def list(self) -> list[CheckpointInfo]:
+        """Complete checkpoints, oldest first (temporary directories of interrupted writes are ignored)."""
+        out = []
+        for p in sorted(self.root.glob("update_*")):
+            if p.name.endswith(".tmp") or not (p / META_FILE).is_file():
+                continue
+            try:
+                meta = read_meta(p)
+            except CheckpointError:
+                continue
+            out.append(CheckpointInfo(p, int(meta["update"]), bool(meta["milestone"])))
+        return sorted(out, key=lambda c: c.update)
+
+    def latest(self) -> CheckpointInfo | None:
+        items = self.list()
+        return items[-1] if items else None
+
+    def save(
+        self, state: Any, *, update: int, env_steps: int, config: dict, metadata: dict, milestone: bool
+    ) -> Path:
+        """Writes a checkpoint, then deletes non-milestone ones beyond the newest `keep_last`."""
+        path = save(
+            self.path(update),
+            state,
+            update=update,
+            env_steps=env_steps,
+            config=config,
+            metadata=metadata,
+            milestone=milestone,
+        )
+        regular = [c for c in self.list() if not c.milestone]
+        for old in regular[: max(0, len(regular) - self.keep_last)]:
+            shutil.rmtree(old.path, ignore_errors=True)
+        return path

@@ -1,0 +1,129 @@
+"""The training run's typed, frozen configuration (`cec train --config configs/train/X.yaml key=value`)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from cec.agents.network import NETWORK_PRESETS, NetworkConfig, network_preset
+from cec.config import ConfigError
+from cec.training.ppo import PPOConfig
+from cec.training.tasks import EnvConfig
+
+ALGORITHMS = ("cec", "ippo")
+
+
+@dataclass(frozen=True)
+class CheckpointConfig:
+    """When checkpoints are written and which are kept.
+
+    Attributes:
+        every_updates: write a checkpoint every this many updates (0: only milestones and the final one).
+        keep_last: how many of the most recent non-milestone checkpoints to keep.
+        milestones: fractions of the run at which a permanent milestone checkpoint is written
+            (FCP populations draw early, middle and final partners from them); 1.0 is the final one.
+    """
+
+    every_updates: int = 50
+    keep_last: int = 3
+    milestones: tuple[float, ...] = (0.0, 0.5, 1.0)
+
+    def __post_init__(self) -> None:
+        if self.every_updates < 0 or self.keep_last < 1:
+            raise ConfigError("checkpoint.every_updates must be >= 0 and checkpoint.keep_last >= 1")
+        if any(not 0.0 <= m <= 1.0 for m in self.milestones):
+            raise ConfigError(
+                f"checkpoint.milestones are fractions of the run in [0, 1], got {self.milestones}"
+            )
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run: algorithm, environment, network, PPO, sizes, seeds, checkpoints.
+
+    Attributes:
+        algorithm: `cec` (procedural levels) or `ippo` (one fixed level); recorded in checkpoints and
+            checked against `env.levels`.
+        seed: base seed; seed i of the run uses `seed + i`.
+        num_seeds: independent seeds trained together in one process (vmapped).
+        num_envs: parallel envs per seed.
+        num_steps: steps per env per rollout (the paper's NUM_STEPS).
+        total_env_steps: joint env steps per seed over the whole run (rounded up to whole updates).
+        updates_per_call: updates fused into one compiled call (fewer host round trips; checkpoints,
+            metrics rows and interruption happen between calls).
+        network: network preset name (`paper`, `small` or `reference`); the env picks its variant.
+        network_overrides: optional explicit widths replacing the preset (all fields of NetworkConfig).
+        env: the game and its level distribution.
+        ppo: PPO hyper-parameters.
+        checkpoint: checkpoint schedule.
+        run_dir: where runs are written (`<run_dir>/<name>`).
+        name: run name (default: `<algorithm>-<env>-<levels>-s<seed>`).
+    """
+
+    algorithm: str = "cec"
+    seed: int = 0
+    num_seeds: int = 1
+    num_envs: int = 512
+    num_steps: int = 256
+    total_env_steps: int = 3_000_000_000
+    updates_per_call: int = 1
+    network: str = "paper"
+    network_overrides: NetworkConfig | None = None
+    env: EnvConfig = field(default_factory=EnvConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    run_dir: str = "runs"
+    name: str = ""
+
+    def __post_init__(self) -> None:
+        if self.algorithm not in ALGORITHMS:
+            raise ConfigError(f"algorithm {self.algorithm!r} is unknown; choose one of {list(ALGORITHMS)}")
+        procedural = self.env.levels in ("generator", "procedural", "procedural_multi_task")
+        if (self.algorithm == "cec") != procedural:
+            want = (
+                "a procedural distribution (generator / procedural)"
+                if self.algorithm == "cec"
+                else "one fixed level"
+            )
+            raise ConfigError(
+                f"algorithm {self.algorithm} trains on {want}, but env.levels is {self.env.levels!r}"
+            )
+        if (
+            min(self.num_seeds, self.num_envs, self.num_steps, self.total_env_steps, self.updates_per_call)
+            < 1
+        ):
+            raise ConfigError(
+                "num_seeds, num_envs, num_steps, total_env_steps, updates_per_call must be >= 1"
+            )
+        if (self.num_envs * 2) % self.ppo.num_minibatches:
+            raise ConfigError(
+                f"num_envs x 2 seats = {self.num_envs * 2} sequences must split evenly into "
+                f"ppo.num_minibatches = {self.ppo.num_minibatches}"
+            )
+        if self.network not in NETWORK_PRESETS:
+            raise ConfigError(
+                f"unknown network preset {self.network!r}; choose one of {sorted(NETWORK_PRESETS)}"
+            )
+
+    # Derived values (never written back into the config).
+    @property
+    def network_config(self) -> NetworkConfig:
+        return self.network_overrides or network_preset(self.network, self.env.name)
+
+    @property
+    def steps_per_update(self) -> int:
+        """Joint env steps per seed per update."""
+        return self.num_envs * self.num_steps
+
+    @property
+    def num_updates(self) -> int:
+        return math.ceil(self.total_env_steps / self.steps_per_update)
+
+    @property
+    def run_name(self) -> str:
+        return self.name or f"{self.algorithm}-{self.env.name}-{self.env.levels}-s{self.seed}"
+
+    @property
+    def levels_per_env(self) -> int:
+        """Level-buffer depth per env per rollout: enough that no level repeats within a rollout."""
+        return self.num_steps // self.env.params.max_steps + 2

@@ -1,0 +1,228 @@
+"""The one PPO update: GAE, clipped policy and value losses, entropy bonus, minibatches over whole sequences.
+
+`update(...)` is used by the single-process trainer and by the distributed learner (DESIGN.md rule 4).
+Each (env, seat) pair of a `Trajectory` is one sequence of T steps; minibatches hold whole sequences,
+and the LSTM is replayed from the sequence's stored initial state with the stored episode-start flags,
+so the replayed policy is exactly the behaviour policy at the first epoch (ratio 1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+
+from cec.agents.network import ActorCritic, LSTMState, forward
+from cec.config import ConfigError
+from cec.training.rollout import NUM_SEATS, Trajectory
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO hyper-parameters; the defaults are the paper's PPO table (and its code's Adam settings).
+
+    Attributes:
+        lr: initial Adam learning rate.
+        anneal_lr: linearly anneal the learning rate to 0 over `lr_anneal_env_steps`.
+        lr_anneal_env_steps: env steps over which the learning rate reaches 0 (0: the run's total).
+        update_epochs: passes over each rollout's data.
+        num_minibatches: minibatches per epoch (whole env-seat sequences each).
+        gamma: discount factor.
+        gae_lambda: GAE lambda.
+        clip_eps: PPO ratio clip, also the value clip.
+        ent_coef: entropy bonus coefficient.
+        vf_coef: value loss coefficient.
+        max_grad_norm: global gradient-norm clip.
+        adam_eps: Adam epsilon.
+        shaping_anneal_env_steps: env steps over which the shaped-reward weight falls linearly from 1 to 0
+            (0: half of the run's total, as the paper's code; a negative value keeps it at 1).
+    """
+
+    lr: float = 3e-4
+    anneal_lr: bool = True
+    lr_anneal_env_steps: int = 0
+    update_epochs: int = 4
+    num_minibatches: int = 2
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    clip_eps: float = 0.2
+    ent_coef: float = 0.005
+    vf_coef: float = 1.0
+    max_grad_norm: float = 0.5
+    adam_eps: float = 1e-5
+    shaping_anneal_env_steps: int = 0
+
+    def __post_init__(self) -> None:
+        if self.lr <= 0 or self.update_epochs < 1 or self.num_minibatches < 1:
+            raise ConfigError(f"ppo: lr must be > 0 and update_epochs, num_minibatches >= 1 (got {self})")
+        if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1 and self.clip_eps > 0):
+            raise ConfigError("ppo: need 0 < gamma <= 1, 0 <= gae_lambda <= 1 and clip_eps > 0")
+
+
+class Batch(NamedTuple):
+    """A rollout flattened to N = E * 2 sequences, time-major [T, N, ...], ready for the loss."""
+
+    obs: jax.Array
+    first: jax.Array
+    action: jax.Array
+    log_prob: jax.Array
+    value: jax.Array
+    advantage: jax.Array
+    target: jax.Array
+    init_lstm: LSTMState
+
+
+class LossInfo(NamedTuple):
+    """Per-update diagnostics (means over epochs and minibatches)."""
+
+    total_loss: jax.Array
+    policy_loss: jax.Array
+    value_loss: jax.Array
+    entropy: jax.Array
+    approx_kl: jax.Array
+    clip_fraction: jax.Array
+    grad_norm: jax.Array
+
+
+def gae(
+    reward: jax.Array, value: jax.Array, done: jax.Array, last_value: jax.Array, gamma: float, lam: float
+) -> tuple[jax.Array, jax.Array]:
+    """Generalised advantage estimation over time-major [T, ...] arrays.
+
+    `done[t]` means the episode ended with step t, so neither the value nor the advantage of step t + 1
+    (a new episode's first observation, after auto-reset) flows back into step t. Time-limit ends are
+    treated as terminal, as in the paper's code.
+
+    Returns:
+        (advantages, value targets = advantages + value), both shaped like `reward`.
+    """
+    not_done = 1.0 - done.astype(jnp.float32)
+
+    def back(
+        carry: tuple[jax.Array, jax.Array], x: tuple[jax.Array, ...]
+    ) -> tuple[tuple[jax.Array, jax.Array], jax.Array]:
+        next_adv, next_value = carry
+        r, v, nd = x
+        delta = r + gamma * next_value * nd - v
+        adv = delta + gamma * lam * nd * next_adv
+        return (adv, v), adv
+
+    _, adv = jax.lax.scan(
+        back, (jnp.zeros_like(last_value), last_value), (reward, value, not_done), reverse=True
+    )
+    return adv, adv + value
+
+
+def make_batch(traj: Trajectory, shaping_weight: jax.Array, gamma: float, lam: float) -> Batch:
+    """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening."""
+    t, e = traj.reward.shape
+    n = e * NUM_SEATS
+    reward = traj.reward[..., None] + shaping_weight * traj.shaped  # [T, E, 2]
+    done = jnp.broadcast_to(traj.done[..., None], reward.shape)
+    advantage, target = gae(reward, traj.value, done, traj.last_value, gamma, lam)
+
+    def seats(x: jax.Array) -> jax.Array:
+        return x.reshape((t, n, *x.shape[3:]))
+
+    return Batch(
+        obs=seats(traj.obs),
+        first=jnp.repeat(traj.first, NUM_SEATS, axis=1),
+        action=seats(traj.action),
+        log_prob=seats(traj.log_prob),
+        value=seats(traj.value),
+        advantage=seats(advantage),
+        target=seats(target),
+        init_lstm=jax.tree.map(lambda x: x.reshape((n, -1)), traj.init_lstm),
+    )
+
+
+def ppo_loss(
+    params: Any, network: ActorCritic, batch: Batch, config: PPOConfig
+) -> tuple[jax.Array, tuple[jax.Array, ...]]:
+    """Clipped PPO objective on one minibatch of whole sequences (advantages normalised per minibatch).
+
+    Returns:
+        (total loss, (policy loss, value loss, entropy, approx KL, clip fraction)).
+    """
+    _, logits, value = forward(network, params, batch.init_lstm, batch.obs, batch.first)
+    log_probs = jax.nn.log_softmax(logits)
+    log_prob = jnp.take_along_axis(log_probs, batch.action[..., None], axis=-1)[..., 0]
+    entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
+
+    # VALUE LOSS, clipped around the behaviour value.
+    clipped = batch.value + jnp.clip(value - batch.value, -config.clip_eps, config.clip_eps)
+    value_loss = (
+        0.5 * jnp.maximum(jnp.square(value - batch.target), jnp.square(clipped - batch.target)).mean()
+    )
+
+    # POLICY LOSS.
+    log_ratio = log_prob - batch.log_prob
+    ratio = jnp.exp(log_ratio)
+    adv = (batch.advantage - batch.advantage.mean()) / (batch.advantage.std() + 1e-8)
+    surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - config.clip_eps, 1.0 + config.clip_eps) * adv)
+    policy_loss = -surrogate.mean()
+
+    total = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
+    approx_kl = ((ratio - 1.0) - log_ratio).mean()
+    clip_fraction = (jnp.abs(ratio - 1.0) > config.clip_eps).mean()
+    return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction)
+
+
+def make_optimizer(
+    config: PPOConfig, steps_per_update: int, total_env_steps: int
+) -> tuple[optax.GradientTransformation, optax.Schedule]:
+    """Adam with global-norm clipping, and its learning-rate schedule (of the gradient-step count):
+    linear from `lr` to 0 over the annealing horizon, or constant."""
+    if config.anneal_lr:
+        horizon = config.lr_anneal_env_steps or total_env_steps
+        grad_steps = max(1, horizon // steps_per_update) * config.update_epochs * config.num_minibatches
+        schedule = optax.linear_schedule(config.lr, 0.0, grad_steps)
+    else:
+        schedule = optax.constant_schedule(config.lr)
+    tx = optax.chain(
+        optax.clip_by_global_norm(config.max_grad_norm), optax.adam(schedule, eps=config.adam_eps)
+    )
+    return tx, schedule
+
+
+def update(
+    params: Any,
+    opt_state: Any,
+    batch: Batch,
+    key: jax.Array,
+    *,
+    network: ActorCritic,
+    optimizer: optax.GradientTransformation,
+    config: PPOConfig,
+) -> tuple[Any, Any, LossInfo]:
+    """`update_epochs` x `num_minibatches` Adam steps on one rollout's `Batch`.
+
+    Returns:
+        (new params, new optimizer state, `LossInfo` averaged over the gradient steps).
+    """
+    n = batch.action.shape[1]
+    m = config.num_minibatches
+    if n % m:
+        raise ValueError(f"{n} sequences (envs x 2 seats) do not split into {m} minibatches")
+    grad_fn = jax.value_and_grad(ppo_loss, has_aux=True)
+
+    def minibatch_step(carry: tuple[Any, Any], idx: jax.Array) -> tuple[tuple[Any, Any], jnp.ndarray]:
+        p, o = carry
+        time_major = jax.tree.map(lambda x: jnp.take(x, idx, axis=1), batch[:-1])
+        mb = Batch._make([*time_major, jax.tree.map(lambda x: x[idx], batch.init_lstm)])
+        (loss, aux), grads = grad_fn(p, network, mb, config)
+        updates, o = optimizer.update(grads, o, p)
+        p = optax.apply_updates(p, updates)
+        return (p, o), jnp.stack([loss, *aux, optax.tree.norm(grads)])
+
+    def epoch(carry: tuple[Any, Any], epoch_key: jax.Array) -> tuple[tuple[Any, Any], jnp.ndarray]:
+        order = jax.random.permutation(epoch_key, n).reshape((m, n // m))
+        return jax.lax.scan(minibatch_step, carry, order)
+
+    (params, opt_state), stats = jax.lax.scan(
+        epoch, (params, opt_state), jax.random.split(key, config.update_epochs)
+    )
+    return params, opt_state, LossInfo(*stats.reshape((-1, len(LossInfo._fields))).mean(0))

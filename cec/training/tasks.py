@@ -1,0 +1,152 @@
+"""Training tasks: one environment plus the distribution its levels are drawn from, behind one interface.
+
+A `Task` is static (hashable; pass it to `jit` as a static argument). It gives the rollout a uniform
+view of both games: `reset`, `step` (with auto-reset from a per-env level buffer) returning an `EnvStep`,
+and `sample_levels`, which fills the level buffers for one rollout:
+
+    overcooked        generator              CEC: the procedural generator, held-out set excluded
+                      cramped_room, ...      single-task IPPO on one classic kitchen
+    dual_destination  fixed | multi_task     the paper's fixed task (or its two-pair variant)
+                      procedural[_multi_task] procedural tasks, both fixed tasks excluded
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from cec.config import ConfigError
+from cec.envs import dual_destination as dd
+from cec.envs import overcooked as oc
+from cec.levels.classic import CLASSIC_ASCII, classic_level
+from cec.levels.generator import GeneratorConfig, generate_batch
+
+ENV_NAMES = ("overcooked", "dual_destination")
+DD_LEVELS = ("fixed", "multi_task", "procedural", "procedural_multi_task")
+
+
+class EnvStep(NamedTuple):
+    """One env's step, the same for both games.
+
+    Attributes:
+        obs: [2, ...] each seat's observation (uint8 for Overcooked, float32 for Dual Destination).
+        state: the next env state (after auto-reset when `done`).
+        reward: float32[] team reward of the step (sparse; the same for both seats).
+        shaped: float32[2] per-seat shaped reward (zeros for Dual Destination).
+        done: bool[] the episode ended with this step.
+        collision: bool[] a move was cancelled by the other agent (always False in Dual Destination).
+    """
+
+    obs: jax.Array
+    state: Any
+    reward: jax.Array
+    shaped: jax.Array
+    done: jax.Array
+    collision: jax.Array
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Which game, which levels, and the game's settings.
+
+    Attributes:
+        name: `overcooked` or `dual_destination`.
+        levels: the level distribution (see the module docstring): `generator` or a classic kitchen name
+            for Overcooked; `fixed`, `multi_task`, `procedural` or `procedural_multi_task` for Dual
+            Destination.
+        overcooked: Overcooked settings (used when `name` is `overcooked`).
+        dual_destination: Dual Destination settings (used when `name` is `dual_destination`).
+        generator: what the procedural kitchen generator may produce (used when `levels` is `generator`).
+    """
+
+    name: str = "overcooked"
+    levels: str = "generator"
+    overcooked: oc.EnvParams = field(default_factory=lambda: oc.EnvParams(max_steps=400))
+    dual_destination: dd.DDParams = field(default_factory=dd.DDParams)
+    generator: GeneratorConfig = field(default_factory=GeneratorConfig)
+
+    def __post_init__(self) -> None:
+        if self.name not in ENV_NAMES:
+            raise ConfigError(f"env.name {self.name!r} is unknown; choose one of {list(ENV_NAMES)}")
+        valid = ("generator", *CLASSIC_ASCII) if self.name == "overcooked" else DD_LEVELS
+        if self.levels not in valid:
+            raise ConfigError(
+                f"env.levels {self.levels!r} is not valid for {self.name}; choose one of {list(valid)}"
+            )
+        if self.name == "dual_destination" and self.dual_destination.multi_task != (
+            "multi_task" in self.levels
+        ):
+            raise ConfigError(
+                f"env.levels {self.levels!r} needs env.dual_destination.multi_task="
+                f"{str('multi_task' in self.levels).lower()} (the pink goals pay only in the multi-task game)"
+            )
+        if self.params.max_steps <= 0:
+            raise ConfigError(f"env.{self.name}.max_steps must be positive, got {self.params.max_steps}")
+
+    @property
+    def params(self) -> Any:
+        """The settings of the chosen game (a traced pytree: `EnvParams` or `DDParams`)."""
+        return self.overcooked if self.name == "overcooked" else self.dual_destination
+
+
+@dataclass(frozen=True)
+class Task:
+    """A game and its level distribution, as the rollout needs them. Build with `Task.from_config`."""
+
+    env: str
+    levels: str
+    generator: GeneratorConfig
+
+    @staticmethod
+    def from_config(config: EnvConfig) -> Task:
+        return Task(config.name, config.levels, config.generator)
+
+    @property
+    def num_actions(self) -> int:
+        return oc.NUM_ACTIONS if self.env == "overcooked" else dd.NUM_ACTIONS
+
+    @property
+    def obs_shape(self) -> tuple[int, ...]:
+        """One seat's observation shape."""
+        if self.env == "overcooked":
+            return (9, 9, oc.NUM_CHANNELS)
+        return (dd.DD_SIZE, dd.DD_SIZE, dd.NUM_CHANNELS)
+
+    @property
+    def procedural(self) -> bool:
+        return self.levels in ("generator", "procedural", "procedural_multi_task")
+
+    def reset(self, key: jax.Array, level: Any, params: Any) -> tuple[jax.Array, Any]:
+        """(obs [2, ...], state) of a new episode on one level."""
+        if self.env == "overcooked":
+            return oc.reset(key, level, params)
+        return dd.reset(key, level, params)
+
+    def step(self, key: jax.Array, state: Any, actions: jax.Array, levels: Any, params: Any) -> EnvStep:
+        """One env's step with auto-reset onto `levels[(episode + 1) % K]` (a buffer with leading axis K)."""
+        if self.env == "overcooked":
+            out = oc.step_autoreset(key, state, actions, levels, params)
+            return EnvStep(out.obs, out.state, out.reward, out.shaped_reward, out.done, out.collision)
+        o = dd.step_autoreset(key, state, actions, levels, params)
+        return EnvStep(o.obs, o.state, o.reward, jnp.zeros(2, jnp.float32), o.done, jnp.zeros((), bool))
+
+    def sample_levels(self, key: jax.Array, n: int, k: int) -> Any:
+        """Level buffers for `n` envs, `k` levels each (leading axes [n, k]); fixed tasks are broadcast."""
+        if self.levels == "generator":
+            flat = generate_batch(key, n * k, self.generator)
+        elif self.env == "overcooked":
+            return _broadcast(classic_level(self.levels), (n, k))
+        elif self.levels in ("fixed", "multi_task"):
+            return _broadcast(dd.fixed_level() if self.levels == "fixed" else dd.multi_task_level(), (n, k))
+        else:
+            multi = self.levels == "procedural_multi_task"
+            exclude = dd.held_out_dd_levels()
+            flat = jax.vmap(lambda kk: dd.generate_dd_level(kk, multi, exclude))(jax.random.split(key, n * k))
+        return jax.tree.map(lambda x: x.reshape((n, k, *x.shape[1:])), flat)
+
+
+def _broadcast(level: Any, shape: tuple[int, ...]) -> Any:
+    return jax.tree.map(lambda x: jnp.broadcast_to(jnp.asarray(x), (*shape, *jnp.shape(x))), level)

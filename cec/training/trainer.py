@@ -1,0 +1,435 @@
+"""The single-process trainer: rollout + PPO update fused into one compiled call, seeds vmapped.
+
+This is the paper's own topology and the embedded default on one machine:
+
+    state = init(seeds)                          # params, Adam state, env + LSTM carries, keys, counters
+    repeat: state, metrics = train_call(state)   # jit(vmap over seeds(scan over `updates_per_call` updates))
+            write metrics rows, checkpoint when due, print progress
+
+Everything random comes from the per-seed key in the state, and the state is checkpointed whole, so a
+run interrupted between calls and resumed produces the same parameters as an uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import dataclasses
+import json
+import math
+import signal
+import sys
+import time
+from pathlib import Path
+from types import FrameType
+from typing import Any, NamedTuple, TextIO
+
+import jax
+import jax.numpy as jnp
+import optax
+import yaml
+
+from cec import checkpoints
+from cec.agents.network import ActorCritic, init_params
+from cec.training.config import TrainConfig
+from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
+from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
+from cec.training.tasks import Task
+
+
+class TrainState(NamedTuple):
+    """Everything a run continues from (leading axis S = seeds in the trainer).
+
+    Attributes:
+        params: network parameters.
+        opt_state: Adam (and gradient-clipping) state, including the schedule's step count.
+        carry: env states, observations, LSTM states and running returns of the rollout.
+        key: uint32[2] the seed's PRNG key (split every update).
+        update: int32[] updates done.
+    """
+
+    params: Any
+    opt_state: Any
+    carry: RolloutCarry
+    key: jax.Array
+    update: jax.Array
+
+
+class UpdateMetrics(NamedTuple):
+    """Per-update statistics of one seed (episode statistics over the episodes finished in the rollout)."""
+
+    episodes: jax.Array
+    mean_return: jax.Array
+    mean_shaped_return: jax.Array
+    collisions_per_episode: jax.Array
+    shaping_weight: jax.Array
+    learning_rate: jax.Array
+    loss: LossInfo
+
+
+def episode_stats(traj: Trajectory) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+    """(episodes finished, their mean team return, mean shaped return, collisions per env-step x max...)."""
+    done = traj.done.astype(jnp.float32)
+    n = done.sum()
+    safe = jnp.maximum(n, 1.0)
+    nan = jnp.float32(jnp.nan)
+    mean_return = jnp.where(n > 0, traj.episode_return.sum() / safe, nan)
+    mean_shaped = jnp.where(n > 0, traj.episode_shaped.sum() / safe, nan)
+    collisions = jnp.where(n > 0, traj.collision.astype(jnp.float32).sum() / safe, nan)
+    return n, mean_return, mean_shaped, collisions
+
+
+class Trainer:
+    """Builds and runs the jitted training loop for one `TrainConfig`. Pure methods plus `run()`."""
+
+    def __init__(self, config: TrainConfig) -> None:
+        self.config = config
+        self.task = Task.from_config(config.env)
+        self.network = ActorCritic(config.network_config, self.task.num_actions)
+        self.env_params = config.env.params
+        self.optimizer, self.schedule = make_optimizer(
+            config.ppo, config.steps_per_update, config.total_env_steps
+        )
+        ppo = config.ppo
+        self.shaping_horizon = ppo.shaping_anneal_env_steps or config.total_env_steps // 2
+        self._init = jax.jit(self.init_one)
+        self._calls: dict[int, Any] = {}
+
+    # ---- pure, jittable pieces -------------------------------------------------------------------------
+
+    def init_one(self, key: jax.Array) -> TrainState:
+        """The initial state of one seed from its key."""
+        cfg = self.config
+        key, k_params, k_levels, k_reset = jax.random.split(key, 4)
+        params = init_params(self.network, k_params, self.task.obs_shape)
+        levels = self.task.sample_levels(k_levels, cfg.num_envs, cfg.levels_per_env)
+        carry = init_carry(self.task, self.network, self.env_params, levels, k_reset)
+        return TrainState(params, self.optimizer.init(params), carry, key, jnp.zeros((), jnp.int32))
+
+    def shaping_weight(self, update_index: jax.Array) -> jax.Array:
+        """Weight of the shaped reward at an update: 1 falling linearly to 0 over the shaping horizon."""
+        if self.shaping_horizon < 0:
+            return jnp.float32(1.0)
+        steps = update_index.astype(jnp.float32) * self.config.steps_per_update
+        return jnp.clip(1.0 - steps / max(self.shaping_horizon, 1), 0.0, 1.0)
+
+    def update_step(self, state: TrainState) -> tuple[TrainState, UpdateMetrics]:
+        """One rollout and one PPO update for one seed."""
+        cfg = self.config
+        key, k_levels, k_roll, k_update = jax.random.split(state.key, 4)
+        levels = self.task.sample_levels(k_levels, cfg.num_envs, cfg.levels_per_env)
+        carry, traj = rollout(
+            state.params,
+            state.carry,
+            levels,
+            k_roll,
+            task=self.task,
+            network=self.network,
+            env_params=self.env_params,
+            num_steps=cfg.num_steps,
+        )
+        weight = self.shaping_weight(state.update)
+        batch = make_batch(traj, weight, cfg.ppo.gamma, cfg.ppo.gae_lambda)
+        lr = self.schedule(_adam_count(state.opt_state))
+        params, opt_state, loss = update(
+            state.params,
+            state.opt_state,
+            batch,
+            k_update,
+            network=self.network,
+            optimizer=self.optimizer,
+            config=cfg.ppo,
+        )
+        n, mean_return, mean_shaped, collisions = episode_stats(traj)
+        metrics = UpdateMetrics(
+            n, mean_return, mean_shaped, collisions, weight, jnp.asarray(lr, jnp.float32), loss
+        )
+        return TrainState(params, opt_state, carry, key, state.update + 1), metrics
+
+    def train_call(self, n_updates: int) -> Any:
+        """The compiled call running `n_updates` updates for every seed.
+
+        (state with leading axis S) -> (state, metrics with leading axes [S, n_updates]).
+        """
+        if n_updates not in self._calls:
+
+            def many(state: TrainState) -> tuple[TrainState, UpdateMetrics]:
+                return jax.lax.scan(lambda s, _: self.update_step(s), state, None, length=n_updates)
+
+            self._calls[n_updates] = jax.jit(jax.vmap(many), donate_argnums=0)
+        return self._calls[n_updates]
+
+    def init(self) -> TrainState:
+        """Initial state for all seeds (leading axis S)."""
+        # Seeds are initialised one by one and stacked: on XLA:CPU (jax 0.10) a vmapped orthogonal init of
+        # the network (batched QR) can deadlock at run time; the init is a one-off, so nothing is lost.
+        cfg = self.config
+        states = [self._init(jax.random.PRNGKey(cfg.seed + i)) for i in range(cfg.num_seeds)]
+        return jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+
+    def state_template(self) -> TrainState:
+        """Shapes and dtypes of the state (no compute), for loading checkpoints."""
+        keys = jax.ShapeDtypeStruct((self.config.num_seeds, 2), jnp.uint32)
+        return jax.eval_shape(jax.vmap(self.init_one), keys)
+
+
+def _adam_count(opt_state: Any) -> jax.Array:
+    """The gradient-step count inside the optimizer state (drives the LR schedule)."""
+    is_adam = lambda x: isinstance(x, optax.ScaleByAdamState)  # noqa: E731
+    (adam,) = [x for x in jax.tree.leaves(opt_state, is_leaf=is_adam) if is_adam(x)]
+    return adam.count
+
+
+# ---------------------------------------------------------------------------------------------------------
+# HOST LOOP: run directory, metrics files, checkpoints, progress, signals
+# ---------------------------------------------------------------------------------------------------------
+
+
+class RunResult(NamedTuple):
+    state: TrainState
+    run_dir: Path
+    updates_done: int
+    interrupted: bool
+
+
+def config_dict(config: TrainConfig) -> dict:
+    """The config as plain data (YAML/JSON-safe; tuples become lists)."""
+    return json.loads(json.dumps(dataclasses.asdict(config)))
+
+
+def metrics_rows(config: TrainConfig, first_update: int, metrics: UpdateMetrics, sps: float) -> list[dict]:
+    """One row per (update, seed) from metrics with leading axes [S, n]."""
+    host = jax.device_get(metrics)
+    loss = host.loss
+    rows = []
+    s_count, n = host.episodes.shape
+    for j in range(n):
+        upd = first_update + j + 1
+        for s in range(s_count):
+            row: dict[str, Any] = {
+                "update": upd,
+                "env_steps": upd * config.steps_per_update,
+                "seed": config.seed + s,
+                "episodes": int(host.episodes[s, j]),
+                "mean_return": _num(host.mean_return[s, j]),
+                "mean_shaped_return": _num(host.mean_shaped_return[s, j]),
+                "collisions_per_episode": _num(host.collisions_per_episode[s, j]),
+                "shaping_weight": _num(host.shaping_weight[s, j]),
+                "learning_rate": _num(host.learning_rate[s, j]),
+                **{name: _num(getattr(loss, name)[s, j]) for name in LossInfo._fields},
+                "env_steps_per_s": round(sps, 1),
+            }
+            if config.env.name == "dual_destination" and row["mean_return"] is not None:
+                row["normalised_return"] = row["mean_return"] / (2 * config.env.params.max_steps)
+            rows.append(row)
+    return rows
+
+
+def _num(x: Any) -> float | None:
+    v = float(x)
+    return None if math.isnan(v) else v
+
+
+class MetricsWriter:
+    """Appends metrics rows to `metrics.jsonl` and `metrics.csv` in the run directory."""
+
+    def __init__(self, run_dir: Path) -> None:
+        self.jsonl = run_dir / "metrics.jsonl"
+        self.csv = run_dir / "metrics.csv"
+
+    def write(self, rows: list[dict]) -> None:
+        if not rows:
+            return
+        with open(self.jsonl, "a") as f:
+            for row in rows:
+                f.write(json.dumps(row) + "\n")
+        new = not self.csv.exists()
+        with open(self.csv, "a", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]), extrasaction="ignore")
+            if new:
+                writer.writeheader()
+            writer.writerows(rows)
+
+    def truncate_after(self, update: int) -> None:
+        """Drops rows past `update` (written after the checkpoint a resumed run continues from)."""
+        if self.jsonl.exists():
+            keep = [ln for ln in self.jsonl.read_text().splitlines() if json.loads(ln)["update"] <= update]
+            self.jsonl.write_text("".join(ln + "\n" for ln in keep))
+        if self.csv.exists():
+            with open(self.csv, newline="") as f:
+                reader = csv.DictReader(f)
+                fields = reader.fieldnames or []
+                kept = [r for r in reader if int(r["update"]) <= update]
+            with open(self.csv, "w", newline="") as f:
+                writer = csv.DictWriter(f, fieldnames=fields)
+                writer.writeheader()
+                writer.writerows(kept)
+
+
+class Progress:
+    """One status line per call: updates, env steps, steps/s, mean return, ETA (to stderr)."""
+
+    def __init__(self, total_updates: int, steps_per_update: int, stream: TextIO = sys.stderr) -> None:
+        self.total = total_updates
+        self.spu = steps_per_update
+        self.stream = stream
+
+    def show(self, done: int, sps: float, mean_return: float | None, eta_s: float) -> None:
+        ret = "n/a" if mean_return is None else f"{mean_return:.2f}"
+        line = (
+            f"update {done}/{self.total} ({100 * done / self.total:5.1f}%) | "
+            f"{_si(done * self.spu)}/{_si(self.total * self.spu)} steps | {_si(sps)} steps/s | "
+            f"return {ret} | ETA {_duration(eta_s)}"
+        )
+        print(line, file=self.stream, flush=True)
+
+
+def _si(x: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if abs(x) >= scale:
+            return f"{x / scale:.2f}{unit}"
+    return f"{x:.0f}"
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    s = int(seconds)
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
+
+
+class _StopFlag:
+    """Turns SIGINT/SIGTERM into a flag checked between compiled calls (a second signal aborts)."""
+
+    def __init__(self) -> None:
+        self.stop = False
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _StopFlag:
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            with contextlib.suppress(ValueError):  # not the main thread: no signal handling
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        if self.stop:
+            raise KeyboardInterrupt
+        self.stop = True
+        print(
+            f"\n{signal.Signals(signum).name}: finishing the current call, then saving a checkpoint "
+            "(send again to abort without saving)",
+            file=sys.stderr,
+            flush=True,
+        )
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+def run_directory(config: TrainConfig) -> Path:
+    return Path(config.run_dir) / config.run_name
+
+
+def train(
+    config: TrainConfig,
+    *,
+    resume: bool = False,
+    max_updates: int | None = None,
+    progress: bool = True,
+    log: TextIO = sys.stderr,
+) -> RunResult:
+    """Runs (or resumes) a training run to its end, or until interrupted or `max_updates` more updates.
+
+    The run directory `<run_dir>/<name>` gets `config.yaml`, `metrics.jsonl`, `metrics.csv` and
+    `checkpoints/`. A run directory that already has checkpoints is only continued with `resume=True`.
+    """
+    run_dir = run_directory(config)
+    store = checkpoints.CheckpointStore(run_dir, config.checkpoint.keep_last)
+    writer = MetricsWriter(run_dir)
+    trainer = Trainer(config)
+    latest = store.latest()
+    if latest is not None and not resume:
+        raise checkpoints.CheckpointError(
+            f"{run_dir} already has checkpoints; resume it with --resume {run_dir} "
+            "or choose another name or run_dir"
+        )
+    run_dir.mkdir(parents=True, exist_ok=True)
+    if resume and latest is not None:
+        state, meta = checkpoints.load(latest.path, trainer.state_template())
+        if meta["config"] != config_dict(config):
+            raise checkpoints.CheckpointError(
+                f"checkpoint {latest.path} was written with a different config; resume with the run's own "
+                f"config ({run_dir / 'config.yaml'}) and no overrides"
+            )
+        done = int(meta["update"])
+        writer.truncate_after(done)
+        print(f"resuming {run_dir} from update {done} ({latest.path.name})", file=log, flush=True)
+    else:
+        state = trainer.init()
+        done = 0
+        (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict(config), sort_keys=False))
+    total = config.num_updates
+    stop_at = total if max_updates is None else min(total, done + max_updates)
+    per_call = config.updates_per_call
+    milestones = sorted({min(total, max(0, round(f * total))) for f in config.checkpoint.milestones})
+    meter = Progress(total, config.steps_per_update * config.num_seeds, log)
+    metadata = {
+        "algorithm": config.algorithm,
+        "seeds": [config.seed + i for i in range(config.num_seeds)],
+        "env": config.env.name,
+        "levels": config.env.levels,
+        "network": config.network,
+        "code_version": checkpoints.code_version(),
+        "jax_version": jax.__version__,
+    }
+
+    def save(upd: int, milestone: bool) -> None:
+        store.save(
+            state,
+            update=upd,
+            env_steps=upd * config.steps_per_update,
+            config=config_dict(config),
+            metadata=metadata,
+            milestone=milestone,
+        )
+
+    if done == 0 and 0 in milestones:
+        save(0, milestone=True)
+    interrupted = False
+    every = config.checkpoint.every_updates
+    with _StopFlag() as flag:
+        while done < stop_at:
+            n = min(per_call, stop_at - done)
+            if progress and n not in trainer._calls:
+                print(f"compiling the training call ({n} update(s) per call)...", file=log, flush=True)
+            call = trainer.train_call(n)
+            t0 = time.perf_counter()
+            state, metrics = call(state)
+            jax.block_until_ready(state)
+            dt = time.perf_counter() - t0
+            sps = n * config.steps_per_update * config.num_seeds / dt
+            rows = metrics_rows(config, done, metrics, sps)
+            writer.write(rows)
+            prev, done = done, done + n
+            if progress:
+                returns = [
+                    r["mean_return"] for r in rows[-config.num_seeds :] if r["mean_return"] is not None
+                ]
+                meter.show(
+                    done, sps, sum(returns) / len(returns) if returns else None, (total - done) * dt / n
+                )
+            crossed = any(prev < m <= done for m in milestones)
+            due = every > 0 and done // every > prev // every
+            interrupted = flag.stop
+            if due or crossed or done == stop_at or interrupted:
+                save(done, milestone=crossed)
+            if interrupted:
+                print(
+                    f"interrupted at update {done}; checkpoint saved. Continue with: "
+                    f"cec train --resume {run_dir}",
+                    file=log,
+                    flush=True,
+                )
+                break
+    return RunResult(state, run_dir, done, interrupted)

@@ -1,0 +1,88 @@
+"""The actor-critic network: presets, initialisation, the 2x2 convolution, LSTM resets at episode starts."""
+
+import flax.linen as nn
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cec.agents import ActorCritic, NetworkConfig, init_params, network_preset
+from cec.agents.network import Conv2x2
+from cec.config import ConfigError
+
+
+def test_paper_preset_matches_the_papers_table():
+    oc = network_preset("paper", "overcooked")
+    assert oc.conv_features == (64, 32) and oc.encoder_features == (512, 512) and oc.lstm_features == 256
+    assert oc.actor_features == (256, 192, 128, 64) and oc.critic_features == (512, 256, 192, 128)
+    dd = network_preset("paper", "dual_destination")
+    assert dd.actor_features == (256, 192, 128) and dd.critic_features == (512, 256)
+    with pytest.raises(ConfigError, match="unknown network preset"):
+        network_preset("huge", "overcooked")
+
+
+def test_initialisation_is_orthogonal_with_the_tables_gains_and_zero_biases():
+    net = ActorCritic(network_preset("paper", "overcooked"), 6)
+    params = init_params(net, jax.random.PRNGKey(0), (9, 9, 26))["params"]
+    for name, gain in (
+        ("fc0", np.sqrt(2)),
+        ("actor0", 2.0),
+        ("critic3", 2.0),
+        ("actor_out", 0.01),
+        ("critic_out", 1.0),
+    ):
+        kernel = np.asarray(params[name]["kernel"])
+        sv = np.linalg.svd(kernel, compute_uv=False)
+        np.testing.assert_allclose(sv, gain, rtol=1e-4, err_msg=name)
+        assert not np.any(params[name]["bias"])
+    conv = np.asarray(params["conv0"]["kernel"]).reshape(-1, 64)  # 2x2x26 inputs -> 64 filters
+    np.testing.assert_allclose(np.linalg.svd(conv, compute_uv=False), np.sqrt(2), rtol=1e-4)
+    assert params["actor_out"]["kernel"].shape == (64, 6)
+
+
+def test_conv2x2_equals_a_same_padded_flax_convolution():
+    x = jax.random.normal(jax.random.PRNGKey(0), (3, 9, 9, 5))
+    conv = Conv2x2(7)
+    p = conv.init(jax.random.PRNGKey(1), x)
+    p = jax.tree.map(lambda a: a + 0.1, p)  # non-zero bias too
+    want = nn.Conv(7, (2, 2), padding="SAME").apply(p, x)
+    np.testing.assert_allclose(conv.apply(p, x), want, atol=1e-5)
+
+
+def _run(net, params, obs, reset, carry=None):
+    carry = net.initial_carry((obs.shape[1],)) if carry is None else carry
+    return net.apply(params, carry, obs, reset)
+
+
+def test_lstm_state_resets_at_episode_starts():
+    net = ActorCritic(network_preset("small", "overcooked"), 6)
+    params = init_params(net, jax.random.PRNGKey(0), (9, 9, 26))
+    t, b, k = 8, 3, 5
+    obs = jax.random.randint(jax.random.PRNGKey(1), (t, b, 9, 9, 26), 0, 2).astype(jnp.uint8)
+    reset = jnp.zeros((t, b), bool).at[k, 1].set(True)
+    _, logits, values = _run(net, params, obs, reset)
+    # Env 1 restarts at step k: its outputs from k on equal a fresh sequence starting there.
+    _, fresh_logits, fresh_values = _run(net, params, obs[k:, 1:2], jnp.zeros((t - k, 1), bool))
+    np.testing.assert_allclose(logits[k:, 1], fresh_logits[:, 0], atol=1e-5)
+    np.testing.assert_allclose(values[k:, 1], fresh_values[:, 0], atol=1e-5)
+    # Without the reset the memory carries over (outputs differ), and other envs are unaffected.
+    _, no_reset_logits, _ = _run(net, params, obs, jnp.zeros((t, b), bool))
+    assert not np.allclose(no_reset_logits[k:, 1], logits[k:, 1])
+    np.testing.assert_array_equal(no_reset_logits[:, 0], logits[:, 0])
+    # A reset flag zeroes the incoming carry: any carry gives the same outputs at a reset step.
+    other = jax.tree.map(lambda x: x + 3.0, net.initial_carry((b,)))
+    _, with_other, _ = _run(net, params, obs, jnp.ones((t, b), bool), other)
+    _, with_zero, _ = _run(net, params, obs, jnp.ones((t, b), bool))
+    np.testing.assert_allclose(with_other, with_zero, atol=1e-6)
+
+
+def test_network_without_lstm_or_cnn_runs():
+    cfg = NetworkConfig(
+        conv_features=(), encoder_features=(32,), lstm_features=0, actor_features=(), critic_features=()
+    )
+    net = ActorCritic(cfg, 5)
+    params = init_params(net, jax.random.PRNGKey(0), (5, 5, 4))
+    _, logits, values = _run(net, params, jnp.zeros((4, 2, 5, 5, 4)), jnp.zeros((4, 2), bool))
+    assert logits.shape == (4, 2, 5) and values.shape == (4, 2)
+    with pytest.raises(ConfigError):
+        NetworkConfig(lstm_features=0, encoder_features=())

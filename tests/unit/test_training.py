@@ -1,0 +1,172 @@
+"""The rollout, the update step and the single-process trainer: shapes, resets, resume, checkpoints."""
+
+import json
+import shutil
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cec import checkpoints
+from cec.config import ConfigError, from_dict
+from cec.training.config import TrainConfig
+from cec.training.ppo import make_batch
+from cec.training.rollout import rollout
+from cec.training.trainer import Trainer, train
+
+
+def _config(tmp_path, **over):
+    base = {
+        "algorithm": "ippo",
+        "num_envs": 4,
+        "num_steps": 12,
+        "total_env_steps": 4 * 12 * 4,
+        "updates_per_call": 1,
+        "network": "small",
+        "env": {"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 10}},
+        "run_dir": str(tmp_path),
+        "name": "run",
+        "checkpoint": {"every_updates": 1, "keep_last": 2, "milestones": [0.0, 0.5, 1.0]},
+    }
+    for key, value in over.items():
+        base[key] = {**base.get(key, {}), **value} if isinstance(value, dict) else value
+    return from_dict(TrainConfig, base)
+
+
+def _tree_equal(a, b):
+    return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+
+
+def test_rollout_and_update_shapes(tmp_path):
+    cfg = _config(
+        tmp_path, env={"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 5}}
+    )
+    tr = Trainer(cfg)
+    state = jax.tree.map(lambda x: x[0], tr.init())
+    levels = tr.task.sample_levels(jax.random.PRNGKey(1), cfg.num_envs, cfg.levels_per_env)
+    carry, traj = jax.jit(
+        lambda p, c, lv, k: rollout(
+            p, c, lv, k, task=tr.task, network=tr.network, env_params=tr.env_params, num_steps=cfg.num_steps
+        )
+    )(state.params, state.carry, levels, state.key)
+    t, e, h = cfg.num_steps, cfg.num_envs, 64
+    assert traj.obs.shape == (t, e, 2, 9, 9, 26) and traj.obs.dtype == jnp.uint8
+    assert traj.action.shape == traj.log_prob.shape == traj.value.shape == traj.shaped.shape == (t, e, 2)
+    assert traj.reward.shape == traj.done.shape == traj.first.shape == (t, e)
+    assert traj.init_lstm.h.shape == (e, 2, h) and traj.last_value.shape == (e, 2)
+    # 5-step episodes: done every 5th step, and the next observation is flagged as an episode start.
+    np.testing.assert_array_equal(np.asarray(traj.done[:, 0]), [(i + 1) % 5 == 0 for i in range(t)])
+    np.testing.assert_array_equal(np.asarray(traj.first[1:]), np.asarray(traj.done[:-1]))
+    assert bool(traj.first[0].all())  # fresh envs start with a reset
+    # Episode returns are reported exactly where episodes end.
+    assert np.all(np.asarray(traj.episode_return)[~np.asarray(traj.done)] == 0)
+    # The carry continues: the next rollout starts from the last observation.
+    assert carry.first.shape == (e,) and bool(jnp.all(carry.first == traj.done[-1]))
+    batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95)
+    assert batch.obs.shape == (t, 2 * e, 9, 9, 26) and batch.advantage.shape == (t, 2 * e)
+    new_state, metrics = jax.jit(tr.update_step)(state)
+    assert int(new_state.update) == 1
+    assert np.isfinite(float(metrics.loss.total_loss)) and float(metrics.episodes) >= 0
+    assert not _tree_equal(new_state.params, state.params)
+
+
+def test_seeds_are_independent_and_reproducible(tmp_path):
+    cfg = _config(tmp_path, num_seeds=2)
+    tr = Trainer(cfg)
+    a = tr.init()
+    b = tr.init()
+    assert _tree_equal(a, b)
+    assert not np.array_equal(a.params["params"]["fc0"]["kernel"][0], a.params["params"]["fc0"]["kernel"][1])
+    # Seed 1 of a two-seed run equals seed 0 of a run with seed=1.
+    single = Trainer(_config(tmp_path, seed=1)).init()
+    assert _tree_equal(jax.tree.map(lambda x: x[1], a.params), jax.tree.map(lambda x: x[0], single.params))
+
+
+def test_interrupted_and_resumed_run_is_bit_exact(tmp_path):
+    full = train(_config(tmp_path / "a"), progress=False)
+    assert full.updates_done == 4
+    first = train(_config(tmp_path / "b"), max_updates=2, progress=False)
+    assert first.updates_done == 2 and not first.interrupted
+    resumed = train(_config(tmp_path / "b"), resume=True, progress=False)
+    assert resumed.updates_done == 4
+    assert _tree_equal(full.state, resumed.state)
+    rows = [json.loads(line) for line in (tmp_path / "b" / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert [r["update"] for r in rows] == [1, 2, 3, 4]
+    rows_full = [
+        json.loads(line) for line in (tmp_path / "a" / "run" / "metrics.jsonl").read_text().splitlines()
+    ]
+    assert [r["total_loss"] for r in rows] == [r["total_loss"] for r in rows_full]
+
+
+def test_checkpoints_keep_last_n_plus_milestones(tmp_path):
+    cfg = _config(tmp_path, checkpoint={"keep_last": 1})
+    train(cfg, progress=False)
+    store = checkpoints.CheckpointStore(tmp_path / "run", keep_last=1)
+    saved = {c.update: c.milestone for c in store.list()}
+    assert saved == {0: True, 2: True, 3: False, 4: True}  # update 1 pruned; milestones 0, 2, 4 kept
+    meta = checkpoints.read_meta(store.path(4))
+    assert meta["metadata"]["algorithm"] == "ippo" and meta["config"]["num_envs"] == 4
+    assert meta["env_steps"] == 4 * cfg.steps_per_update
+    with pytest.raises(checkpoints.CheckpointError, match="already has checkpoints"):
+        train(cfg, progress=False)
+
+
+def test_corrupt_or_mismatched_checkpoints_are_refused(tmp_path):
+    cfg = _config(tmp_path, total_env_steps=4 * 12)
+    train(cfg, progress=False)
+    path = checkpoints.CheckpointStore(tmp_path / "run", 2).latest().path
+    template = Trainer(cfg).state_template()
+    state, meta = checkpoints.load(path, template)
+    assert meta["update"] == 1
+
+    other = Trainer(_config(tmp_path, num_envs=6, name="other")).state_template()
+    with pytest.raises(checkpoints.CheckpointError, match="does not fit this run"):
+        checkpoints.load(path, other)
+
+    corrupt = tmp_path / "corrupt"
+    shutil.copytree(path, corrupt)
+    data = bytearray((corrupt / "state.msgpack").read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    (corrupt / "state.msgpack").write_bytes(bytes(data))
+    with pytest.raises(checkpoints.CheckpointError, match="corrupt"):
+        checkpoints.load(corrupt, template)
+    (corrupt / "meta.json").write_text("{not json")
+    with pytest.raises(checkpoints.CheckpointError, match="corrupt"):
+        checkpoints.load(corrupt, template)
+
+
+def test_resume_refuses_a_changed_config(tmp_path):
+    train(_config(tmp_path, total_env_steps=4 * 12), progress=False)
+    with pytest.raises(checkpoints.CheckpointError, match="different config"):
+        train(_config(tmp_path, total_env_steps=4 * 12, ppo={"lr": 1e-3}), resume=True, progress=False)
+
+
+@pytest.mark.parametrize(
+    ("over", "message"),
+    [
+        ({"algorithm": "cec"}, "procedural"),
+        ({"algorithm": "ippo", "env": {"name": "overcooked", "levels": "generator"}}, "one fixed level"),
+        ({"env": {"name": "overcooked", "levels": "kitchen_9"}}, "not valid"),
+        ({"num_envs": 3, "ppo": {"num_minibatches": 4}}, "split evenly"),
+        ({"network": "huge"}, "unknown network preset"),
+        ({"env": {"name": "dual_destination", "levels": "multi_task"}}, "multi_task=true"),
+    ],
+)
+def test_bad_configs_fail_before_any_work(tmp_path, over, message):
+    with pytest.raises(ConfigError, match=message):
+        _config(tmp_path, **over)
+
+
+def test_cec_and_dual_destination_tasks_train(tmp_path):
+    cec = _config(tmp_path, algorithm="cec", name="cec", env={"name": "overcooked", "levels": "generator"})
+    assert train(cec, progress=False).updates_done == 4
+    dd = _config(
+        tmp_path,
+        algorithm="cec",
+        name="dd",
+        env={"name": "dual_destination", "levels": "procedural", "dual_destination": {"max_steps": 10}},
+    )
+    result = train(dd, progress=False)
+    rows = [json.loads(line) for line in (result.run_dir / "metrics.jsonl").read_text().splitlines()]
+    assert rows[-1]["episodes"] == 4 and rows[-1]["normalised_return"] == rows[-1]["mean_return"] / 20
