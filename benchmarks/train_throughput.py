@@ -94,7 +94,7 @@ def measure_ours(preset: str, envs: int, steps: int, updates: int, repeats: int)
             "algorithm": "cec",
             "num_envs": envs,
             "num_steps": steps,
-            "total_env_steps": 10**12,
+            "total_env_steps": 3_000_000_000,
             "updates_per_call": updates,
             "network": preset,
             "env": {"name": "overcooked", "levels": "generator", "overcooked": {"max_steps": 100}},

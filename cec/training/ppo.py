@@ -33,6 +33,8 @@ class PPOConfig:
         gamma: discount factor.
         gae_lambda: GAE lambda.
         clip_eps: PPO ratio clip, also the value clip.
+        clip_value: clip the value loss around the behaviour values (PPO's value clipping, on in the paper's
+            code); it limits how far the critic moves per update, which slows learning of large returns.
         ent_coef: entropy bonus coefficient.
         vf_coef: value loss coefficient.
         max_grad_norm: global gradient-norm clip.
@@ -49,6 +51,7 @@ class PPOConfig:
     gamma: float = 0.99
     gae_lambda: float = 0.95
     clip_eps: float = 0.2
+    clip_value: bool = True
     ent_coef: float = 0.005
     vf_coef: float = 1.0
     max_grad_norm: float = 0.5
@@ -152,11 +155,12 @@ def ppo_loss(
     log_prob = jnp.take_along_axis(log_probs, batch.action[..., None], axis=-1)[..., 0]
     entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
 
-    # VALUE LOSS, clipped around the behaviour value.
-    clipped = batch.value + jnp.clip(value - batch.value, -config.clip_eps, config.clip_eps)
-    value_loss = (
-        0.5 * jnp.maximum(jnp.square(value - batch.target), jnp.square(clipped - batch.target)).mean()
-    )
+    # VALUE LOSS, optionally clipped around the behaviour value.
+    value_loss = jnp.square(value - batch.target)
+    if config.clip_value:
+        clipped = batch.value + jnp.clip(value - batch.value, -config.clip_eps, config.clip_eps)
+        value_loss = jnp.maximum(value_loss, jnp.square(clipped - batch.target))
+    value_loss = 0.5 * value_loss.mean()
 
     # POLICY LOSS.
     log_ratio = log_prob - batch.log_prob

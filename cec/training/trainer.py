@@ -111,7 +111,7 @@ class Trainer:
         if self.shaping_horizon < 0:
             return jnp.float32(1.0)
         steps = update_index.astype(jnp.float32) * self.config.steps_per_update
-        return jnp.clip(1.0 - steps / max(self.shaping_horizon, 1), 0.0, 1.0)
+        return jnp.clip(1.0 - steps / float(max(self.shaping_horizon, 1)), 0.0, 1.0)
 
     def update_step(self, state: TrainState) -> tuple[TrainState, UpdateMetrics]:
         """One rollout and one PPO update for one seed."""

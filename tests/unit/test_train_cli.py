@@ -1,0 +1,68 @@
+"""`cec train` end to end in a subprocess: config errors, SIGINT/SIGTERM saves a checkpoint, --resume finishes."""
+
+import json
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+
+QUICK = {
+    "algorithm": "ippo",
+    "num_envs": 4,
+    "num_steps": 8,
+    "total_env_steps": 4 * 8 * 400,
+    "network": "small",
+    "env": {"name": "dual_destination", "levels": "fixed", "dual_destination": {"max_steps": 8}},
+    "checkpoint": {"every_updates": 0, "milestones": []},
+    "name": "cli",
+}
+
+
+def _cec(*args, **kwargs):
+    return subprocess.Popen(
+        [sys.executable, "-m", "cec.cli", *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+        text=True, **kwargs,
+    )
+
+
+def test_config_errors_exit_2_with_the_cause(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({**QUICK, "num_env": 3}))
+    proc = _cec("train", "--config", str(bad))
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2
+    assert "unknown key 'num_env'" in err and "did you mean 'num_envs'" in err
+    proc = _cec("train", "--config", str(tmp_path / "missing.yaml"))
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and "does not exist" in err
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_a_signal_saves_a_checkpoint_and_resume_finishes(tmp_path, sig):
+    cfg = tmp_path / "quick.yaml"
+    cfg.write_text(yaml.safe_dump({**QUICK, "run_dir": str(tmp_path / "runs")}))
+    proc = _cec("train", "--config", str(cfg))
+    assert proc.stderr is not None
+    for line in proc.stderr:  # wait until training is under way
+        if line.startswith("update "):
+            break
+    proc.send_signal(sig)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    assert "checkpoint saved" in err and "interrupted after" in out
+    run = tmp_path / "runs" / "cli"
+    meta = json.loads(next((run / "checkpoints").glob("update_*/meta.json")).read_text())
+    stopped_at = meta["update"]
+    assert 0 < stopped_at < 400
+
+    proc = _cec("train", "--resume", str(run), "--quiet")
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert f"resuming {run} from update {stopped_at}" in err and "finished after 400 updates" in out
+    updates = [json.loads(line)["update"] for line in (run / "metrics.jsonl").read_text().splitlines()]
+    assert updates == list(range(1, 401))
