@@ -1,4 +1,4 @@
-"""`cec train` end to end in a subprocess: config errors, SIGINT/SIGTERM saves a checkpoint, --resume finishes."""
+"""`cec train` in a subprocess: config errors, SIGINT/SIGTERM save a checkpoint, --resume finishes."""
 
 import json
 import signal
@@ -25,8 +25,12 @@ QUICK = {
 
 def _cec(*args, **kwargs):
     return subprocess.Popen(
-        [sys.executable, "-m", "cec.cli", *args], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-        text=True, **kwargs,
+        [sys.executable, "-m", "cec.cli", *args],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        **kwargs,
     )
 
 
