@@ -68,7 +68,8 @@ class UpdateMetrics(NamedTuple):
 
 
 def episode_stats(traj: Trajectory) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
-    """(episodes finished, their mean team return, mean shaped return, collisions per env-step x max...)."""
+    """(episodes finished in the rollout, their mean team return, mean shaped return, collisions per episode);
+    the means are NaN when no episode finished."""
     done = traj.done.astype(jnp.float32)
     n = done.sum()
     safe = jnp.maximum(n, 1.0)
@@ -90,8 +91,7 @@ class Trainer:
         self.optimizer, self.schedule = make_optimizer(
             config.ppo, config.steps_per_update, config.total_env_steps
         )
-        ppo = config.ppo
-        self.shaping_horizon = ppo.shaping_anneal_env_steps or config.total_env_steps // 2
+        self.shaping_horizon = config.ppo.shaping_anneal_env_steps or config.total_env_steps // 2
         self._init = jax.jit(self.init_one)
         self._calls: dict[int, Any] = {}
 
