@@ -16,7 +16,7 @@ test asks for twice the first updates' value, far outside the update-to-update n
 import json
 from pathlib import Path
 
-from cec.config import from_dict, load_config
+from cec.config import load_config
 from cec.training.config import TrainConfig
 from cec.training.trainer import train
 
@@ -35,20 +35,10 @@ def test_dual_destination_fixed_task_self_play_reaches_090(tmp_path):
 
 
 def test_ippo_cramped_room_learns_the_shaped_subtasks(tmp_path):
-    cfg = from_dict(
-        TrainConfig,
-        {
-            "algorithm": "ippo",
-            "num_envs": 64,
-            "num_steps": 128,
-            "total_env_steps": 64 * 128 * 40,
-            "updates_per_call": 10,
-            "network": "small",
-            "env": {"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 128}},
-            "checkpoint": {"every_updates": 0, "milestones": []},
-            "run_dir": str(tmp_path),
-        },
-    )
+    # configs/train/quick_cpu.yaml cut to 40 updates (the LR and shaping anneal over the shorter run).
+    overrides = [f"run_dir={tmp_path}", f"total_env_steps={64 * 128 * 40}", "updates_per_call=10"]
+    overrides += ["checkpoint.every_updates=0", "checkpoint.milestones=[]"]
+    cfg = load_config(TrainConfig, ROOT / "configs/train/quick_cpu.yaml", overrides)
     rows = _rows(train(cfg, progress=False))
     first = sum(r["mean_shaped_return"] for r in rows[:5]) / 5
     last = sum(r["mean_shaped_return"] for r in rows[-5:]) / 5
