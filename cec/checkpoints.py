@@ -176,8 +176,8 @@ class CheckpointStore:
     def list(self) -> list[CheckpointInfo]:
         """Complete checkpoints, oldest first (temporary directories of interrupted writes are ignored)."""
         out = []
-        for p in sorted(self.root.glob("update_*")):
-            if p.name.endswith(".tmp") or not (p / META_FILE).is_file():
+        for p in self.root.glob("update_*"):
+            if p.name.endswith(".tmp"):
                 continue
             try:
                 meta = read_meta(p)

@@ -78,8 +78,7 @@ class TrainConfig:
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm {self.algorithm!r} is unknown; choose one of {list(ALGORITHMS)}")
-        procedural = self.env.levels in ("generator", "procedural", "procedural_multi_task")
-        if (self.algorithm == "cec") != procedural:
+        if (self.algorithm == "cec") != self.env.procedural:
             want = (
                 "a procedural distribution (generator / procedural)"
                 if self.algorithm == "cec"

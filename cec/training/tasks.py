@@ -26,6 +26,7 @@ from cec.levels.generator import GeneratorConfig, generate_batch
 
 ENV_NAMES = ("overcooked", "dual_destination")
 DD_LEVELS = ("fixed", "multi_task", "procedural", "procedural_multi_task")
+PROCEDURAL_LEVELS = ("generator", "procedural", "procedural_multi_task")
 
 
 class EnvStep(NamedTuple):
@@ -87,6 +88,11 @@ class EnvConfig:
             raise ConfigError(f"env.{self.name}.max_steps must be positive, got {self.params.max_steps}")
 
     @property
+    def procedural(self) -> bool:
+        """The levels come from a generator (CEC), not one fixed level."""
+        return self.levels in PROCEDURAL_LEVELS
+
+    @property
     def params(self) -> Any:
         """The settings of the chosen game (a traced pytree: `EnvParams` or `DDParams`)."""
         return self.overcooked if self.name == "overcooked" else self.dual_destination
@@ -114,10 +120,6 @@ class Task:
         if self.env == "overcooked":
             return (9, 9, oc.NUM_CHANNELS)
         return (dd.DD_SIZE, dd.DD_SIZE, dd.NUM_CHANNELS)
-
-    @property
-    def procedural(self) -> bool:
-        return self.levels in ("generator", "procedural", "procedural_multi_task")
 
     def reset(self, key: jax.Array, level: Any, params: Any) -> tuple[jax.Array, Any]:
         """(obs [2, ...], state) of a new episode on one level."""

@@ -81,7 +81,7 @@ def episode_stats(traj: Trajectory) -> tuple[jax.Array, jax.Array, jax.Array, ja
 
 
 class Trainer:
-    """Builds and runs the jitted training loop for one `TrainConfig`. Pure methods plus `run()`."""
+    """The jitted pieces of the training loop for one `TrainConfig` (`train()` below runs them)."""
 
     def __init__(self, config: TrainConfig) -> None:
         self.config = config
@@ -219,8 +219,9 @@ def metrics_rows(config: TrainConfig, first_update: int, metrics: UpdateMetrics,
                 **{name: _num(getattr(loss, name)[s, j]) for name in LossInfo._fields},
                 "env_steps_per_s": round(sps, 1),
             }
-            if config.env.name == "dual_destination" and row["mean_return"] is not None:
-                row["normalised_return"] = row["mean_return"] / (2 * config.env.params.max_steps)
+            if config.env.name == "dual_destination":  # always a column, so the CSV header has it
+                ret = row["mean_return"]
+                row["normalised_return"] = None if ret is None else ret / (2 * config.env.params.max_steps)
             rows.append(row)
     return rows
 
@@ -327,10 +328,6 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
-def run_directory(config: TrainConfig) -> Path:
-    return Path(config.run_dir) / config.run_name
-
-
 def train(
     config: TrainConfig,
     *,
@@ -344,7 +341,7 @@ def train(
     The run directory `<run_dir>/<name>` gets `config.yaml`, `metrics.jsonl`, `metrics.csv` and
     `checkpoints/`. A run directory that already has checkpoints is only continued with `resume=True`.
     """
-    run_dir = run_directory(config)
+    run_dir = Path(config.run_dir) / config.run_name
     store = checkpoints.CheckpointStore(run_dir, config.checkpoint.keep_last)
     writer = MetricsWriter(run_dir)
     trainer = Trainer(config)
