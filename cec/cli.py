@@ -6,6 +6,8 @@ cec render LAYOUT --gif FILE [--steps N]     an episode on that kitchen -> GIF
 cec layouts                                  list the classic kitchens with their ASCII
 cec levels sample --n 16 --out levels.png     a contact sheet of generated kitchens
 cec levels validate FILE                      is an ASCII kitchen well-formed and solvable? why not?
+cec levels stream --server ADDR --n 100       stream kitchens from a level server (levels/s, ASCII, PNG)
+cec level-server [--config YAML] [k=v]        serve generated kitchens over gRPC (configs/level_server.yaml)
 cec train --config configs/train/X.yaml [k=v]  train (IPPO / CEC) in one process; --resume RUN_DIR continues
 """
 
@@ -155,6 +157,51 @@ def _cmd_levels_validate(args: argparse.Namespace) -> int:
     return 0 if not problems else 1
 
 
+def _cmd_levels_stream(args: argparse.Namespace) -> int:
+    import grpc
+    import jax
+
+    from cec.envs.overcooked.render import contact_sheet, render_level, save_png
+    from cec.levels import to_ascii, unstack_levels
+    from services.level_server.client import LevelClient
+
+    if args.n < 1 or args.batch_size < 1:
+        raise ValueError(f"--n and --batch-size must be at least 1, got {args.n} and {args.batch_size}")
+    client = LevelClient(args.server, token=args.token, root_cert=args.root_cert)
+    kept: list[Level] = []
+    received = 0
+    t0 = last = time.perf_counter()
+    try:
+        for _, batch in client.stream(args.seed, min(args.batch_size, args.n), args.n, args.start_index):
+            received += int(batch.grid.shape[0])
+            if args.ascii or args.out:
+                kept.extend(unstack_levels(batch))
+            now = time.perf_counter()
+            if now - last > 1.0:
+                log.info("%d / %d levels (%.0f levels/s)", received, args.n, received / (now - t0))
+                last = now
+    except grpc.RpcError as err:
+        print(f"cec levels stream: {args.server}: {err.code().name}: {err.details()}", file=sys.stderr)
+        return 1
+    finally:
+        client.close()
+    dt = time.perf_counter() - t0
+    print(f"received {received} levels (seed {args.seed}) from {args.server} in {dt:.2f}s: "
+          f"{received / dt:,.0f} levels/s")  # fmt: skip
+    if args.ascii:
+        print("\n\n".join(to_ascii(lv) for lv in kept))
+    if args.out:
+        sheet = contact_sheet([render_level(jax.device_get(lv), args.tile_size) for lv in kept[:64]], 8)
+        print(f"wrote {save_png(sheet, args.out)}")
+    return 0
+
+
+def _cmd_level_server(args: argparse.Namespace) -> int:
+    from services.level_server.main import run
+
+    return run(args)
+
+
 def _cmd_train(args: argparse.Namespace) -> int:
     from cec.config import load_config
     from cec.training.config import TrainConfig
@@ -229,6 +276,24 @@ def build_parser() -> argparse.ArgumentParser:
     validate.add_argument("file", help="ASCII kitchen file (or a classic layout name)")
     validate.add_argument("--allow-decoys", action="store_true", help="accept objects no agent can reach")
     validate.set_defaults(func=_cmd_levels_validate)
+    stream = levels_sub.add_parser("stream", help="stream kitchens from a level server (cec level-server)")
+    stream.add_argument("--server", default="127.0.0.1:50051", help="host:port (default 127.0.0.1:50051)")
+    stream.add_argument("--n", type=int, default=100, help="how many levels (default 100)")
+    stream.add_argument("--seed", type=int, default=0, help="the sequence (level i is fixed by seed and i)")
+    stream.add_argument("--start-index", type=int, default=0, help="first index of the sequence")
+    stream.add_argument("--batch-size", type=int, default=1024, help="levels per streamed message")
+    stream.add_argument("--token", help="bearer token (default: $CEC_LEVEL_SERVER_TOKEN)")
+    stream.add_argument("--root-cert", help="PEM CA certificate for a TLS server")
+    stream.add_argument("--ascii", action="store_true", help="print the kitchens as ASCII")
+    stream.add_argument("--out", help="contact sheet PNG of (up to 64 of) the kitchens")
+    stream.add_argument("--tile-size", type=int, default=24)
+    stream.set_defaults(func=_cmd_levels_stream)
+
+    from services.level_server.main import add_arguments as add_level_server_arguments
+
+    server = sub.add_parser("level-server", help="serve generated kitchens over gRPC until SIGTERM/Ctrl-C")
+    add_level_server_arguments(server)
+    server.set_defaults(func=_cmd_level_server)
 
     tr = sub.add_parser("train", help="train agents in one process (rollout + PPO update jitted together)")
     tr.add_argument(
@@ -241,6 +306,8 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--max-updates", type=int, help="stop (with a checkpoint) after this many more updates")
     tr.add_argument("--quiet", action="store_true", help="no progress lines")
     tr.set_defaults(func=_cmd_train)
+
+
     return parser
 
 

@@ -266,14 +266,24 @@ def generate(key: jax.Array, config: GeneratorConfig = GeneratorConfig()) -> Lev
 
 
 @partial(jax.jit, static_argnames=("n", "config"))
-def generate_batch(key: jax.Array, n: int, config: GeneratorConfig = GeneratorConfig()) -> Level:
-    """`n` kitchens from one key (a batched `Level` with leading axis n); the same levels as vmapping
-    `generate` over `split(key, n)`, but the resampling loop only runs when some level needs it (under
-    vmap a while loop costs ~15% even when it never iterates)."""
+def generate_batch_with_info(
+    key: jax.Array, n: int, config: GeneratorConfig = GeneratorConfig()
+) -> tuple[Level, jax.Array]:
+    """`generate_batch`, also returning int32[n]: how many draws each level rejected (held-out matches)."""
     keys = jax.random.split(key, n)
     exclude = _exclusions(config, None)
     first = jax.vmap(lambda k: _sample(k, config)[0])(keys)
     any_rejected = jnp.any(jax.vmap(lambda lv: _rejected(lv, config, exclude))(first))
-    return jax.lax.cond(
-        any_rejected, lambda: jax.vmap(lambda k: _draw(k, config, exclude)[0])(keys), lambda: first
-    )
+
+    def redraw() -> tuple[Level, jax.Array]:
+        levels, info = jax.vmap(lambda k: _draw(k, config, exclude))(keys)
+        return levels, info.resamples
+
+    return jax.lax.cond(any_rejected, redraw, lambda: (first, jnp.zeros(n, jnp.int32)))
+
+
+def generate_batch(key: jax.Array, n: int, config: GeneratorConfig = GeneratorConfig()) -> Level:
+    """`n` kitchens from one key (a batched `Level` with leading axis n); the same levels as vmapping
+    `generate` over `split(key, n)`, but the resampling loop only runs when some level needs it (under
+    vmap a while loop costs ~15% even when it never iterates)."""
+    return generate_batch_with_info(key, n, config)[0]

@@ -46,12 +46,16 @@ def fingerprint(level: Level) -> jax.Array:
 
 
 def fingerprint_host(level: Level) -> np.ndarray:
-    """`fingerprint` computed with NumPy on the host (usable while JAX is tracing); the same values."""
-    grid = np.asarray(level.grid).reshape(-1)
+    """`fingerprint` computed with NumPy on the host (usable while JAX is tracing); the same values.
+
+    Takes one level (-> uint32[2]) or a batch with leading axes (-> uint32[..., 2]).
+    """
+    grid = np.asarray(level.grid)
+    lead = grid.shape[:-2]
     pos = np.asarray(level.agent_pos)
-    cells = np.sort(pos[:, 0] * GRID_SIZE + pos[:, 1])
-    values = (np.concatenate([grid, cells]) + 1).astype(np.uint32)
-    return (values[None, :] * _WEIGHTS).sum(-1, dtype=np.uint32)  # uint32 arithmetic wraps as in JAX
+    cells = np.sort(pos[..., 0] * GRID_SIZE + pos[..., 1], axis=-1)
+    values = (np.concatenate([grid.reshape(*lead, -1), cells], axis=-1) + 1).astype(np.uint32)
+    return (values[..., None, :] * _WEIGHTS).sum(-1, dtype=np.uint32)  # uint32 arithmetic wraps as in JAX
 
 
 def content_hash(level: Level) -> str:

@@ -137,6 +137,7 @@ class Task:
 
     def sample_levels(self, key: jax.Array, n: int, k: int) -> Any:
         """Level buffers for `n` envs, `k` levels each (leading axes [n, k]); fixed tasks are broadcast."""
+        flat: Any
         if self.levels == "generator":
             flat = generate_batch(key, n * k, self.generator)
         elif self.env == "overcooked":

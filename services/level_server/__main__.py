@@ -1,0 +1,3 @@
+from services.level_server.main import main
+
+raise SystemExit(main())

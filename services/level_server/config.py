@@ -1,0 +1,142 @@
+"""Typed configuration of the level server (YAML preset: configs/level_server.yaml; `key=value` overrides)."""
+
+from __future__ import annotations
+
+import ipaddress
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from cec.config import ConfigError
+from cec.levels.generator import GeneratorConfig
+
+TOKEN_ENV = "CEC_LEVEL_SERVER_TOKEN"
+
+
+@dataclass(frozen=True)
+class CurriculumConfig:
+    """Prioritized level replay over levels whose learning scores consumers report (`ReportScores`).
+
+    Attributes:
+        enabled: off by default: streams and `GetLevels` then return only fresh generated levels, a pure
+            function of (seed, config, index). When on, a share of every reply is replayed levels.
+        replay_prob: share of each reply drawn from the replay buffer once it holds `min_fill` levels.
+        capacity: levels kept in the buffer; a new level replaces the lowest-scored one when it scores higher.
+        min_fill: buffer size before any level is replayed.
+        temperature: rank prioritisation P(i) ~ (1 / rank_i) ** (1 / temperature).
+        staleness_coef: weight of the staleness term (levels not sampled for long get picked again).
+        seed: seed of the replay sampler.
+    """
+
+    enabled: bool = False
+    replay_prob: float = 0.5
+    capacity: int = 4000
+    min_fill: int = 100
+    temperature: float = 0.3
+    staleness_coef: float = 0.3
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.replay_prob <= 1.0:
+            raise ConfigError(f"curriculum.replay_prob must lie in [0, 1], got {self.replay_prob}")
+        if not 1 <= self.min_fill <= self.capacity:
+            raise ConfigError(
+                f"curriculum needs 1 <= min_fill <= capacity, got min_fill={self.min_fill}, "
+                f"capacity={self.capacity}"
+            )
+        if self.temperature <= 0:
+            raise ConfigError(f"curriculum.temperature must be > 0, got {self.temperature}")
+        if not 0.0 <= self.staleness_coef <= 1.0:
+            raise ConfigError(f"curriculum.staleness_coef must lie in [0, 1], got {self.staleness_coef}")
+
+
+@dataclass(frozen=True)
+class LevelServerConfig:
+    """The level server.
+
+    Attributes:
+        host: bind address. Loopback by default; any other address requires `auth_token` and TLS
+            (`tls_cert` + `tls_key`) unless `insecure` is set.
+        port: gRPC port (0: pick a free one; the chosen port is logged).
+        metrics_port: Prometheus `/metrics` HTTP port on `metrics_host` (0: pick a free one, -1: off).
+        metrics_host: bind address of the metrics endpoint.
+        auth_token: clients must send `authorization: Bearer <token>` metadata (health checks are exempt).
+            Empty: read it from the environment variable CEC_LEVEL_SERVER_TOKEN; unset there too: no auth.
+        tls_cert: PEM certificate chain file; with `tls_key`, the server only speaks TLS.
+        tls_key: PEM private key file.
+        insecure: allow a non-loopback bind without TLS and token (a trusted private network only).
+        seed: seed of the server's own sequence (`GetLevels` without a seed); -1: random at start-up.
+        chunk_levels: levels generated per compiled call and cached together. Part of the sequence
+            definition: level i of a seed is level i % chunk of chunk i // chunk, so servers agree on a
+            sequence only with the same value.
+        cache_chunks: generated chunks kept (LRU) for replays of a sequence and small requests.
+        workers: threads generating levels off the event loop.
+        max_batch_size: largest `StreamLevels` batch.
+        max_levels_per_request: largest `GetLevels` count (and `ReportScores` batch); streams are unlimited.
+        max_concurrent_streams: streams served at once; more get RESOURCE_EXHAUSTED.
+        max_distinct_configs: generator configs compiled at most (each costs compile time and memory).
+        max_message_bytes: largest request message accepted.
+        grace_seconds: on SIGTERM, time given to in-flight RPCs before they are cancelled.
+        generator: defaults for request fields left unset (and the only config when requests set none).
+        curriculum: prioritized level replay (off by default).
+    """
+
+    host: str = "127.0.0.1"
+    port: int = 50051
+    metrics_port: int = 9101
+    metrics_host: str = "127.0.0.1"
+    auth_token: str = ""
+    tls_cert: str = ""
+    tls_key: str = ""
+    insecure: bool = False
+    seed: int = -1
+    chunk_levels: int = 512
+    cache_chunks: int = 256
+    workers: int = 2
+    max_batch_size: int = 4096
+    max_levels_per_request: int = 100_000
+    max_concurrent_streams: int = 32
+    max_distinct_configs: int = 8
+    max_message_bytes: int = 4 * 1024 * 1024
+    grace_seconds: float = 5.0
+    generator: GeneratorConfig = field(default_factory=GeneratorConfig)
+    curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
+
+    def __post_init__(self) -> None:
+        for name in ("port", "metrics_port"):
+            value = getattr(self, name)
+            if not (-1 if name == "metrics_port" else 0) <= value <= 65535:
+                raise ConfigError(f"{name} must be a TCP port in 0..65535, got {value}")
+        for name in ("chunk_levels", "cache_chunks", "workers", "max_batch_size", "max_levels_per_request",
+                     "max_concurrent_streams", "max_distinct_configs", "max_message_bytes"):  # fmt: skip
+            if getattr(self, name) < 1:
+                raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if bool(self.tls_cert) != bool(self.tls_key):
+            raise ConfigError("TLS needs both tls_cert and tls_key (PEM files); set both or neither")
+        for name in ("tls_cert", "tls_key"):
+            path = getattr(self, name)
+            if path and not Path(path).is_file():
+                raise ConfigError(f"{name} file {path!r} does not exist")
+        if not self.is_loopback and not self.insecure and not (self.tls and self.token):
+            raise ConfigError(
+                f"binding {self.host!r} exposes the server beyond this machine: set auth_token (or "
+                f"{TOKEN_ENV}) and tls_cert/tls_key, or set insecure=true on a trusted private network"
+            )
+
+    @property
+    def token(self) -> str:
+        """The bearer token clients must present ('' = no authentication)."""
+        return self.auth_token or os.environ.get(TOKEN_ENV, "")
+
+    @property
+    def tls(self) -> bool:
+        return bool(self.tls_cert)
+
+    @property
+    def is_loopback(self) -> bool:
+        if self.host == "localhost":
+            return True
+        try:
+            return ipaddress.ip_address(self.host).is_loopback
+        except ValueError:
+            return False
