@@ -7,10 +7,19 @@ from dataclasses import dataclass, field
 
 from cec.agents.network import NETWORK_PRESETS, NetworkConfig, network_preset
 from cec.config import ConfigError
+from cec.training.partners import PartnerConfig
 from cec.training.ppo import PPOConfig
 from cec.training.tasks import EnvConfig
 
-ALGORITHMS = ("cec", "ippo")
+#: algorithm -> (partner kind, trains on a procedural distribution)
+ALGORITHMS: dict[str, tuple[str, bool]] = {
+    "ippo": ("self_play", False),
+    "cec": ("self_play", True),
+    "fcp": ("fcp", False),
+    "e3t": ("e3t", False),
+    "cec_e3t": ("e3t", True),
+    "cec_finetune": ("self_play", False),
+}
 
 
 @dataclass(frozen=True)
@@ -42,8 +51,11 @@ class TrainConfig:
     """One training run: algorithm, environment, network, PPO, sizes, seeds, checkpoints.
 
     Attributes:
-        algorithm: `cec` (procedural levels) or `ippo` (one fixed level); recorded in checkpoints and
-            checked against `env.levels`.
+        algorithm: `ippo` (self-play on one fixed level), `cec` (self-play on a procedural
+            distribution), `fcp` (a population partner on one level), `e3t` (E3T's mixture partner on one
+            level), `cec_e3t` (E3T's partner on the procedural distribution) or `cec_finetune` (self-play
+            on one level starting from `init_from`, a CEC checkpoint); recorded in checkpoints and checked
+            against `env.levels` and `partner.kind`.
         seed: base seed; seed i of the run uses `seed + i`.
         num_seeds: independent seeds trained together in one process (vmapped).
         num_envs: parallel envs per seed.
@@ -56,6 +68,10 @@ class TrainConfig:
         env: the game and its level distribution.
         ppo: PPO hyper-parameters.
         checkpoint: checkpoint schedule.
+        partner: who plays the other seat (`cec.training.partners`): self-play, FCP, E3T.
+        init_from: start from this checkpoint's (or run directory's latest) parameters instead of a random
+            init (CEC-Finetune); the optimizer starts fresh.
+        init_from_seed: which seed of a multi-seed `init_from` checkpoint (-1: its only seed).
         run_dir: where runs are written (`<run_dir>/<name>`).
         name: run name (default: `<algorithm>-<env>-<levels>-s<seed>`).
     """
@@ -72,20 +88,28 @@ class TrainConfig:
     env: EnvConfig = field(default_factory=EnvConfig)
     ppo: PPOConfig = field(default_factory=PPOConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    partner: PartnerConfig = field(default_factory=PartnerConfig)
+    init_from: str = ""
+    init_from_seed: int = -1
     run_dir: str = "runs"
     name: str = ""
 
     def __post_init__(self) -> None:
         if self.algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm {self.algorithm!r} is unknown; choose one of {list(ALGORITHMS)}")
-        if (self.algorithm == "cec") != self.env.procedural:
-            want = (
-                "a procedural distribution (generator / procedural)"
-                if self.algorithm == "cec"
-                else "one fixed level"
-            )
+        kind, procedural = ALGORITHMS[self.algorithm]
+        if procedural != self.env.procedural:
+            want = "a procedural distribution (generator / procedural)" if procedural else "one fixed level"
             raise ConfigError(
                 f"algorithm {self.algorithm} trains on {want}, but env.levels is {self.env.levels!r}"
+            )
+        if kind != self.partner.kind:
+            raise ConfigError(
+                f"algorithm {self.algorithm} needs partner.kind {kind!r}, got {self.partner.kind!r}"
+            )
+        if (self.algorithm == "cec_finetune") != bool(self.init_from):
+            raise ConfigError(
+                "init_from (the CEC checkpoint to fine-tune) goes with algorithm cec_finetune, and only there"
             )
         if (
             min(self.num_seeds, self.num_envs, self.num_steps, self.total_env_steps, self.updates_per_call)
@@ -94,10 +118,11 @@ class TrainConfig:
             raise ConfigError(
                 "num_seeds, num_envs, num_steps, total_env_steps, updates_per_call must be >= 1"
             )
-        if (self.num_envs * 2) % self.ppo.num_minibatches:
+        sequences = self.num_envs * (1 if self.partner.learner_seat_only else 2)
+        if sequences % self.ppo.num_minibatches:
             raise ConfigError(
-                f"num_envs x 2 seats = {self.num_envs * 2} sequences must split evenly into "
-                f"ppo.num_minibatches = {self.ppo.num_minibatches}"
+                f"{sequences} training sequences per update (num_envs x trained seats) must split evenly "
+                f"into ppo.num_minibatches = {self.ppo.num_minibatches}"
             )
         if self.network not in NETWORK_PRESETS:
             raise ConfigError(

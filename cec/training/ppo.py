@@ -119,13 +119,42 @@ def gae(
     return adv, adv + value
 
 
-def make_batch(traj: Trajectory, shaping_weight: jax.Array, gamma: float, lam: float) -> Batch:
-    """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening."""
+def make_batch(
+    traj: Trajectory, shaping_weight: jax.Array, gamma: float, lam: float, learner_seat_only: bool = False
+) -> Batch:
+    """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening.
+
+    With `learner_seat_only` (partner strategies) the batch holds only the learner's own seat of every env
+    (N = E sequences; the seat may change only where an episode starts, where the LSTM resets); otherwise
+    both seats (N = 2E).
+    """
     t, e = traj.reward.shape
-    n = e * NUM_SEATS
     reward = traj.reward[..., None] + shaping_weight * traj.shaped  # [T, E, 2]
     done = jnp.broadcast_to(traj.done[..., None], reward.shape)
     advantage, target = gae(reward, traj.value, done, traj.last_value, gamma, lam)
+
+    if learner_seat_only:
+        seat = traj.learner_seat  # [T, E]
+
+        def pick(x: jax.Array) -> jax.Array:  # [T, E, 2, ...] -> [T, E, ...]
+            idx = seat.reshape((t, e, 1) + (1,) * (x.ndim - 3))
+            return jnp.take_along_axis(x, idx, axis=2)[:, :, 0]
+
+        first_seat = seat[0][:, None, None]
+        return Batch(
+            obs=pick(traj.obs),
+            first=traj.first,
+            action=pick(traj.action),
+            log_prob=pick(traj.log_prob),
+            value=pick(traj.value),
+            advantage=pick(advantage),
+            target=pick(target),
+            init_lstm=jax.tree.map(
+                lambda x: jnp.take_along_axis(x, first_seat, axis=1)[:, 0], traj.init_lstm
+            ),
+        )
+
+    n = e * NUM_SEATS
 
     def seats(x: jax.Array) -> jax.Array:
         return x.reshape((t, n, *x.shape[3:]))

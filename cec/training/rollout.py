@@ -3,7 +3,9 @@
 `rollout(params, carry, levels, key, ...)` is used by the single-process trainer, the Ray actors and the
 evaluator (DESIGN.md rule 4). The carry holds everything that continues across rollouts (env states,
 current observations, LSTM states, running episode returns), so consecutive rollouts continue episodes
-seamlessly; `levels` is the per-env buffer of upcoming levels for auto-reset.
+seamlessly; `levels` is the per-env buffer of upcoming levels for auto-reset. Training plays self-play
+(one parameter set for both seats); the evaluator passes `per_seat=True` and one parameter set per seat
+(cross-play), and `greedy=True` for argmax actions.
 
 Shapes: E envs, T steps, 2 seats; seat-major flattening `env * 2 + seat` wherever the two are merged.
 """
@@ -16,6 +18,7 @@ import jax
 import jax.numpy as jnp
 
 from cec.agents.network import ActorCritic, LSTMState, forward
+from cec.training.partners import SELF_PLAY, PartnerConfig, mixture_log_probs
 from cec.training.tasks import Task
 
 NUM_SEATS = 2
@@ -31,6 +34,9 @@ class RolloutCarry(NamedTuple):
         lstm: `LSTMState` with [E, 2, H] leaves, the carry before the current observation.
         episode_return: float32[E] team (sparse) return of the running episodes so far.
         episode_shaped: float32[E] shaped return (both seats summed, unscaled) of the running episodes.
+        learner_seat: int32[E] the learner's seat in the running episodes (partner strategies; 0 in
+            self-play, where both seats are the learner's).
+        partner_index: int32[E] the population partner of the running episodes (FCP; else 0).
     """
 
     env_state: Any
@@ -39,6 +45,8 @@ class RolloutCarry(NamedTuple):
     lstm: LSTMState
     episode_return: jax.Array
     episode_shaped: jax.Array
+    learner_seat: jax.Array
+    partner_index: jax.Array
 
 
 class Trajectory(NamedTuple):
@@ -56,6 +64,7 @@ class Trajectory(NamedTuple):
         collision: bool[T, E].
         episode_return: float32[T, E] the finished episode's team return where `done`, else 0.
         episode_shaped: float32[T, E] the finished episode's shaped return where `done`, else 0.
+        learner_seat: int32[T, E] the learner's seat at each step (what trains when only it does).
         init_lstm: `LSTMState` [E, 2, H], the carry before the first step (for replay in the update).
         last_value: float32[E, 2] critic value of the observation after the last step (bootstrap).
     """
@@ -71,6 +80,7 @@ class Trajectory(NamedTuple):
     collision: jax.Array
     episode_return: jax.Array
     episode_shaped: jax.Array
+    learner_seat: jax.Array
     init_lstm: LSTMState
     last_value: jax.Array
 
@@ -81,16 +91,35 @@ def _per_seat(x: jax.Array) -> jax.Array:
 
 
 def policy_step(
-    network: ActorCritic, params: Any, lstm: LSTMState, obs: jax.Array, first: jax.Array
+    network: ActorCritic,
+    params: Any,
+    lstm: LSTMState,
+    obs: jax.Array,
+    first: jax.Array,
+    *,
+    per_seat: bool = False,
 ) -> tuple[LSTMState, jax.Array, jax.Array]:
-    """One step of the shared policy for every seat of every env.
+    """One step of the policy for every seat of every env.
 
     Args:
+        params: the shared parameters (self-play), or with `per_seat` each seat's own: every leaf has a
+            leading axis of 2 (seat 0's, seat 1's), as in cross-play of two different policies.
         lstm: [E, 2, H] carries; obs: [E, 2, ...]; first: bool[E].
+        per_seat: static; see `params`.
 
     Returns:
         (next lstm [E, 2, H], logits float32[E, 2, A], value float32[E, 2]).
     """
+    if per_seat:
+        # Each seat's E rows through its own parameters: a vmap over the seat axis (batched matmuls).
+        def seat(p: Any, carry: LSTMState, o: jax.Array) -> tuple[LSTMState, jax.Array, jax.Array]:
+            carry, logits, value = forward(network, p, carry, o[None], first[None])
+            return carry, logits[0], value[0]
+
+        out: tuple[LSTMState, jax.Array, jax.Array] = jax.vmap(seat, in_axes=(0, 1, 1), out_axes=1)(
+            params, lstm, obs
+        )
+        return out
     e = obs.shape[0]
     flat = jax.tree.map(lambda x: x.reshape((e * NUM_SEATS, -1)), lstm)
     flat, logits, value = forward(
@@ -109,8 +138,9 @@ def init_carry(
     obs, state = jax.vmap(task.reset, in_axes=(0, 0, None))(
         jax.random.split(key, e), first_levels, env_params
     )
-    zeros = jnp.zeros(e, jnp.float32)
-    return RolloutCarry(state, obs, jnp.ones(e, bool), network.initial_carry((e, NUM_SEATS)), zeros, zeros)
+    zeros, ints = jnp.zeros(e, jnp.float32), jnp.zeros(e, jnp.int32)
+    lstm = network.initial_carry((e, NUM_SEATS))
+    return RolloutCarry(state, obs, jnp.ones(e, bool), lstm, zeros, zeros, ints, ints)
 
 
 def rollout(
@@ -123,16 +153,26 @@ def rollout(
     network: ActorCritic,
     env_params: Any,
     num_steps: int,
+    per_seat: bool = False,
+    greedy: bool = False,
+    partner: PartnerConfig = SELF_PLAY,
+    population: Any = None,
 ) -> tuple[RolloutCarry, Trajectory]:
-    """Plays `num_steps` steps of E envs in self-play (both seats act with `params`).
+    """Plays `num_steps` steps of E envs in self-play (both seats act with `params`), or in cross-play.
 
     Args:
-        params: network parameters (shared by both seats).
+        params: network parameters (shared by both seats), or with `per_seat` each seat's own (leaves
+            with a leading axis of 2; the evaluator's cross-play of two policies).
         carry: the `RolloutCarry` to continue from (E envs).
         levels: per-env level buffers, leading axes [E, K]; a finished episode continues on
             `levels[e, (episode + 1) % K]`.
         key: PRNG key for action sampling and the envs.
         task, network, num_steps: static; env_params: the game's settings (traced).
+        per_seat: static; `params` holds one parameter set per seat (see `policy_step`).
+        greedy: static; act with the most likely action instead of sampling (`log_prob` is still that
+            action's log-probability).
+        partner: static; the partner strategy (`cec.training.partners`): self-play, FCP or E3T.
+        population: FCP's frozen partners' parameters (leaves with a leading axis P); None otherwise.
 
     Returns:
         (carry after the last step, `Trajectory` with T = num_steps).
@@ -141,9 +181,25 @@ def rollout(
 
     def body(c: RolloutCarry, step_key: jax.Array) -> tuple[RolloutCarry, dict[str, jax.Array]]:
         k_act, k_env = jax.random.split(step_key)
-        lstm, logits, value = policy_step(network, params, c.lstm, c.obs, c.first)
-        action = jax.random.categorical(k_act, logits).astype(jnp.int32)  # [E, 2]
-        log_prob = jnp.take_along_axis(jax.nn.log_softmax(logits), action[..., None], axis=-1)[..., 0]
+        seat, index = c.learner_seat, c.partner_index
+        if partner.kind != "self_play":  # new episodes draw the learner's seat (and FCP partner) per env
+            k_seat, k_partner = jax.random.split(jax.random.fold_in(step_key, 1))
+            seat = jnp.where(c.first, jax.random.randint(k_seat, (e,), 0, NUM_SEATS), seat)
+            if partner.kind == "fcp":
+                p = jax.tree.leaves(population)[0].shape[0]
+                index = jnp.where(c.first, jax.random.randint(k_partner, (e,), 0, p), index)
+        lstm, logits, value = policy_step(network, params, c.lstm, c.obs, c.first, per_seat=per_seat)
+        log_probs = jax.nn.log_softmax(logits)  # [E, 2, A] of the distribution each seat acts with
+        if partner.kind == "fcp":
+            lstm, log_probs = _fcp_partner_step(network, population, c, seat, index, lstm, log_probs)
+        elif partner.kind == "e3t":
+            is_partner = (jnp.arange(NUM_SEATS)[None, :] != seat[:, None])[..., None]  # [E, 2, 1]
+            log_probs = jnp.where(is_partner, mixture_log_probs(logits, partner.epsilon), log_probs)
+        if greedy:
+            action = jnp.argmax(log_probs, axis=-1).astype(jnp.int32)  # [E, 2]
+        else:
+            action = jax.random.categorical(k_act, log_probs).astype(jnp.int32)  # [E, 2]
+        log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
         out = jax.vmap(task.step, in_axes=(0, 0, 0, 0, None))(
             jax.random.split(k_env, e), c.env_state, action, levels, env_params
         )
@@ -161,6 +217,7 @@ def rollout(
             collision=out.collision,
             episode_return=jnp.where(out.done, ep_return, 0.0),
             episode_shaped=jnp.where(out.done, ep_shaped, 0.0),
+            learner_seat=seat,
         )
         zero = jnp.zeros_like(ep_return)
         nxt = RolloutCarry(
@@ -170,9 +227,46 @@ def rollout(
             lstm,
             jnp.where(out.done, zero, ep_return),
             jnp.where(out.done, zero, ep_shaped),
+            seat,
+            index,
         )
         return nxt, record
 
     final, steps = jax.lax.scan(body, carry, jax.random.split(key, num_steps))
-    _, _, last_value = policy_step(network, params, final.lstm, final.obs, final.first)
+    _, _, last_value = policy_step(network, params, final.lstm, final.obs, final.first, per_seat=per_seat)
     return final, Trajectory(**steps, init_lstm=carry.lstm, last_value=last_value)
+
+
+def _fcp_partner_step(
+    network: ActorCritic,
+    population: Any,
+    c: RolloutCarry,
+    seat: jax.Array,
+    index: jax.Array,
+    lstm: LSTMState,
+    log_probs: jax.Array,
+) -> tuple[LSTMState, jax.Array]:
+    """Replaces the partner seat's LSTM state and action distribution by its population member's.
+
+    Every member runs on every env's partner seat (one batched call per member, vmapped over members) and
+    each env keeps its own member's output: P times the partner compute, no per-env parameter copies.
+    The partner's LSTM state is kept in the partner seat's slot of the carry.
+    """
+    e = seat.shape[0]
+    rows = jnp.arange(e)
+    other = 1 - seat
+    p_obs = c.obs[rows, other][None]  # [1, E, ...]
+    p_lstm = jax.tree.map(lambda x: x[rows, other], c.lstm)  # [E, H]
+
+    def member(p: Any) -> tuple[LSTMState, jax.Array]:
+        carry, logits, _ = forward(network, p, p_lstm, p_obs, c.first[None])
+        return carry, logits[0]
+
+    p_carry, p_logits = jax.vmap(member)(population)  # [P, E, H], [P, E, A]
+    p_carry = jax.tree.map(lambda x: x[index, rows], p_carry)
+    p_log_probs = jax.nn.log_softmax(p_logits[index, rows])  # [E, A]
+    is_partner = jnp.arange(NUM_SEATS)[None, :] != seat[:, None]  # [E, 2]
+    lstm = jax.tree.map(
+        lambda mine, theirs: jnp.where(is_partner[..., None], theirs[:, None], mine), lstm, p_carry
+    )
+    return lstm, jnp.where(is_partner[..., None], p_log_probs[:, None], log_probs)

@@ -31,6 +31,7 @@ import yaml
 
 from cec import checkpoints
 from cec.agents.network import ActorCritic, init_params
+from cec.config import ConfigError
 from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
 from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
@@ -94,6 +95,18 @@ class Trainer:
         self.shaping_horizon = config.ppo.shaping_anneal_env_steps or config.total_env_steps // 2
         self._init = jax.jit(self.init_one)
         self._calls: dict[int, Any] = {}
+        self.population: Any = None  # FCP's partners' params (leading axis P); set by `load_partners`
+
+    def load_partners(self) -> None:
+        """Loads FCP's population (a `ConfigError` listing every unusable entry; a no-op otherwise)."""
+        from cec.training.partners import load_population
+
+        if self.config.partner.kind == "fcp" and self.population is None:
+            pop = load_population(
+                self.config.partner, self.config.env, self.config.network_config, self.task.obs_shape
+            )
+            self.population = pop.params
+            self.population_names = pop.names
 
     # ---- pure, jittable pieces -------------------------------------------------------------------------
 
@@ -113,8 +126,8 @@ class Trainer:
         steps = update_index.astype(jnp.float32) * self.config.steps_per_update
         return jnp.clip(1.0 - steps / float(max(self.shaping_horizon, 1)), 0.0, 1.0)
 
-    def update_step(self, state: TrainState) -> tuple[TrainState, UpdateMetrics]:
-        """One rollout and one PPO update for one seed."""
+    def update_step(self, state: TrainState, population: Any = None) -> tuple[TrainState, UpdateMetrics]:
+        """One rollout and one PPO update for one seed (`population`: FCP's partners, else None)."""
         cfg = self.config
         key, k_levels, k_roll, k_update = jax.random.split(state.key, 4)
         levels = self.task.sample_levels(k_levels, cfg.num_envs, cfg.levels_per_env)
@@ -127,9 +140,11 @@ class Trainer:
             network=self.network,
             env_params=self.env_params,
             num_steps=cfg.num_steps,
+            partner=cfg.partner,
+            population=population,
         )
         weight = self.shaping_weight(state.update)
-        batch = make_batch(traj, weight, cfg.ppo.gamma, cfg.ppo.gae_lambda)
+        batch = make_batch(traj, weight, cfg.ppo.gamma, cfg.ppo.gae_lambda, cfg.partner.learner_seat_only)
         lr = self.schedule(_adam_count(state.opt_state))
         params, opt_state, loss = update(
             state.params,
@@ -149,14 +164,17 @@ class Trainer:
     def train_call(self, n_updates: int) -> Any:
         """The compiled call running `n_updates` updates for every seed.
 
-        (state with leading axis S) -> (state, metrics with leading axes [S, n_updates]).
+        (state with leading axis S) -> (state, metrics with leading axes [S, n_updates]). FCP's population
+        (`load_partners`) is an argument of the compiled call, shared by the seeds, not a constant in it.
         """
         if n_updates not in self._calls:
 
-            def many(state: TrainState) -> tuple[TrainState, UpdateMetrics]:
-                return jax.lax.scan(lambda s, _: self.update_step(s), state, None, length=n_updates)
+            def many(state: TrainState, population: Any) -> tuple[TrainState, UpdateMetrics]:
+                step = lambda s, _: self.update_step(s, population)  # noqa: E731
+                return jax.lax.scan(step, state, None, length=n_updates)
 
-            self._calls[n_updates] = jax.jit(jax.vmap(many), donate_argnums=0)
+            call = jax.jit(jax.vmap(many, in_axes=(0, None)), donate_argnums=0)
+            self._calls[n_updates] = lambda state: call(state, self.population)
         return self._calls[n_updates]
 
     def init(self) -> TrainState:
@@ -165,7 +183,31 @@ class Trainer:
         # the network (batched QR) can deadlock at run time; the init is a one-off, so nothing is lost.
         cfg = self.config
         states = [self._init(jax.random.PRNGKey(cfg.seed + i)) for i in range(cfg.num_seeds)]
-        return jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+        state: TrainState = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
+        if cfg.init_from:  # CEC-Finetune: every seed starts from the checkpoint's exact parameters
+            params = jax.tree.map(
+                lambda x: jnp.broadcast_to(x, (cfg.num_seeds, *x.shape)), self.initial_params()
+            )
+            opt_state = jax.vmap(self.optimizer.init)(params)
+            state = state._replace(params=params, opt_state=opt_state)
+        return state
+
+    def initial_params(self) -> Any:
+        """The parameters of `init_from` (checked against this run's game, observations and network)."""
+        from cec.evaluation.zoo import ZooEntry, load_policy
+
+        cfg = self.config
+        seed = None if cfg.init_from_seed < 0 else cfg.init_from_seed
+        try:
+            policy = load_policy(ZooEntry(name="init_from", checkpoint=cfg.init_from, seed=seed))
+        except checkpoints.CheckpointError as err:
+            raise ConfigError(f"init_from: {err}") from err
+        if policy.env.name != cfg.env.name or policy.network != cfg.network_config:
+            raise ConfigError(
+                f"init_from {cfg.init_from} was trained on {policy.env.name} with network {policy.network}; "
+                f"this run plays {cfg.env.name} with {cfg.network_config}: use a matching checkpoint/preset"
+            )
+        return policy.params
 
     def state_template(self) -> TrainState:
         """Shapes and dtypes of the state (no compute), for loading checkpoints."""
@@ -345,6 +387,7 @@ def train(
     store = checkpoints.CheckpointStore(run_dir, config.checkpoint.keep_last)
     writer = MetricsWriter(run_dir)
     trainer = Trainer(config)
+    trainer.load_partners()  # a bad population stops the run here, before any work
     latest = store.latest()
     if latest is not None and not resume:
         raise checkpoints.CheckpointError(
