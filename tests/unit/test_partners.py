@@ -1,0 +1,215 @@
+"""Partner strategies (FCP, E3T) and CEC-Finetune inside the one rollout and update."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from cec.config import ConfigError, from_dict
+from cec.evaluation.zoo import ZooEntry, load_policy
+from cec.training.config import TrainConfig
+from cec.training.partners import PartnerConfig, PopulationEntry, load_population, mixture_log_probs
+from cec.training.ppo import PPOConfig, make_batch, ppo_loss
+from cec.training.rollout import rollout
+from cec.training.trainer import Trainer, train
+
+NUM_ENVS, NUM_STEPS, EPISODE = 32, 24, 6
+
+
+def _config(tmp_path, algorithm="ippo", partner=None, **over):
+    base = {
+        "algorithm": algorithm,
+        "num_envs": NUM_ENVS,
+        "num_steps": NUM_STEPS,
+        "total_env_steps": NUM_ENVS * NUM_STEPS * 2,
+        "network": "small",
+        "env": {"name": "dual_destination", "levels": "fixed", "dual_destination": {"max_steps": EPISODE}},
+        "run_dir": str(tmp_path),
+        "name": algorithm,
+        "checkpoint": {"every_updates": 0, "milestones": [0.0, 0.5, 1.0]},
+    }
+    if partner is not None:
+        base["partner"] = partner
+    base.update(over)
+    return from_dict(TrainConfig, base)
+
+
+@pytest.fixture(scope="module")
+def ippo_run(tmp_path_factory):
+    """A 2-seed IPPO run on Dual Destination with milestones at updates 0, 1 and 2."""
+    cfg = _config(tmp_path_factory.mktemp("pop"), num_seeds=2)
+    return train(cfg, progress=False).run_dir
+
+
+def _rollout(trainer: Trainer, population=None, key=0):
+    state = jax.tree.map(lambda x: x[0], trainer.init())
+    cfg = trainer.config
+    levels = trainer.task.sample_levels(jax.random.PRNGKey(1), cfg.num_envs, cfg.levels_per_env)
+    fn = jax.jit(
+        lambda p, c, lv, k, pop: rollout(
+            p, c, lv, k, task=trainer.task, network=trainer.network, env_params=trainer.env_params,
+            num_steps=cfg.num_steps, partner=cfg.partner, population=pop,
+        )
+    )  # fmt: skip
+    return state, fn(state.params, state.carry, levels, jax.random.PRNGKey(key), population)[1]
+
+
+def _biased_population(trainer: Trainer, actions: list[int]):
+    """Partners that (almost) always play one fixed action each: member p plays actions[p]."""
+    members = []
+    for i, a in enumerate(actions):
+        params = jax.tree.map(lambda x: x[0], trainer.init()).params
+        params = jax.tree.map(lambda x: x, params)
+        bias = np.zeros(trainer.task.num_actions, np.float32)
+        bias[a] = 50.0
+        params["params"]["actor_out"]["bias"] = jnp.asarray(bias) + 0 * i
+        members.append(params)
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *members)
+
+
+def test_fcp_partners_are_drawn_per_env_and_episode_from_the_population(tmp_path):
+    cfg = _config(tmp_path, "fcp", {"kind": "fcp", "population": [{"run": "unused"}]})
+    trainer = Trainer(cfg)
+    _, traj = _rollout(trainer, _biased_population(trainer, [0, 1, 2]))
+    seat = np.asarray(traj.learner_seat)  # [T, E]
+    action = np.asarray(traj.action)
+    partner_action = np.take_along_axis(action, (1 - seat)[..., None], axis=2)[..., 0]  # [T, E]
+    assert set(np.unique(partner_action)) <= {0, 1, 2}  # every partner action is a member's
+    episode = np.arange(NUM_STEPS) // EPISODE
+    per_episode = {(t // EPISODE, e): set() for t in range(NUM_STEPS) for e in range(NUM_ENVS)}
+    for t in range(NUM_STEPS):
+        for e in range(NUM_ENVS):
+            per_episode[(episode[t], e)].add((int(partner_action[t, e]), int(seat[t, e])))
+    assert all(len(v) == 1 for v in per_episode.values())  # one partner and one seat per episode and env
+    draws = [next(iter(v)) for v in per_episode.values()]
+    members = np.bincount([a for a, _ in draws], minlength=3)
+    seats = np.bincount([s for _, s in draws], minlength=2)
+    assert members.min() > 0.2 * len(draws) and seats.min() > 0.3 * len(draws)  # per env, not per batch
+    first_step = {int(partner_action[0, e]) for e in range(NUM_ENVS)}
+    assert len(first_step) == 3  # different envs play different partners in the same rollout
+    # the partner seat's stored log-prob is the member's own (near-deterministic) action probability
+    partner_lp = np.take_along_axis(np.asarray(traj.log_prob), (1 - seat)[..., None], axis=2)[..., 0]
+    assert np.all(partner_lp > -1e-6)
+
+
+def test_fcp_batch_holds_no_partner_seat_terms(tmp_path):
+    cfg = _config(tmp_path, "fcp", {"kind": "fcp", "population": [{"run": "unused"}]})
+    trainer = Trainer(cfg)
+    state, traj = _rollout(trainer, _biased_population(trainer, [3, 4]))
+    batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, learner_seat_only=True)
+    seat = np.asarray(traj.learner_seat)
+    assert batch.action.shape == (NUM_STEPS, NUM_ENVS)  # one sequence per env: the learner's seat
+    np.testing.assert_array_equal(
+        batch.action, np.take_along_axis(np.asarray(traj.action), seat[..., None], 2)[..., 0]
+    )
+    # scrambling everything the partner seat did leaves the learner's loss and gradient unchanged
+    other = (1 - seat)[..., None]
+    rng = np.random.default_rng(0)
+
+    def scramble(x):
+        x = np.array(x)
+        noise = rng.integers(0, 5, x.shape).astype(x.dtype)
+        mask = np.broadcast_to(
+            (np.arange(2)[None, None, :] == other).reshape(other.shape[:2] + (2,) + (1,) * (x.ndim - 3)),
+            x.shape,
+        )
+        return np.where(mask, noise, x)
+
+    scrambled = traj._replace(
+        obs=scramble(traj.obs), action=scramble(traj.action), log_prob=scramble(traj.log_prob),
+        value=scramble(traj.value), shaped=scramble(traj.shaped),
+    )  # fmt: skip
+    batch2 = make_batch(scrambled, jnp.float32(1.0), 0.99, 0.95, learner_seat_only=True)
+    grad = jax.grad(lambda p, b: ppo_loss(p, trainer.network, b, PPOConfig())[0])
+    g1, g2 = grad(state.params, batch), grad(state.params, batch2)
+    assert all(np.array_equal(a, b) for a, b in zip(jax.tree.leaves(g1), jax.tree.leaves(g2), strict=True))
+
+
+def test_e3t_with_zero_epsilon_is_self_play(tmp_path):
+    sp = Trainer(_config(tmp_path))
+    e3t = Trainer(_config(tmp_path, "e3t", {"kind": "e3t", "epsilon": 0.0}))
+    _, a = _rollout(sp)
+    _, b = _rollout(e3t)
+    np.testing.assert_array_equal(a.action, b.action)
+    np.testing.assert_array_equal(a.log_prob, b.log_prob)  # behaviour = target policy exactly
+
+
+def test_e3t_behaviour_log_probs_and_importance_ratio(tmp_path):
+    eps = 0.5
+    trainer = Trainer(_config(tmp_path, "e3t", {"kind": "e3t", "epsilon": eps}))
+    state, traj = _rollout(trainer)
+    from cec.agents.network import forward
+
+    # recompute the policy's logits on the stored observations (LSTM replayed from the stored carry)
+    t, e = traj.reward.shape
+    flat = lambda x: x.reshape((t, e * 2, *x.shape[3:]))  # noqa: E731
+    init = jax.tree.map(lambda x: x.reshape((e * 2, -1)), traj.init_lstm)
+    _, logits, _ = forward(
+        trainer.network, state.params, init, flat(traj.obs), jnp.repeat(traj.first, 2, axis=1)
+    )
+    logits = logits.reshape((t, e, 2, -1))
+    act = np.asarray(traj.action)[..., None]
+    pi = np.take_along_axis(np.asarray(jax.nn.log_softmax(logits)), act, -1)[..., 0]
+    mix = np.take_along_axis(np.asarray(mixture_log_probs(logits, eps)), act, -1)[..., 0]
+    mine = np.arange(2)[None, None, :] == np.asarray(traj.learner_seat)[..., None]
+    stored = np.asarray(traj.log_prob)
+    np.testing.assert_allclose(stored[mine], pi[mine], atol=1e-5)  # the learner's seat acted with pi
+    np.testing.assert_allclose(stored[~mine], mix[~mine], atol=1e-5)  # the partner with the mixture
+    np.testing.assert_allclose(np.exp(mix), (1 - eps) * np.exp(pi) + eps / 5, rtol=1e-5)
+    # the trained rows are the learner's: before any gradient step the PPO ratio is exactly 1
+    batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, learner_seat_only=True)
+    _, (_, _, _, approx_kl, clip_fraction) = ppo_loss(state.params, trainer.network, batch, PPOConfig())
+    assert abs(float(approx_kl)) < 1e-6 and float(clip_fraction) == 0.0
+
+
+def test_fcp_trains_with_a_population_of_checkpoints(ippo_run, tmp_path):
+    spec = {"kind": "fcp", "population": [{"run": str(ippo_run), "seeds": [0, 1]}]}
+    cfg = _config(tmp_path, "fcp", spec)
+    pop = load_population(cfg.partner, cfg.env, cfg.network_config, Trainer(cfg).task.obs_shape)
+    assert len(pop.names) == 6 and pop.names[0].endswith("/s0/u0")  # 2 seeds x first/middle/last
+    first = load_policy(ZooEntry("x", str(ippo_run / "checkpoints/update_000000002"), seed=1)).params
+    last = jax.tree.map(lambda x: x[-1], pop.params)  # seed 1 at the last milestone
+    assert all(
+        np.array_equal(a, b) for a, b in zip(jax.tree.leaves(first), jax.tree.leaves(last), strict=True)
+    )
+    result = train(cfg, progress=False)
+    assert result.updates_done == 2 and (result.run_dir / "metrics.csv").exists()
+
+
+def test_bad_population_specs_list_every_offending_entry(ippo_run, tmp_path):
+    spec = PartnerConfig(
+        kind="fcp",
+        population=(
+            PopulationEntry(run=str(tmp_path / "missing")),
+            PopulationEntry(run=str(ippo_run), seeds=(7,), checkpoints=("last",)),
+            PopulationEntry(run=str(ippo_run), seeds=(0,), checkpoints=("999",)),
+        ),
+    )
+    cfg = _config(tmp_path, "fcp", {"kind": "fcp", "population": [{"run": str(ippo_run)}]})
+    with pytest.raises(ConfigError) as info:
+        load_population(spec, cfg.env, cfg.network_config, (5, 5, 4))
+    text = str(info.value)
+    assert "missing" in text and "seed 7" in text and "'999'" in text
+    # a learner with another network cannot use the population
+    other = _config(
+        tmp_path, "fcp", {"kind": "fcp", "population": [{"run": str(ippo_run)}]}, network="reference"
+    )
+    with pytest.raises(ConfigError, match="different network"):
+        train(other, progress=False)
+
+
+def test_cec_finetune_starts_from_the_exact_checkpoint_parameters(ippo_run, tmp_path):
+    cfg = _config(tmp_path, "cec_finetune", init_from=str(ippo_run), init_from_seed=1, num_seeds=2)
+    state = Trainer(cfg).init()
+    expected = load_policy(ZooEntry("x", str(ippo_run), seed=1)).params
+    for seed in range(2):
+        got = jax.tree.map(lambda x, s=seed: np.asarray(x[s]), state.params)
+        assert all(
+            np.array_equal(a, b) for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True)
+        )
+    with pytest.raises(ConfigError, match="init_from"):
+        _config(tmp_path, "ippo", init_from=str(ippo_run))
+    with pytest.raises(ConfigError, match="partner.kind"):
+        _config(tmp_path, "fcp")
