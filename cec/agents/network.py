@@ -24,6 +24,7 @@ from flax.linen.initializers import constant, orthogonal
 from cec.config import ConfigError
 
 SQRT2 = float(np.sqrt(2.0))
+PARTNER_HIDDEN = 64  # width of the partner model's hidden layer
 
 
 @dataclass(frozen=True)
@@ -37,6 +38,9 @@ class NetworkConfig:
         lstm_features: LSTM state size (0: no recurrence, the encoder output feeds the heads directly).
         actor_features: hidden widths of the actor head (the output layer has one logit per action).
         critic_features: hidden widths of the critic head (the output layer is one value).
+        partner_history: E3T's partner-modelling module (0: none): from the core's features and the
+            partner's last `partner_history` actions it predicts the partner's next action; the predicted
+            distribution is appended to the actor's input, and an auxiliary loss trains the prediction.
     """
 
     conv_features: tuple[int, ...] = (64, 32)
@@ -44,8 +48,11 @@ class NetworkConfig:
     lstm_features: int = 256
     actor_features: tuple[int, ...] = (256, 192, 128, 64)
     critic_features: tuple[int, ...] = (512, 256, 192, 128)
+    partner_history: int = 0
 
     def __post_init__(self) -> None:
+        if self.partner_history < 0:
+            raise ConfigError(f"partner_history must be >= 0, got {self.partner_history}")
         widths = (*self.conv_features, *self.encoder_features, *self.actor_features, *self.critic_features)
         if any(w <= 0 for w in widths) or self.lstm_features < 0:
             raise ConfigError(f"network widths must be positive (lstm_features may be 0), got {self}")
@@ -180,9 +187,14 @@ class ActorCritic(nn.Module):
 
     @nn.compact
     def __call__(
-        self, carry: LSTMState, obs: jax.Array, reset: jax.Array
+        self, carry: LSTMState, obs: jax.Array, reset: jax.Array, history: jax.Array | None = None
     ) -> tuple[LSTMState, jax.Array, jax.Array]:
-        """Returns (carry after the last step, logits float32[T, B, A], values float32[T, B])."""
+        """Returns (carry after the last step, logits float32[T, B, A], values float32[T, B]).
+
+        `history`: int32[T, B, K] the partner's last K actions (-1: none yet), needed when the config has
+        `partner_history` = K > 0; the partner prediction (logits [T, B, A]) is then sown into the
+        `intermediates` collection as `partner_logits` (see `forward_partner`).
+        """
         cfg = self.config
         t, b = obs.shape[:2]
         x = obs.reshape((t * b, *obs.shape[2:])).astype(jnp.float32)
@@ -199,8 +211,19 @@ class ActorCritic(nn.Module):
             carry, x = LSTMCore(cfg.lstm_features, name="lstm")(carry, x.reshape((t, b, -1)), reset)
             x = x.reshape((t * b, -1))
 
-        # HEADS.
+        # PARTNER MODEL (E3T): predict the partner's action from the features and its recent actions.
         actor = x
+        if cfg.partner_history:
+            if history is None:
+                raise ValueError("this network models the partner: pass the partner's recent actions")
+            past = jax.nn.one_hot(history.reshape((t * b, -1)), self.num_actions)  # -1 -> all zeros
+            z = jnp.concatenate([x, past.reshape((t * b, -1))], axis=-1)
+            z = nn.relu(_dense(PARTNER_HIDDEN, SQRT2, "partner0")(z))
+            partner_logits = _dense(self.num_actions, 0.01, "partner_out")(z)
+            self.sow("intermediates", "partner_logits", partner_logits.reshape((t, b, -1)))
+            actor = jnp.concatenate([x, jax.lax.stop_gradient(jax.nn.softmax(partner_logits))], axis=-1)
+
+        # HEADS.
         for i, width in enumerate(cfg.actor_features):
             actor = nn.relu(_dense(width, 2.0, f"actor{i}")(actor))
         logits = _dense(self.num_actions, 0.01, "actor_out")(actor)
@@ -218,12 +241,34 @@ class ActorCritic(nn.Module):
 def init_params(network: ActorCritic, key: jax.Array, obs_shape: tuple[int, ...]) -> dict:
     """Initial parameters for observations of shape `obs_shape` (one seat, no batch axes)."""
     obs = jnp.zeros((1, 1, *obs_shape), jnp.float32)
-    return dict(network.init(key, network.initial_carry((1,)), obs, jnp.zeros((1, 1), bool)))
+    history = empty_history((1, 1), network.config.partner_history)
+    variables = network.init(key, network.initial_carry((1,)), obs, jnp.zeros((1, 1), bool), history)
+    return {"params": variables["params"]}
+
+
+def empty_history(batch_shape: tuple[int, ...], k: int) -> jax.Array:
+    """int32[*batch_shape, k] of -1: no partner action seen yet."""
+    return jnp.full((*batch_shape, k), -1, jnp.int32)
 
 
 def forward(
-    network: ActorCritic, params: Any, carry: LSTMState, obs: jax.Array, reset: jax.Array
+    network: ActorCritic,
+    params: Any,
+    carry: LSTMState,
+    obs: jax.Array,
+    reset: jax.Array,
+    history: jax.Array | None = None,
 ) -> tuple[LSTMState, jax.Array, jax.Array]:
     """`network.apply` with its types: (carry after the last step, logits [T, B, A], values [T, B])."""
-    out: tuple[LSTMState, jax.Array, jax.Array] = network.apply(params, carry, obs, reset)  # type: ignore[assignment]
+    out: tuple[LSTMState, jax.Array, jax.Array] = network.apply(params, carry, obs, reset, history)  # type: ignore[assignment]
     return out
+
+
+def forward_partner(
+    network: ActorCritic, params: Any, carry: LSTMState, obs: jax.Array, reset: jax.Array, history: jax.Array
+) -> tuple[LSTMState, jax.Array, jax.Array, jax.Array]:
+    """`forward`, plus the partner model's predicted partner-action logits [T, B, A]."""
+    (carry, logits, value), state = network.apply(
+        params, carry, obs, reset, history, mutable=["intermediates"]
+    )
+    return carry, logits, value, state["intermediates"]["partner_logits"][0]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -132,7 +133,9 @@ class TrainConfig:
     # Derived values (never written back into the config).
     @property
     def network_config(self) -> NetworkConfig:
-        return self.network_overrides or network_preset(self.network, self.env.name)
+        """The preset (or the overrides), with the partner model of `partner.predict_partner`."""
+        net = self.network_overrides or network_preset(self.network, self.env.name)
+        return dataclasses.replace(net, partner_history=self.partner.predict_partner)
 
     @property
     def steps_per_update(self) -> int:

@@ -15,6 +15,7 @@ env, from split keys; the partner's LSTM state lives in the partner seat's slot 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -53,11 +54,16 @@ class PartnerConfig:
         kind: `self_play`, `fcp` or `e3t`.
         population: FCP's population, as run directories x seeds x milestone checkpoints.
         epsilon: E3T's uniform-mixing weight of the partner seat (the paper's appendix: 0.5).
+        predict_partner: history length K of the partner-modelling module added to the learner's network
+            (E3T's: it predicts the partner's action from the core's features and the partner's last K
+            actions, feeds the prediction to the actor, and trains on the partner's actual actions with
+            `ppo.partner_coef`); 0: no module.
     """
 
     kind: str = "self_play"
     population: tuple[PopulationEntry, ...] = ()
     epsilon: float = 0.5
+    predict_partner: int = 0
 
     def __post_init__(self) -> None:
         if self.kind not in PARTNER_KINDS:
@@ -66,6 +72,8 @@ class PartnerConfig:
             raise ConfigError(
                 "partner.population lists FCP's frozen partners: give it with kind fcp, and only then"
             )
+        if self.predict_partner < 0:
+            raise ConfigError(f"partner.predict_partner must be >= 0, got {self.predict_partner}")
         if not 0.0 <= self.epsilon <= 1.0:
             raise ConfigError(f"partner.epsilon must lie in [0, 1], got {self.epsilon}")
         for entry in self.population:
@@ -144,7 +152,9 @@ def load_population(config: PartnerConfig, env: Any, network: Any, obs_shape: tu
                     why.append(f"plays {policy.env.name}, the learner {env.name}")
                 elif Task.from_config(policy.env).obs_shape != obs_shape:
                     why.append(f"observes {Task.from_config(policy.env).obs_shape}, the learner {obs_shape}")
-                if policy.network != network:
+                if dataclasses.replace(policy.network, partner_history=0) != dataclasses.replace(
+                    network, partner_history=0
+                ):
                     why.append("has a different network (preset or widths) than the learner")
                 if why:
                     problems.append(f"{name}: " + "; ".join(why))

@@ -15,7 +15,7 @@ import jax
 import jax.numpy as jnp
 import optax
 
-from cec.agents.network import ActorCritic, LSTMState, forward
+from cec.agents.network import ActorCritic, LSTMState, forward, forward_partner
 from cec.config import ConfigError
 from cec.training.rollout import NUM_SEATS, Trajectory
 
@@ -41,6 +41,7 @@ class PPOConfig:
         adam_eps: Adam epsilon.
         shaping_anneal_env_steps: env steps over which the shaped-reward weight falls linearly from 1 to 0
             (0: half of the run's total, as the paper's code; a negative value keeps it at 1).
+        partner_coef: weight of the partner model's cross-entropy loss (networks with one: E3T).
     """
 
     lr: float = 3e-4
@@ -57,6 +58,7 @@ class PPOConfig:
     max_grad_norm: float = 0.5
     adam_eps: float = 1e-5
     shaping_anneal_env_steps: int = 0
+    partner_coef: float = 1.0
 
     def __post_init__(self) -> None:
         if self.lr <= 0 or self.update_epochs < 1 or self.num_minibatches < 1:
@@ -75,6 +77,8 @@ class Batch(NamedTuple):
     value: jax.Array
     advantage: jax.Array
     target: jax.Array
+    history: jax.Array  # [T, N, K] the partner's recent actions each row's policy saw (K may be 0)
+    partner_action: jax.Array  # [T, N] what the partner did at that step (the partner model's target)
     init_lstm: LSTMState
 
 
@@ -87,6 +91,7 @@ class LossInfo(NamedTuple):
     entropy: jax.Array
     approx_kl: jax.Array
     clip_fraction: jax.Array
+    partner_loss: jax.Array  # cross-entropy of the partner model's prediction (0 without one)
     grad_norm: jax.Array
 
 
@@ -132,6 +137,7 @@ def make_batch(
     reward = traj.reward[..., None] + shaping_weight * traj.shaped  # [T, E, 2]
     done = jnp.broadcast_to(traj.done[..., None], reward.shape)
     advantage, target = gae(reward, traj.value, done, traj.last_value, gamma, lam)
+    partner_action = traj.action[..., ::-1]  # [T, E, 2]: seat s's partner is seat 1 - s
 
     if learner_seat_only:
         seat = traj.learner_seat  # [T, E]
@@ -149,6 +155,8 @@ def make_batch(
             value=pick(traj.value),
             advantage=pick(advantage),
             target=pick(target),
+            history=pick(traj.history),
+            partner_action=pick(partner_action),
             init_lstm=jax.tree.map(
                 lambda x: jnp.take_along_axis(x, first_seat, axis=1)[:, 0], traj.init_lstm
             ),
@@ -167,6 +175,8 @@ def make_batch(
         value=seats(traj.value),
         advantage=seats(advantage),
         target=seats(target),
+        history=seats(traj.history),
+        partner_action=seats(partner_action),
         init_lstm=jax.tree.map(lambda x: x.reshape((n, -1)), traj.init_lstm),
     )
 
@@ -177,9 +187,17 @@ def ppo_loss(
     """Clipped PPO objective on one minibatch of whole sequences (advantages normalised per minibatch).
 
     Returns:
-        (total loss, (policy loss, value loss, entropy, approx KL, clip fraction)).
+        (total loss, (policy loss, value loss, entropy, approx KL, clip fraction, partner-model loss)).
     """
-    _, logits, value = forward(network, params, batch.init_lstm, batch.obs, batch.first)
+    partner_loss = jnp.float32(0.0)
+    if network.config.partner_history:  # E3T: + the partner model's cross-entropy on the partner's action
+        _, logits, value, partner_logits = forward_partner(
+            network, params, batch.init_lstm, batch.obs, batch.first, batch.history
+        )
+        predicted = jax.nn.log_softmax(partner_logits)
+        partner_loss = -jnp.take_along_axis(predicted, batch.partner_action[..., None], axis=-1).mean()
+    else:
+        _, logits, value = forward(network, params, batch.init_lstm, batch.obs, batch.first)
     log_probs = jax.nn.log_softmax(logits)
     log_prob = jnp.take_along_axis(log_probs, batch.action[..., None], axis=-1)[..., 0]
     entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
@@ -199,9 +217,10 @@ def ppo_loss(
     policy_loss = -surrogate.mean()
 
     total = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
+    total = total + config.partner_coef * partner_loss
     approx_kl = ((ratio - 1.0) - log_ratio).mean()
     clip_fraction = (jnp.abs(ratio - 1.0) > config.clip_eps).mean()
-    return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction)
+    return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction, partner_loss)
 
 
 def make_optimizer(

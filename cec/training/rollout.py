@@ -12,12 +12,13 @@ Shapes: E envs, T steps, 2 seats; seat-major flattening `env * 2 + seat` whereve
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 
-from cec.agents.network import ActorCritic, LSTMState, forward
+from cec.agents.network import ActorCritic, LSTMState, empty_history, forward
 from cec.training.partners import SELF_PLAY, PartnerConfig, mixture_log_probs
 from cec.training.tasks import Task
 
@@ -37,6 +38,8 @@ class RolloutCarry(NamedTuple):
         learner_seat: int32[E] the learner's seat in the running episodes (partner strategies; 0 in
             self-play, where both seats are the learner's).
         partner_index: int32[E] the population partner of the running episodes (FCP; else 0).
+        history: int32[E, 2, K] each seat's view of its partner's last K actions (-1: none yet this
+            episode), the input of E3T's partner model (K = `partner_history` of the network, may be 0).
     """
 
     env_state: Any
@@ -47,6 +50,7 @@ class RolloutCarry(NamedTuple):
     episode_shaped: jax.Array
     learner_seat: jax.Array
     partner_index: jax.Array
+    history: jax.Array
 
 
 class Trajectory(NamedTuple):
@@ -65,6 +69,7 @@ class Trajectory(NamedTuple):
         episode_return: float32[T, E] the finished episode's team return where `done`, else 0.
         episode_shaped: float32[T, E] the finished episode's shaped return where `done`, else 0.
         learner_seat: int32[T, E] the learner's seat at each step (what trains when only it does).
+        history: int32[T, E, 2, K] the partner-action history each seat's policy saw.
         init_lstm: `LSTMState` [E, 2, H], the carry before the first step (for replay in the update).
         last_value: float32[E, 2] critic value of the observation after the last step (bootstrap).
     """
@@ -81,6 +86,7 @@ class Trajectory(NamedTuple):
     episode_return: jax.Array
     episode_shaped: jax.Array
     learner_seat: jax.Array
+    history: jax.Array
     init_lstm: LSTMState
     last_value: jax.Array
 
@@ -96,6 +102,7 @@ def policy_step(
     lstm: LSTMState,
     obs: jax.Array,
     first: jax.Array,
+    history: jax.Array | None = None,
     *,
     per_seat: bool = False,
 ) -> tuple[LSTMState, jax.Array, jax.Array]:
@@ -104,7 +111,8 @@ def policy_step(
     Args:
         params: the shared parameters (self-play), or with `per_seat` each seat's own: every leaf has a
             leading axis of 2 (seat 0's, seat 1's), as in cross-play of two different policies.
-        lstm: [E, 2, H] carries; obs: [E, 2, ...]; first: bool[E].
+        lstm: [E, 2, H] carries; obs: [E, 2, ...]; first: bool[E]; history: int32[E, 2, K] the partner's
+            recent actions (networks with a partner model only).
         per_seat: static; see `params`.
 
     Returns:
@@ -112,18 +120,23 @@ def policy_step(
     """
     if per_seat:
         # Each seat's E rows through its own parameters: a vmap over the seat axis (batched matmuls).
-        def seat(p: Any, carry: LSTMState, o: jax.Array) -> tuple[LSTMState, jax.Array, jax.Array]:
-            carry, logits, value = forward(network, p, carry, o[None], first[None])
+        def seat(
+            p: Any, carry: LSTMState, o: jax.Array, h: jax.Array | None
+        ) -> tuple[LSTMState, jax.Array, jax.Array]:
+            carry, logits, value = forward(
+                network, p, carry, o[None], first[None], None if h is None else h[None]
+            )
             return carry, logits[0], value[0]
 
-        out: tuple[LSTMState, jax.Array, jax.Array] = jax.vmap(seat, in_axes=(0, 1, 1), out_axes=1)(
-            params, lstm, obs
+        out: tuple[LSTMState, jax.Array, jax.Array] = jax.vmap(seat, in_axes=(0, 1, 1, 1), out_axes=1)(
+            params, lstm, obs, history
         )
         return out
     e = obs.shape[0]
     flat = jax.tree.map(lambda x: x.reshape((e * NUM_SEATS, -1)), lstm)
+    hist = None if history is None else history.reshape((1, e * NUM_SEATS, -1))
     flat, logits, value = forward(
-        network, params, flat, obs.reshape((1, e * NUM_SEATS, *obs.shape[2:])), _per_seat(first)[None]
+        network, params, flat, obs.reshape((1, e * NUM_SEATS, *obs.shape[2:])), _per_seat(first)[None], hist
     )
     lstm = jax.tree.map(lambda x: x.reshape((e, NUM_SEATS, -1)), flat)
     return lstm, logits[0].reshape((e, NUM_SEATS, -1)), value[0].reshape((e, NUM_SEATS))
@@ -140,7 +153,8 @@ def init_carry(
     )
     zeros, ints = jnp.zeros(e, jnp.float32), jnp.zeros(e, jnp.int32)
     lstm = network.initial_carry((e, NUM_SEATS))
-    return RolloutCarry(state, obs, jnp.ones(e, bool), lstm, zeros, zeros, ints, ints)
+    history = empty_history((e, NUM_SEATS), network.config.partner_history)
+    return RolloutCarry(state, obs, jnp.ones(e, bool), lstm, zeros, zeros, ints, ints, history)
 
 
 def rollout(
@@ -188,7 +202,8 @@ def rollout(
             if partner.kind == "fcp":
                 p = jax.tree.leaves(population)[0].shape[0]
                 index = jnp.where(c.first, jax.random.randint(k_partner, (e,), 0, p), index)
-        lstm, logits, value = policy_step(network, params, c.lstm, c.obs, c.first, per_seat=per_seat)
+        history = c.history if network.config.partner_history else None
+        lstm, logits, value = policy_step(network, params, c.lstm, c.obs, c.first, history, per_seat=per_seat)
         log_probs = jax.nn.log_softmax(logits)  # [E, 2, A] of the distribution each seat acts with
         if partner.kind == "fcp":
             lstm, log_probs = _fcp_partner_step(network, population, c, seat, index, lstm, log_probs)
@@ -218,6 +233,7 @@ def rollout(
             episode_return=jnp.where(out.done, ep_return, 0.0),
             episode_shaped=jnp.where(out.done, ep_shaped, 0.0),
             learner_seat=seat,
+            history=c.history,
         )
         zero = jnp.zeros_like(ep_return)
         nxt = RolloutCarry(
@@ -229,12 +245,25 @@ def rollout(
             jnp.where(out.done, zero, ep_shaped),
             seat,
             index,
+            _push_partner_actions(c.history, action, out.done),
         )
         return nxt, record
 
     final, steps = jax.lax.scan(body, carry, jax.random.split(key, num_steps))
-    _, _, last_value = policy_step(network, params, final.lstm, final.obs, final.first, per_seat=per_seat)
+    history = final.history if network.config.partner_history else None
+    _, _, last_value = policy_step(
+        network, params, final.lstm, final.obs, final.first, history, per_seat=per_seat
+    )
     return final, Trajectory(**steps, init_lstm=carry.lstm, last_value=last_value)
+
+
+def _push_partner_actions(history: jax.Array, action: jax.Array, done: jax.Array) -> jax.Array:
+    """Appends each seat's partner's latest action to its history ([E, 2, K]); cleared where episodes end."""
+    if history.shape[-1] == 0:
+        return history
+    partner_action = action[:, ::-1]  # seat s sees seat 1 - s
+    pushed = jnp.concatenate([history[..., 1:], partner_action[..., None]], axis=-1)
+    return jnp.where(done[:, None, None], -1, pushed)
 
 
 def _fcp_partner_step(
@@ -258,8 +287,10 @@ def _fcp_partner_step(
     p_obs = c.obs[rows, other][None]  # [1, E, ...]
     p_lstm = jax.tree.map(lambda x: x[rows, other], c.lstm)  # [E, H]
 
-    def member(p: Any) -> tuple[LSTMState, jax.Array]:
-        carry, logits, _ = forward(network, p, p_lstm, p_obs, c.first[None])
+    plain = ActorCritic(dataclasses.replace(network.config, partner_history=0), network.num_actions)
+
+    def member(p: Any) -> tuple[LSTMState, jax.Array]:  # population members have no partner model
+        carry, logits, _ = forward(plain, p, p_lstm, p_obs, c.first[None])
         return carry, logits[0]
 
     p_carry, p_logits = jax.vmap(member)(population)  # [P, E, H], [P, E, A]

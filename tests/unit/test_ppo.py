@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cec.agents import LSTMState
+from cec.agents.network import NetworkConfig
 from cec.training.ppo import Batch, PPOConfig, gae, make_optimizer, ppo_loss
 
 
@@ -48,7 +49,9 @@ def test_gae_does_not_bootstrap_across_an_episode_end():
 class _FixedOutputs:
     """Stands in for the network: 'params' are the logits and values the loss should see."""
 
-    def apply(self, params, carry, obs, first):
+    config = NetworkConfig()  # no partner model
+
+    def apply(self, params, carry, obs, first, history=None):
         return carry, params["logits"], params["value"]
 
 
@@ -70,9 +73,11 @@ def test_ppo_loss_matches_hand_computed_values():
         value=old_value,
         advantage=advantage,
         target=target,
+        history=jnp.zeros((2, 1, 0), jnp.int32),
+        partner_action=jnp.zeros((2, 1), jnp.int32),
         init_lstm=LSTMState(jnp.zeros((1, 1)), jnp.zeros((1, 1))),
     )
-    total, (pg, vf, ent, kl, clipfrac) = ppo_loss(
+    total, (pg, vf, ent, kl, clipfrac, partner) = ppo_loss(
         {"logits": logits, "value": value}, _FixedOutputs(), batch, cfg
     )
 
@@ -93,6 +98,7 @@ def test_ppo_loss_matches_hand_computed_values():
     assert float(ent) == pytest.approx(ent_want, rel=1e-5)
     assert float(total) == pytest.approx(pg_want + 0.5 * vf_want - 0.01 * ent_want, rel=1e-5)
     assert float(clipfrac) == pytest.approx(np.mean(np.abs(ratio - 1) > 0.2))
+    assert float(partner) == 0.0
     assert float(kl) == pytest.approx(np.mean((ratio - 1) - np.log(ratio)), rel=1e-4)
 
 
