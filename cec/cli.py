@@ -9,6 +9,9 @@ cec levels validate FILE                      is an ASCII kitchen well-formed an
 cec levels stream --server ADDR --n 100       stream kitchens from a level server (levels/s, ASCII, PNG)
 cec level-server [--config YAML] [k=v]        serve generated kitchens over gRPC (configs/level_server.yaml)
 cec train --config configs/train/X.yaml [k=v]  train (IPPO / CEC) in one process; --resume RUN_DIR continues
+cec eval --zoo zoo.yaml [--levels heldout]     cross-play a zoo of checkpoints -> results.csv (one long table)
+cec report results.csv [...] [--out DIR]       Markdown report + PNG figures from result tables
+cec zoo build SPEC.yaml --out ZOO_DIR          train a partner zoo from a spec (resumable) -> ZOO_DIR/zoo.yaml
 """
 
 from __future__ import annotations
@@ -307,7 +310,12 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--quiet", action="store_true", help="no progress lines")
     tr.set_defaults(func=_cmd_train)
 
+    from cec.evaluation.cli import add_subcommands as add_evaluation_subcommands
 
+    add_evaluation_subcommands(sub)  # cec eval, cec report
+    from cec.zoo_build import add_subcommands as add_zoo_subcommands
+
+    add_zoo_subcommands(sub)  # cec zoo build
     return parser
 
 

@@ -1,0 +1,281 @@
+"""Analyses derived from the long result table: matrices, per-level scores, BR-normalised scores, tests.
+
+A *policy* here is (algorithm, seed): single-task zoo entries of one algorithm and seed trained on
+different layouts (each restricted to its layout) are one policy, as in the paper's figures.
+
+Aggregation, bottom up (every step an unweighted mean, so unequal episode counts weigh nothing):
+
+    pair-level score   one unordered pair of policies on one level: mean over episodes and seat orders
+    pair score         mean of its pair-level scores over the levels of a level set both policies play
+    SP (policy)        its pair score with itself;   XP (algorithm): pair scores of two different seeds
+    ad hoc (algorithm) pair scores with the policies of every other algorithm
+    cell (alpha, beta) mean pair score over pairs of different policies of algorithms alpha and beta
+
+Standard errors and t-tests take the pair score as the sample (pairs share policies, so they are not
+independent: treat p-values as descriptive). Scores are returns, or for Dual Destination the paper's
+oracle-normalised score return / (2 x episode length).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from cec.evaluation.results import EpisodeTable, ResultsError
+from cec.evaluation.stats import iqm, sem
+from cec.levels.classic import CLASSIC_ASCII
+
+CLASSIC_SET = "classic"
+GENERATED_SET = "held-out generated"
+
+
+class PolicyId(NamedTuple):
+    algorithm: str
+    seed: int
+
+    def label(self) -> str:
+        return f"{self.algorithm}/s{self.seed}"
+
+
+class Matrix(NamedTuple):
+    """A labelled square matrix (NaN where no pair was played)."""
+
+    labels: tuple[str, ...]
+    values: np.ndarray
+
+
+class PairLevel(NamedTuple):
+    """Pair-level scores: policies `a` <= `b` (indices into `policies`) on `level` (arrays of length M)."""
+
+    policies: tuple[PolicyId, ...]
+    a: np.ndarray
+    b: np.ndarray
+    level: np.ndarray
+    score: np.ndarray
+
+
+class LevelStat(NamedTuple):
+    """An algorithm's score on one level: mean and standard error over pairs (`n` of them)."""
+
+    algorithm: str
+    level: str
+    mean: float
+    sem: float
+    n: int
+
+
+class BRProx(NamedTuple):
+    """Best-response-normalised score of one algorithm's policies with every other policy."""
+
+    iqm: float
+    q25: float
+    q75: float
+    n: int
+
+
+def check_single_env(table: EpisodeTable) -> tuple[str, int]:
+    """(env, episode length) of the table; `ResultsError` when runs of different games or lengths mix."""
+    envs = sorted(set(table.env.tolist()))
+    steps = sorted(set(table.episode_steps.tolist()))
+    if len(envs) > 1 or len(steps) > 1:
+        raise ResultsError(f"the results mix games {envs} / episode lengths {steps}; report each on its own")
+    if not envs:
+        raise ResultsError("the results hold no played episode")
+    return envs[0], steps[0]
+
+
+METRICS = ("score", "return", "deliveries", "collisions", "shaped_return")
+
+
+def scores(table: EpisodeTable, metric: str = "score") -> np.ndarray:
+    """One value per row: `score` is the return, or for Dual Destination return / (2 x episode length);
+    the other `METRICS` are the table's columns."""
+    if metric == "score":
+        if len(table) and table.env[0] == "dual_destination":
+            return table.returns / (2.0 * table.episode_steps)
+        return table.returns.astype(np.float64)
+    if metric not in METRICS:
+        raise ValueError(f"unknown metric {metric!r}; choose one of {list(METRICS)}")
+    column = table.returns if metric == "return" else getattr(table, metric)
+    return np.asarray(column, np.float64)
+
+
+def level_sets(names: Sequence[str]) -> dict[str, list[str]]:
+    """Level names grouped as the paper reports them: `classic`, `held-out generated`, others one each."""
+    out: dict[str, list[str]] = {}
+    for name in sorted(set(names)):
+        if name in CLASSIC_ASCII:
+            out.setdefault(CLASSIC_SET, []).append(name)
+        elif name.startswith("generated_"):
+            out.setdefault(GENERATED_SET, []).append(name)
+        else:
+            out.setdefault(name, []).append(name)
+    return out
+
+
+def policies_of(table: EpisodeTable) -> tuple[PolicyId, ...]:
+    """Every (algorithm, seed) in the table, sorted; checks that each plays a level under one name only."""
+    owner: dict[tuple[str, int, str], str] = {}
+    ids = set()
+    for side in ("a", "b"):
+        names = getattr(table, f"policy_{side}")
+        algos = getattr(table, f"algorithm_{side}")
+        seeds = getattr(table, f"seed_{side}")
+        for name, algo, seed, level in set(zip(names, algos, seeds.tolist(), table.level, strict=True)):
+            key = (algo, seed, level)
+            if owner.setdefault(key, name) != name:
+                raise ResultsError(
+                    f"zoo entries {owner[key]!r} and {name!r} are both {algo} seed {seed} on level "
+                    f"{level!r}; give them different seeds or algorithm labels"
+                )
+            ids.add(PolicyId(algo, int(seed)))
+    return tuple(sorted(ids))
+
+
+def pair_level_scores(
+    table: EpisodeTable, levels: Sequence[str] | None = None, metric: str = "score"
+) -> PairLevel:
+    """Mean `metric` (see `scores`) per unordered policy pair and level (over episodes and seat orders),
+    on `levels` (None: all)."""
+    policies = policies_of(table)
+    index = {p: i for i, p in enumerate(policies)}
+    value = scores(table, metric)
+    keep = np.ones(len(table), bool) if levels is None else np.isin(table.level, list(levels))
+    ia = np.asarray(
+        [index[PolicyId(a, int(s))] for a, s in zip(table.algorithm_a, table.seed_a, strict=True)]
+    )
+    ib = np.asarray(
+        [index[PolicyId(a, int(s))] for a, s in zip(table.algorithm_b, table.seed_b, strict=True)]
+    )
+    lo, hi = np.minimum(ia, ib)[keep], np.maximum(ia, ib)[keep]
+    level_names, level_code = np.unique(table.level[keep].astype(str), return_inverse=True)
+    # Average episodes within each seat order (who sits in seat 0) first, then the seat orders.
+    seat0 = np.where(table.seat == 0, ia, ib)[keep]
+    orders, order_of = np.unique(np.stack([lo, hi, level_code, seat0], 1), axis=0, return_inverse=True)
+    order_mean = _group_mean(order_of.reshape(-1), value[keep], len(orders))
+    pairs, pair_of = np.unique(orders[:, :3], axis=0, return_inverse=True)
+    return PairLevel(
+        policies,
+        pairs[:, 0].astype(np.int64),
+        pairs[:, 1].astype(np.int64),
+        level_names[pairs[:, 2]].astype(object),
+        _group_mean(pair_of.reshape(-1), order_mean, len(pairs)),
+    )
+
+
+def _group_mean(group: np.ndarray, values: np.ndarray, n: int) -> np.ndarray:
+    return np.bincount(group, weights=values, minlength=n) / np.bincount(group, minlength=n)
+
+
+def pair_scores(pl: PairLevel) -> np.ndarray:
+    """[P, P] symmetric matrix of pair scores (mean over the levels both play; NaN: never paired)."""
+    p = len(pl.policies)
+    total = np.zeros((p, p))
+    count = np.zeros((p, p))
+    np.add.at(total, (pl.a, pl.b), pl.score)
+    np.add.at(count, (pl.a, pl.b), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        m = total / count
+    return np.where(np.isnan(m), m.T, m)  # the lower triangle mirrors the upper one
+
+
+def algorithms_of(policies: Sequence[PolicyId]) -> list[str]:
+    return sorted({p.algorithm for p in policies})
+
+
+def seed_matrix(pl: PairLevel, algorithm: str) -> Matrix:
+    """Seed x seed matrix of one algorithm: SP on the diagonal, XP off it."""
+    m = pair_scores(pl)
+    idx = [i for i, p in enumerate(pl.policies) if p.algorithm == algorithm]
+    return Matrix(tuple(f"s{pl.policies[i].seed}" for i in idx), m[np.ix_(idx, idx)])
+
+
+def _pairs_between(pl: PairLevel, m: np.ndarray, alpha: str, beta: str) -> np.ndarray:
+    """Pair scores of different policies of algorithms alpha and beta (each unordered pair once)."""
+    out = []
+    n = len(pl.policies)
+    for i in range(n):
+        for j in range(i + 1, n):
+            pi, pj = pl.policies[i], pl.policies[j]
+            if {pi.algorithm, pj.algorithm} == {alpha, beta} and not math.isnan(m[i, j]):
+                out.append(m[i, j])
+    return np.asarray(out, np.float64)
+
+
+def algorithm_matrix(pl: PairLevel) -> Matrix:
+    """Cross-algorithm matrix: cell (alpha, beta) = mean pair score of different policies (symmetric)."""
+    m = pair_scores(pl)
+    algos = algorithms_of(pl.policies)
+    out = np.full((len(algos), len(algos)), np.nan)
+    for i, alpha in enumerate(algos):
+        for j, beta in enumerate(algos):
+            vals = _pairs_between(pl, m, alpha, beta)
+            if vals.size:
+                out[i, j] = vals.mean()
+    return Matrix(tuple(algos), out)
+
+
+def algorithm_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
+    """Per algorithm, its pair scores: `sp` (each policy with itself), `xp` (two different seeds of the
+    algorithm) or `adhoc` (its policies with every policy of another algorithm)."""
+    m = pair_scores(pl)
+    out: dict[str, np.ndarray] = {}
+    for alpha in algorithms_of(pl.policies):
+        idx = [i for i, p in enumerate(pl.policies) if p.algorithm == alpha]
+        if kind == "sp":
+            vals = np.asarray([m[i, i] for i in idx])
+        elif kind == "xp":
+            vals = _pairs_between(pl, m, alpha, alpha)
+        elif kind == "adhoc":
+            others = [j for j, p in enumerate(pl.policies) if p.algorithm != alpha]
+            vals = np.asarray([m[i, j] for i in idx for j in others])
+        else:
+            raise ValueError(f"kind must be sp, xp or adhoc, got {kind!r}")
+        out[alpha] = vals[~np.isnan(vals)]
+    return out
+
+
+def per_level(pl: PairLevel, kind: str = "xp") -> list[LevelStat]:
+    """Per algorithm and level: mean and SE over pairs (`xp`: two different seeds; `sp`: self-play)."""
+    stats: list[LevelStat] = []
+    for level in sorted(set(pl.level.tolist())):
+        on = pl.level == level
+        for alpha in algorithms_of(pl.policies):
+            vals = []
+            for a, b, s in zip(pl.a[on], pl.b[on], pl.score[on], strict=True):
+                pa, pb = pl.policies[a], pl.policies[b]
+                if pa.algorithm == alpha and pb.algorithm == alpha and (a == b) == (kind == "sp"):
+                    vals.append(s)
+            arr = np.asarray(vals, np.float64)
+            if arr.size:
+                stats.append(LevelStat(alpha, level, float(arr.mean()), sem(arr), int(arr.size)))
+    return stats
+
+
+def br_prox(pl: PairLevel) -> dict[str, BRProx]:
+    """A best-response-normalised score in the spirit of ZSC-Eval's BR-Prox, with an empirical best
+    response: on each level, partner p's best response is the zoo policy q (p itself included) with the
+    highest pair-level score with p. The ego's score with p is min(1, R(ego, p) / R(BR_p, p)), 1 when
+    R(BR_p, p) <= 0; aggregated per algorithm by the interquartile mean over (ego, partner != ego,
+    level)."""
+    best: dict[tuple[int, str], float] = {}
+    by_pair: dict[tuple[int, int, str], float] = {}
+    for a, b, level, s in zip(pl.a, pl.b, pl.level, pl.score, strict=True):
+        by_pair[(a, b, level)] = by_pair[(b, a, level)] = float(s)
+        for partner in (a, b):
+            best[(partner, level)] = max(best.get((partner, level), -math.inf), float(s))
+    per_algo: dict[str, list[float]] = defaultdict(list)
+    for (ego, partner, level), r in by_pair.items():
+        if ego == partner:
+            continue
+        br = best[(partner, level)]
+        per_algo[pl.policies[ego].algorithm].append(1.0 if br <= 0 else min(1.0, r / br))
+    out = {}
+    for alpha, vals in sorted(per_algo.items()):
+        arr = np.asarray(vals)
+        out[alpha] = BRProx(iqm(arr), float(np.quantile(arr, 0.25)), float(np.quantile(arr, 0.75)), arr.size)
+    return out

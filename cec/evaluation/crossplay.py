@@ -1,0 +1,407 @@
+"""Cross-play as a library: any policies x any levels, both seat orders, N episodes, common random numbers.
+
+    policies, skipped = load_policies(load_zoo("zoo.yaml"))
+    table = crossplay(policies, eval_levels("overcooked", "heldout"), EvalConfig(episodes=4), skipped=skipped)
+    write_csv(table, "results.csv")
+
+How the work is laid out:
+
+- A *game* is (policy in seat 0, policy in seat 1, the levels both accept). A pairing of two different
+  policies is two games (both seat orders); self-play is one.
+- Games that share their level set are played together: one jitted call vmaps the one `rollout`
+  (`cec.training.rollout`, `per_seat=True`) over games (each game its own two parameter sets) and over
+  envs (one env per level x episode), for exactly one episode of `max_steps` steps per env. With
+  `games_per_call` = 0 every game of a level set is in one call; otherwise calls of that many games
+  (the last one padded, so one compilation serves all).
+- Common random numbers: the env (level x episode) draws every random number (its reset and every
+  step's action sampling and env keys) from `fold_in(fold_in(PRNGKey(seed), crc32(level name)),
+  episode)`. So every pairing, seat order, batch composition and run with the same `seed` meets the same
+  randomness on the same level and episode, and pairings are compared on equal terms.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+import time
+import zlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cec.agents.network import ActorCritic, NetworkConfig
+from cec.config import ConfigError
+from cec.envs import dual_destination as dd
+from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
+from cec.evaluation.zoo import Policy
+from cec.levels.classic import CLASSIC_ASCII, classic_level
+from cec.levels.level import stack_levels
+from cec.training.rollout import init_carry, rollout
+from cec.training.tasks import Task
+
+log = logging.getLogger("cec.evaluation")
+
+PAIR_MODES = ("all", "self", "with:<name>")
+
+
+@dataclass(frozen=True)
+class EvalConfig:
+    """What a cross-play evaluation plays.
+
+    Attributes:
+        levels: level set (see `eval_levels`): Overcooked `heldout` (5 classic + 100 generated),
+            `classic`, `generated`, or comma-separated level names; Dual Destination `fixed`,
+            `multi_task` or both.
+        episodes: episodes per pairing, seat order and level.
+        greedy: act with the most likely action instead of sampling.
+        seed: base seed of the common random numbers.
+        max_steps: episode length; 0: the training episode length of the first policy.
+        pairs: `all` (every pair of policies, self-play included), `self` (self-play only) or
+            `with:<name>` (that policy with every policy, itself included).
+        games_per_call: games per jitted call (0: all games sharing a level set in one call); bounds
+            memory on large zoos.
+    """
+
+    levels: str = "heldout"
+    episodes: int = 4
+    greedy: bool = False
+    seed: int = 0
+    max_steps: int = 0
+    pairs: str = "all"
+    games_per_call: int = 0
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ConfigError(f"episodes must be at least 1, got {self.episodes}")
+        if self.max_steps < 0 or self.games_per_call < 0:
+            raise ConfigError("max_steps and games_per_call must be >= 0 (0: the default)")
+        if self.pairs not in ("all", "self") and not self.pairs.startswith("with:"):
+            raise ConfigError(f"pairs {self.pairs!r} is unknown; choose one of {list(PAIR_MODES)}")
+
+
+class EvalLevels(NamedTuple):
+    """Named levels to evaluate on: `names[i]` is `levels[i]` (a batched level with leading axis L)."""
+
+    names: tuple[str, ...]
+    levels: Any
+
+
+def eval_levels(env: str, spec: str) -> EvalLevels:
+    """The levels named by `spec` for game `env` (see `EvalConfig.levels`), in a stable order."""
+    from cec.levels.heldout import heldout_levels
+
+    tokens = [t.strip() for t in spec.split(",") if t.strip()]
+    if not tokens:
+        raise ConfigError("levels is empty; give e.g. `heldout`, `classic` or level names")
+    out: dict[str, Any] = {}
+    if env == "overcooked":
+        heldout = dict(heldout_levels())
+        for tok in tokens:
+            if tok == "heldout":
+                out.update(heldout)
+            elif tok == "classic":
+                out.update({n: classic_level(n) for n in CLASSIC_ASCII})
+            elif tok == "generated":
+                out.update({n: lv for n, lv in heldout.items() if n.startswith("generated_")})
+            elif tok in heldout:
+                out[tok] = heldout[tok]
+            else:
+                raise ConfigError(
+                    f"unknown Overcooked level {tok!r}; use heldout, classic, generated, a classic kitchen "
+                    f"({', '.join(sorted(CLASSIC_ASCII))}) or generated_000..generated_099"
+                )
+        return EvalLevels(tuple(out), stack_levels(list(out.values())))
+    if env == "dual_destination":
+        known = {"fixed": dd.fixed_level(), "multi_task": dd.multi_task_level()}
+        for tok in tokens:
+            if tok not in known:
+                raise ConfigError(f"unknown Dual Destination level {tok!r}; choose from {sorted(known)}")
+            out[tok] = known[tok]
+        return EvalLevels(tuple(out), dd.stack_dd_levels(list(out.values())))
+    raise ConfigError(f"unknown env {env!r}; choose overcooked or dual_destination")
+
+
+class Game(NamedTuple):
+    """One game: `a` (row policy) in seat `seat`, `b` in the other, on `levels` (indices into the set)."""
+
+    a: int
+    b: int
+    seat: int
+    levels: tuple[int, ...]
+
+
+class EpisodeOutcome(NamedTuple):
+    """Per-episode sums from one rollout (leading axes [games, envs])."""
+
+    returns: jax.Array
+    shaped: jax.Array
+    collisions: jax.Array
+    dones: jax.Array
+
+
+def episode_key(seed: int, level_name: str, episode: int) -> jax.Array:
+    """The key every random draw of (level, episode) comes from (common random numbers)."""
+    return _episode_keys(seed, [level_name], [episode])[0]
+
+
+def _episode_keys(seed: int, names: Sequence[str], episodes: Sequence[int]) -> jax.Array:
+    hashes = jnp.asarray([zlib.crc32(n.encode()) for n in names], jnp.uint32)
+    base = jax.random.PRNGKey(seed)
+    return jax.vmap(lambda h, n: jax.random.fold_in(jax.random.fold_in(base, h), n))(
+        hashes, jnp.asarray(list(episodes), jnp.uint32)
+    )
+
+
+# ---------------------------------------------------------------------------------------------------------
+# COMPATIBILITY AND THE GAME PLAN
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _obs_settings(policy: Policy) -> tuple:
+    """The env settings the policy's observations depend on (they must agree for cross-play)."""
+    if policy.env.name == "dual_destination":
+        p = policy.env.dual_destination
+        return (bool(p.partial_obs), bool(p.multi_task))
+    return ()
+
+
+def compatibility_problem(reference: Policy, policy: Policy, level_names: Sequence[str]) -> str | None:
+    """Why `policy` cannot join an evaluation led by `reference` on `level_names`, or None."""
+    if policy.env.name != reference.env.name:
+        return f"it plays {policy.env.name}, the evaluation plays {reference.env.name}"
+    if policy.network != reference.network:
+        return (
+            f"its network {policy.network} differs from the evaluation's {reference.network} (the first "
+            "policy's); cross-play batches both seats through one architecture: evaluate each "
+            "architecture in its own run"
+        )
+    if _obs_settings(policy) != _obs_settings(reference):
+        return (
+            f"it was trained with Dual Destination (partial_obs, multi_task) = {_obs_settings(policy)}, "
+            f"the evaluation uses {_obs_settings(reference)} (its observations would differ)"
+        )
+    if policy.levels is not None and not set(policy.levels) & set(level_names):
+        return f"none of its levels {list(policy.levels)} is in the evaluation's level set"
+    return None
+
+
+def plan_games(policies: Sequence[Policy], level_names: Sequence[str], pairs: str = "all") -> list[Game]:
+    """The games to play: both seat orders of each pair of different policies, self-play once."""
+    names = [p.name for p in policies]
+    if pairs == "all":
+        combos = [(i, j) for i in range(len(policies)) for j in range(i, len(policies))]
+    elif pairs == "self":
+        combos = [(i, i) for i in range(len(policies))]
+    elif pairs.startswith("with:"):
+        who = pairs.removeprefix("with:")
+        if who not in names:
+            raise ConfigError(f"pairs={pairs!r}: no policy named {who!r} among {names}")
+        k = names.index(who)
+        combos = [(k, j) for j in range(len(policies))]
+    else:
+        raise ConfigError(f"pairs {pairs!r} is unknown; choose one of {list(PAIR_MODES)}")
+    games = []
+    for i, j in combos:
+        allowed = [
+            li
+            for li, name in enumerate(level_names)
+            if all(p.levels is None or name in p.levels for p in (policies[i], policies[j]))
+        ]
+        if not allowed:
+            continue
+        for seat in (0,) if i == j else (0, 1):
+            games.append(Game(i, j, seat, tuple(allowed)))
+    return games
+
+
+# ---------------------------------------------------------------------------------------------------------
+# THE JITTED CALL
+# ---------------------------------------------------------------------------------------------------------
+
+
+@functools.cache
+def play_fn(
+    task: Task, network: NetworkConfig, num_steps: int, greedy: bool
+) -> Callable[..., EpisodeOutcome]:
+    """The compiled evaluation call (cached per game, network, episode length and action mode).
+
+    (pair_params: leaves [G, 2, ...], levels: [E, ...], keys: [E, 2], env_params) -> `EpisodeOutcome`
+    with [G, E] leaves: every game plays one episode of `num_steps` steps on every env.
+    """
+    net = ActorCritic(network, task.num_actions)
+
+    def one_env(pair_params: Any, level: Any, key: jax.Array, env_params: Any) -> EpisodeOutcome:
+        k_reset, k_play = jax.random.split(key)
+        buffer = jax.tree.map(lambda x: x[None, None], level)  # E = 1 env, K = 1 level
+        carry = init_carry(task, net, env_params, buffer, k_reset)
+        _, traj = rollout(
+            pair_params,
+            carry,
+            buffer,
+            k_play,
+            task=task,
+            network=net,
+            env_params=env_params,
+            num_steps=num_steps,
+            per_seat=True,
+            greedy=greedy,
+        )
+        return EpisodeOutcome(
+            traj.reward.sum(),
+            traj.shaped.sum(),
+            traj.collision.sum().astype(jnp.float32),
+            traj.done.sum().astype(jnp.int32),
+        )
+
+    per_game = jax.vmap(one_env, in_axes=(None, 0, 0, None))
+    return jax.jit(jax.vmap(per_game, in_axes=(0, None, None, None)))
+
+
+def _stack(trees: Sequence[Any]) -> Any:
+    return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
+
+
+def crossplay(
+    policies: Sequence[Policy],
+    levels: EvalLevels,
+    config: EvalConfig = EvalConfig(),
+    *,
+    skipped: Sequence[SkippedEntry] = (),
+    progress: Callable[[str], None] | None = None,
+) -> EpisodeTable:
+    """Plays the games of `config.pairs` among `policies` on `levels`; returns the long result table.
+
+    Policies that cannot join (another game, network or observation settings than the first policy, or
+    none of their levels in the set) are added to the table's skipped entries with the reason, like the
+    `skipped` entries passed in (zoo entries that failed to load).
+    """
+    skipped_out = list(skipped)
+    if not policies:
+        reasons = "; ".join(f"{s.name}: {s.reason}" for s in skipped)
+        raise ConfigError(
+            "no policy to evaluate" + (f"; every zoo entry was skipped: {reasons}" if reasons else "")
+        )
+    reference = policies[0]
+    usable: list[Policy] = []
+    for p in policies:
+        problem = compatibility_problem(reference, p, levels.names)
+        if problem is None:
+            usable.append(p)
+        else:
+            skipped_out.append(SkippedEntry(p.name, p.algorithm, p.seed, problem))
+    task = Task.from_config(reference.env)
+    env_params = reference.env.params
+    steps = config.max_steps or int(env_params.max_steps)
+    env_params = env_params.replace(max_steps=steps)
+    games = plan_games(usable, levels.names, config.pairs)
+    fn = play_fn(task, reference.network, steps, config.greedy)
+    stacked = _stack([p.params for p in usable])
+
+    groups: dict[tuple[int, ...], list[Game]] = {}
+    for g in games:
+        groups.setdefault(g.levels, []).append(g)
+    rows: dict[str, list] = {k: [] for k in _ROW_FIELDS}
+    n = config.episodes
+    for level_idx, group in groups.items():
+        env_level = np.repeat(np.asarray(level_idx), n)  # env e plays level env_level[e], episode e % n
+        env_episode = np.tile(np.arange(n), len(level_idx))
+        lv = jax.tree.map(lambda x, rows=env_level: jnp.asarray(np.asarray(x)[rows]), levels.levels)
+        keys = _episode_keys(config.seed, [levels.names[i] for i in env_level], env_episode.tolist())
+        per_call = config.games_per_call or len(group)
+        for start in range(0, len(group), per_call):
+            chunk = group[start : start + per_call]
+            padded = chunk + [chunk[-1]] * (per_call - len(chunk))
+            seat0 = np.asarray([g.a if g.seat == 0 else g.b for g in padded])
+            seat1 = np.asarray([g.b if g.seat == 0 else g.a for g in padded])
+            pair_params = jax.tree.map(
+                lambda x, s0=seat0, s1=seat1: np.stack([x[s0], x[s1]], axis=1), stacked
+            )
+            t0 = time.perf_counter()
+            out = jax.device_get(fn(pair_params, lv, keys, env_params))
+            if progress is not None:
+                progress(
+                    f"{len(chunk)} game(s) x {len(env_level)} episode(s) on {len(level_idx)} level(s) "
+                    f"in {time.perf_counter() - t0:.1f}s"
+                )
+            if not np.all(out.dones[: len(chunk)] == 1):
+                raise RuntimeError("an evaluation env did not finish exactly one episode; this is a bug")
+            for gi, g in enumerate(chunk):
+                _append_rows(
+                    rows, usable[g.a], usable[g.b], g.seat, levels.names, env_level, env_episode, out, gi
+                )
+    return _to_table(rows, reference, env_params, steps, config.greedy, skipped_out)
+
+
+_ROW_FIELDS = (
+    "policy_a",
+    "algorithm_a",
+    "seed_a",
+    "policy_b",
+    "algorithm_b",
+    "seed_b",
+    "level",
+    "seat",
+    "episode",
+    "returns",
+    "collisions",
+    "shaped_return",
+)
+
+
+def _append_rows(
+    rows: dict[str, list],
+    a: Policy,
+    b: Policy,
+    seat: int,
+    names: Sequence[str],
+    env_level: np.ndarray,
+    env_episode: np.ndarray,
+    out: EpisodeOutcome,
+    gi: int,
+) -> None:
+    e = len(env_level)
+    rows["policy_a"] += [a.name] * e
+    rows["algorithm_a"] += [a.algorithm] * e
+    rows["seed_a"] += [a.seed] * e
+    rows["policy_b"] += [b.name] * e
+    rows["algorithm_b"] += [b.algorithm] * e
+    rows["seed_b"] += [b.seed] * e
+    rows["level"] += [names[i] for i in env_level]
+    rows["seat"] += [seat] * e
+    rows["episode"] += env_episode.tolist()
+    rows["returns"] += np.asarray(out.returns[gi], np.float64).tolist()
+    rows["collisions"] += np.asarray(out.collisions[gi], np.float64).tolist()
+    rows["shaped_return"] += np.asarray(out.shaped[gi], np.float64).tolist()
+
+
+def _to_table(
+    rows: dict[str, list],
+    reference: Policy,
+    env_params: Any,
+    steps: int,
+    greedy: bool,
+    skipped: Sequence[SkippedEntry],
+) -> EpisodeTable:
+    returns = np.asarray(rows["returns"], np.float64)
+    if reference.env.name == "overcooked":
+        per_soup = float(env_params.delivery_reward)
+        deliveries = np.round(returns / per_soup) if per_soup > 0 else np.full_like(returns, np.nan)
+    else:  # steps on a goal pair: return = steps * step_cost + goal_steps * goal_bonus
+        bonus = float(env_params.goal_bonus)
+        goal = (returns - steps * float(env_params.step_cost)) / bonus if bonus else np.nan * returns
+        deliveries = np.round(goal)
+    n = len(returns)
+    return make_table(
+        {
+            **rows,
+            "deliveries": deliveries,
+            "env": [reference.env.name] * n,
+            "episode_steps": [steps] * n,
+            "actions": ["greedy" if greedy else "sampled"] * n,
+        },
+        skipped,
+    )

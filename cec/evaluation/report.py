@@ -1,0 +1,419 @@
+"""`cec report`: a Markdown report with PNG figures, derived from one or more result tables.
+
+For each level set (classic kitchens, held-out generated kitchens, each Dual Destination task):
+SP/XP/ad-hoc scores and BR-normalised scores per algorithm, seed x seed matrices, the cross-algorithm
+heatmap, per-level bars with standard errors, significance tests between algorithms (Welch t-test and
+bootstrap interval), and the meta-game analysis (replicator gradient, rest points, alpha-rank). Skipped
+zoo entries are listed with their reasons at the top.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cec.evaluation import analysis as an
+from cec.evaluation import egta
+from cec.evaluation.results import EpisodeTable
+from cec.evaluation.stats import compare, sem
+
+MAX_BARS = 12  # level sets with more levels get one aggregate bar per algorithm instead of per-level bars
+
+
+def _plt() -> Any:
+    """matplotlib.pyplot on the non-interactive Agg backend (imported on first use)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _fmt(x: float, digits: int = 2) -> str:
+    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
+
+
+def _pm(mean: float, err: float, digits: int = 2) -> str:
+    if math.isnan(mean):
+        return "—"
+    return f"{mean:.{digits}f} ± {err:.{digits}f}" if not math.isnan(err) else f"{mean:.{digits}f}"
+
+
+def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
+    return "\n".join(lines) + "\n"
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+
+
+def _matrix_md(m: an.Matrix, digits: int) -> str:
+    rows = [[m.labels[i], *(_fmt(v, digits) for v in m.values[i])] for i in range(len(m.labels))]
+    return _table(["", *m.labels], rows)
+
+
+def _heatmap(
+    ax: Any, m: an.Matrix, title: str, digits: int, vmin: float | None = None, vmax: float | None = None
+) -> None:
+    """A labelled heatmap with the values written in the cells (NaN cells left blank)."""
+    vals = np.ma.masked_invalid(m.values)
+    im = ax.imshow(vals, cmap="viridis", vmin=vmin, vmax=vmax)
+    ax.set_xticks(range(len(m.labels)), m.labels, rotation=45, ha="right")
+    ax.set_yticks(range(len(m.labels)), m.labels)
+    ax.set_title(title)
+    low, high = im.get_clim()
+    for i in range(len(m.labels)):
+        for j in range(len(m.labels)):
+            v = m.values[i, j]
+            if not math.isnan(v):
+                bright = high > low and (v - low) / (high - low) > 0.6  # viridis turns yellow at the top
+                color = "k" if bright else "w"
+                ax.text(j, i, f"{v:.{digits}f}", ha="center", va="center", color=color, fontsize=7)
+    ax.figure.colorbar(im, ax=ax, fraction=0.046)
+
+
+class _Report:
+    def __init__(self, table: EpisodeTable, out_dir: Path, sources: Sequence[str]) -> None:
+        self.table = table
+        self.out = out_dir
+        self.sources = sources
+        self.env, self.steps = an.check_single_env(table)
+        self.dd = self.env == "dual_destination"
+        self.digits = 3 if self.dd else 1
+        self.unit = "normalised score (return / (2 x episode length))" if self.dd else "team return"
+        self.md: list[str] = []
+        self.figures: list[Path] = []
+
+    def save(self, fig: Any, name: str) -> str:
+        path = self.out / name
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        _plt().close(fig)
+        self.figures.append(path)
+        return name
+
+    # ---- sections ------------------------------------------------------------------------------------
+
+    def header(self) -> None:
+        t = self.table
+        actions = ", ".join(sorted(set(t.actions.tolist())))
+        self.md.append("# Cross-play report\n")
+        self.md.append(
+            f"Game: **{self.env}**, episodes of {self.steps} steps, actions {actions}; "
+            f"{len(t)} episodes from {len(self.sources) or 1} file(s): {', '.join(self.sources) or '-'}. "
+            f"Scores are the {self.unit}.\n"
+        )
+        self.md.append(
+            "Aggregation: a pair's score on a level is the mean over its episodes and both seat orders; a "
+            "pair's score on a level set is the mean over the set's levels both policies play. SP = a "
+            "policy with itself; XP = two different seeds of one algorithm; ad hoc = with policies of the "
+            "other algorithms. Standard errors and tests take pair scores as samples.\n"
+        )
+        if t.skipped:
+            self.md.append("## Skipped zoo entries\n")
+            self.md.append(
+                "These entries are **absent from every matrix below**; fix the cause and evaluate again.\n"
+            )
+            rows = [
+                [s.name, s.algorithm or "?", str(s.seed) if s.seed >= 0 else "?", s.reason] for s in t.skipped
+            ]
+            self.md.append(_table(["entry", "algorithm", "seed", "reason"], rows))
+        policies = an.policies_of(t)
+        by_algo: dict[str, list[int]] = {}
+        for p in policies:
+            by_algo.setdefault(p.algorithm, []).append(p.seed)
+        self.md.append("## Policies\n")
+        self.md.append(
+            _table(["algorithm", "seeds"], [[a, ", ".join(map(str, s))] for a, s in sorted(by_algo.items())])
+        )
+
+    def level_set(self, name: str, levels: list[str]) -> None:
+        pl = an.pair_level_scores(self.table, levels)
+        slug = _slug(name)
+        d = self.digits
+        self.md.append(f"## Level set: {name} ({len(levels)} level{'s' if len(levels) > 1 else ''})\n")
+        if self.dd:
+            self.oracle_note(levels)
+
+        # Summary per algorithm.
+        sp, xp, adhoc = (an.algorithm_samples(pl, k) for k in ("sp", "xp", "adhoc"))
+        prox = an.br_prox(pl)
+        rows = []
+        for alpha in an.algorithms_of(pl.policies):
+            b = prox.get(alpha)
+            rows.append(
+                [
+                    alpha,
+                    str(len(sp.get(alpha, []))),
+                    _pm(*_mean_sem(sp.get(alpha)), d),
+                    _pm(*_mean_sem(xp.get(alpha)), d),
+                    _pm(*_mean_sem(adhoc.get(alpha)), d),
+                    "—" if b is None else f"{b.iqm:.2f} [{b.q25:.2f}, {b.q75:.2f}]",
+                ]
+            )
+        self.md.append("### Scores per algorithm\n")
+        self.md.append(
+            _table(
+                [
+                    "algorithm",
+                    "seeds",
+                    "SP",
+                    "XP (other seeds)",
+                    "ad hoc (other algorithms)",
+                    "BR-prox IQM [IQR]",
+                ],
+                rows,
+            )
+        )
+        self.md.append(
+            "Mean ± standard error over pairs. BR-prox: score with a partner divided by the best score any "
+            "zoo policy reached with that partner on that level (capped at 1), interquartile mean over "
+            "(policy, partner, level).\n"
+        )
+        self.seed_matrices(pl, slug)
+        self.algorithm_heatmap(pl, name, slug)
+        self.per_level(pl, levels, name, slug)
+        self.tests(xp, adhoc)
+        self.meta_game(pl, name, slug)
+
+    def oracle_note(self, levels: list[str]) -> None:
+        from cec.envs import dual_destination as dd
+
+        known = {"fixed": dd.fixed_level, "multi_task": dd.multi_task_level}
+        rows = []
+        for lv in levels:
+            if lv in known:
+                params = dd.DDParams(max_steps=self.steps, multi_task=lv == "multi_task")
+                ret = dd.oracle_return(known[lv](), params)
+                rows.append([lv, f"{ret:.0f}", f"{float(dd.normalised_score(ret, self.steps)):.3f}"])
+        if rows:
+            self.md.append("Oracle (both seats planned together; the ceiling of any pair):\n")
+            self.md.append(_table(["level", "oracle return", "oracle normalised"], rows))
+
+    def seed_matrices(self, pl: an.PairLevel, slug: str) -> None:
+        plt = _plt()
+        algos = an.algorithms_of(pl.policies)
+        mats = [an.seed_matrix(pl, a) for a in algos]
+        values = np.concatenate([m.values.ravel() for m in mats])
+        values = values[~np.isnan(values)]
+        # One colour scale for every algorithm, so that the panels compare.
+        vmin, vmax = (float(values.min()), float(values.max())) if values.size else (None, None)
+        cols = min(3, len(algos))
+        rows = math.ceil(len(algos) / cols)
+        fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
+        for ax in axes.flat[len(algos) :]:
+            ax.axis("off")
+        for ax, alpha, m in zip(axes.flat, algos, mats, strict=False):
+            _heatmap(ax, m, f"{alpha}: seed x seed", self.digits, vmin, vmax)
+        name = self.save(fig, f"seed_matrices_{slug}.png")
+        self.md.append("### Seed x seed matrices (SP on the diagonal, XP off it)\n")
+        self.md.append(f"![seed x seed matrices]({name})\n")
+        for alpha, m in zip(algos, mats, strict=True):
+            self.md.append(f"**{alpha}**\n")
+            self.md.append(_matrix_md(m, self.digits))
+
+    def algorithm_heatmap(self, pl: an.PairLevel, set_name: str, slug: str) -> None:
+        plt = _plt()
+        m = an.algorithm_matrix(pl)
+        k = len(m.labels)
+        fig, ax = plt.subplots(figsize=(1.2 * k + 2.5, 1.1 * k + 1.8))
+        _heatmap(ax, m, f"cross-algorithm play, {set_name}", self.digits)
+        name = self.save(fig, f"algorithms_{slug}.png")
+        self.md.append("### Cross-algorithm heatmap\n")
+        self.md.append(f"![cross-algorithm heatmap]({name})\n")
+        self.md.append("Cell = mean pair score of different policies of the two algorithms.\n")
+        self.md.append(_matrix_md(m, self.digits))
+
+    def per_level(self, pl: an.PairLevel, levels: list[str], set_name: str, slug: str) -> None:
+        plt = _plt()
+        algos = an.algorithms_of(pl.policies)
+        stats = an.per_level(pl, "xp")
+        if not stats:
+            self.md.append("### Per level\n\nNo algorithm has two seeds on these levels: no XP per level.\n")
+            return
+        self.md.append("### XP per level\n")
+        if len(levels) <= MAX_BARS:
+            lv_names = sorted({s.level for s in stats})
+            width = 0.8 / max(len(algos), 1)
+            fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * len(lv_names) * max(1, len(algos)) / 2), 4))
+            for k, alpha in enumerate(algos):
+                got = {s.level: s for s in stats if s.algorithm == alpha}
+                xs = [i + k * width for i, lv in enumerate(lv_names) if lv in got]
+                ax.bar(
+                    xs,
+                    [got[lv].mean for lv in lv_names if lv in got],
+                    width,
+                    yerr=[0 if math.isnan(got[lv].sem) else got[lv].sem for lv in lv_names if lv in got],
+                    capsize=3,
+                    label=alpha,
+                )
+            ax.set_xticks(
+                [i + width * (len(algos) - 1) / 2 for i in range(len(lv_names))], lv_names, rotation=20
+            )
+            ax.set_ylabel(self.unit)
+            ax.set_title(f"XP per level ({set_name}), standard error bars")
+            ax.legend()
+            name = self.save(fig, f"per_level_{slug}.png")
+            self.md.append(f"![XP per level]({name})\n")
+            rows = [[s.level, s.algorithm, _pm(s.mean, s.sem, self.digits), str(s.n)] for s in stats]
+            self.md.append(_table(["level", "algorithm", "XP mean ± SE", "pairs"], rows))
+        else:
+            fig, ax = plt.subplots(figsize=(6, 4))
+            for alpha in algos:
+                ax.hist([s.mean for s in stats if s.algorithm == alpha], bins=20, alpha=0.5, label=alpha)
+            ax.set_xlabel(f"XP {self.unit} on one level")
+            ax.set_ylabel("levels")
+            ax.set_title(f"distribution of per-level XP ({set_name})")
+            ax.legend()
+            name = self.save(fig, f"per_level_{slug}.png")
+            self.md.append(f"{len(levels)} levels: the distribution of per-level XP means.\n")
+            self.md.append(f"![per-level XP distribution]({name})\n")
+            rows = []
+            for alpha in algos:
+                means = np.asarray([s.mean for s in stats if s.algorithm == alpha])
+                rows.append(
+                    [
+                        alpha,
+                        str(means.size),
+                        _pm(float(means.mean()), sem(means), self.digits),
+                        _fmt(float(np.median(means)), self.digits),
+                    ]
+                )
+            self.md.append(_table(["algorithm", "levels", "mean ± SE over levels", "median"], rows))
+
+    def tests(self, xp: dict[str, np.ndarray], adhoc: dict[str, np.ndarray]) -> None:
+        self.md.append("### Significance between algorithms\n")
+        self.md.append(
+            "Two-sided Welch t-test and 95% percentile bootstrap interval (10,000 resamples) of the "
+            "difference of mean pair scores.\n"
+        )
+        d = self.digits
+        for label, samples in (("XP (other seeds of the same algorithm)", xp), ("ad hoc", adhoc)):
+            algos = [a for a in sorted(samples) if samples[a].size]
+            rows = []
+            for i, a in enumerate(algos):
+                for b in algos[i + 1 :]:
+                    c = compare(samples[a], samples[b])
+                    rows.append(
+                        [
+                            f"{a} vs {b}",
+                            f"{_fmt(c.mean_a, self.digits)} vs {_fmt(c.mean_b, self.digits)}",
+                            f"{c.n_a} / {c.n_b}",
+                            f"{_fmt(c.diff, d)} [{_fmt(c.ci_low, d)}, {_fmt(c.ci_high, d)}]",
+                            _fmt(c.t, 2),
+                            _fmt(c.df, 1),
+                            "—" if math.isnan(c.p) else f"{c.p:.2g}",
+                        ]
+                    )
+            self.md.append(f"**{label}**\n")
+            if rows:
+                self.md.append(_table(["pair", "means", "n", "difference [95% CI]", "t", "df", "p"], rows))
+            else:
+                self.md.append("Fewer than two algorithms with samples.\n")
+
+    def meta_game(self, pl: an.PairLevel, set_name: str, slug: str) -> None:
+        m = an.algorithm_matrix(pl)
+        self.md.append("### Meta-game: replicator dynamics on the cross-algorithm game\n")
+        k = len(m.labels)
+        if k < 2 or np.isnan(m.values).any():
+            self.md.append(
+                "Needs at least two algorithms and every cell of the cross-algorithm matrix "
+                "(an algorithm with one seed has no diagonal cell).\n"
+            )
+            return
+        payoff = egta.symmetrise(m.values)
+        uniform = np.full(k, 1.0 / k)
+        grad = egta.replicator_gradient(payoff, uniform)
+        points = egta.rest_points(payoff)
+        traj = egta.integrate(payoff, uniform)
+        plt = _plt()
+        fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+        axes[0].bar(m.labels, grad)
+        axes[0].axhline(0, color="k", lw=0.5)
+        axes[0].set_title("replicator gradient dx/dt at the uniform mixture")
+        if k == 3:
+            axes[1].remove()
+            ax = fig.add_subplot(1, 2, 2)
+            _simplex(ax, payoff, m.labels, points)
+        else:
+            for i, label in enumerate(m.labels):
+                axes[1].plot(traj[:, i], label=label)
+            axes[1].set_xlabel("time (steps of 0.05, payoffs scaled to unit range)")
+            axes[1].set_ylabel("population share")
+            axes[1].set_title("replicator trajectory from the uniform mixture")
+            axes[1].legend()
+        fig.suptitle(f"meta-game, {set_name}")
+        name = self.save(fig, f"replicator_{slug}.png")
+        self.md.append(f"![replicator dynamics]({name})\n")
+        self.md.append(
+            _table(
+                ["algorithm", "dx/dt at uniform", "share after the trajectory"],
+                [[lab, f"{grad[i]:+.4g}", f"{traj[-1, i]:.3f}"] for i, lab in enumerate(m.labels)],
+            )
+        )
+        rows = []
+        for r in points:
+            mix = ", ".join(f"{m.labels[i]} {r.x[i]:.3f}" for i in r.support)
+            rows.append(
+                [mix, r.stability, "yes" if r.nash else "no", "yes" if r.isolated else "no (a continuum)"]
+            )
+        self.md.append("Rest points (stability from the Jacobian on the simplex):\n")
+        self.md.append(_table(["mixture", "stability", "Nash", "isolated"], rows))
+        ar = egta.alpha_rank(payoff)
+        if ar.pi is None:
+            self.md.append(f"Alpha-rank: {ar.note}.\n")
+        else:
+            order = np.argsort(-ar.pi)
+            self.md.append(f"Alpha-rank ({ar.note}; payoffs scaled to [0, 1]):\n")
+            self.md.append(
+                _table(
+                    ["rank", "algorithm", "stationary mass"],
+                    [[str(n + 1), m.labels[i], f"{ar.pi[i]:.3f}"] for n, i in enumerate(order)],
+                )
+            )
+
+    def write(self) -> Path:
+        self.out.mkdir(parents=True, exist_ok=True)
+        self.header()
+        for name, levels in an.level_sets(self.table.level.tolist()).items():
+            self.level_set(name, levels)
+        path = self.out / "report.md"
+        path.write_text("\n".join(self.md))
+        return path
+
+
+def _mean_sem(x: np.ndarray | None) -> tuple[float, float]:
+    if x is None or x.size == 0:
+        return math.nan, math.nan
+    return float(x.mean()), sem(x)
+
+
+def _simplex(ax: Any, payoff: np.ndarray, labels: Sequence[str], points: Sequence[egta.RestPoint]) -> None:
+    corners = np.array([[0.0, 0.0], [1.0, 0.0], [0.5, math.sqrt(3) / 2]])
+    n = 14
+    bary = np.array([[i / n, j / n, 1 - (i + j) / n] for i in range(n + 1) for j in range(n + 1 - i)])
+    grad = egta.replicator_gradient(payoff / (float(np.ptp(payoff)) or 1.0), bary)
+    xy, dxy = bary @ corners, grad @ corners
+    ax.quiver(xy[:, 0], xy[:, 1], dxy[:, 0], dxy[:, 1], angles="xy", color="tab:blue")
+    ax.plot(*np.vstack([corners, corners[:1]]).T, color="k", lw=0.8)
+    for c, lab in zip(corners, labels, strict=True):
+        ax.annotate(lab, c, textcoords="offset points", xytext=(0, -12 if c[1] == 0 else 5), ha="center")
+    for r in points:
+        p = r.x @ corners
+        ax.scatter(*p, s=40, c="k" if r.stability == "stable" else "w", edgecolors="k", zorder=3)
+    ax.set_aspect("equal")
+    ax.axis("off")
+    ax.set_title("replicator field (filled: stable rest point)")
+
+
+def write_report(table: EpisodeTable, out_dir: str | Path, *, sources: Sequence[str] = ()) -> Path:
+    """Writes `report.md` and its PNG figures into `out_dir`; returns the Markdown file's path."""
+    return _Report(table, Path(out_dir), sources).write()

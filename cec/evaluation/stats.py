@@ -1,0 +1,95 @@
+"""Statistics for comparing algorithms: standard errors, Welch t-tests, bootstrap intervals, IQM.
+
+The t-test is scipy's (two-sided Welch test, as the paper reports two-sided t-tests); the bootstrap is a
+vectorised percentile bootstrap of the difference of means (each group resampled on its own). The unit
+of a sample is the caller's choice; `cec.evaluation.analysis` uses one pairing of two policies.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import numpy as np
+from scipy import stats as sps
+
+
+class Comparison(NamedTuple):
+    """Algorithm A against algorithm B on one score.
+
+    Attributes:
+        mean_a, mean_b: sample means; n_a, n_b: sample sizes.
+        diff: mean_a - mean_b.
+        ci_low, ci_high: percentile bootstrap confidence interval of `diff`.
+        t, df, p: Welch's t statistic, its degrees of freedom, the two-sided p-value (NaN when a group
+            has fewer than 2 samples or both have zero variance).
+    """
+
+    mean_a: float
+    mean_b: float
+    n_a: int
+    n_b: int
+    diff: float
+    ci_low: float
+    ci_high: float
+    t: float
+    df: float
+    p: float
+
+
+def sem(x: np.ndarray) -> float:
+    """Standard error of the mean (ddof 1); NaN for fewer than 2 samples."""
+    x = np.asarray(x, np.float64)
+    if x.size < 2:
+        return math.nan
+    return float(np.std(x, ddof=1) / math.sqrt(x.size))
+
+
+def iqm(x: np.ndarray) -> float:
+    """Interquartile mean (25% trimmed from each end), as ZSC-Eval aggregates BR-Prox; NaN if empty."""
+    x = np.asarray(x, np.float64)
+    return float(sps.trim_mean(x, 0.25)) if x.size else math.nan
+
+
+def welch_ttest(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:
+    """(t, df, two-sided p) of Welch's unequal-variance t-test of mean(a) = mean(b)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.size < 2 or b.size < 2:
+        return math.nan, math.nan, math.nan
+    va, vb = a.var(ddof=1) / a.size, b.var(ddof=1) / b.size
+    if va + vb == 0:
+        return math.nan, math.nan, math.nan
+    res = sps.ttest_ind(a, b, equal_var=False)
+    df = (va + vb) ** 2 / (va**2 / (a.size - 1) + vb**2 / (b.size - 1))
+    return float(res.statistic), float(df), float(res.pvalue)
+
+
+def bootstrap_diff_ci(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    confidence: float = 0.95,
+    n_resamples: int = 10_000,
+    seed: int = 0,
+) -> tuple[float, float]:
+    """Percentile bootstrap interval of mean(a) - mean(b), resampling each group with replacement (NaN
+    when a group has fewer than 2 samples)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if a.size < 2 or b.size < 2:  # one sample says nothing about its group's spread
+        return math.nan, math.nan
+    rng = np.random.default_rng(seed)
+    ma = a[rng.integers(0, a.size, (n_resamples, a.size))].mean(axis=1)
+    mb = b[rng.integers(0, b.size, (n_resamples, b.size))].mean(axis=1)
+    tail = (1.0 - confidence) / 2
+    low, high = np.quantile(ma - mb, [tail, 1.0 - tail])
+    return float(low), float(high)
+
+
+def compare(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95, seed: int = 0) -> Comparison:
+    """Welch t-test and bootstrap interval of the difference of means of two groups of samples."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    t, df, p = welch_ttest(a, b)
+    low, high = bootstrap_diff_ci(a, b, confidence=confidence, seed=seed)
+    mean_a = float(a.mean()) if a.size else math.nan
+    mean_b = float(b.mean()) if b.size else math.nan
+    return Comparison(mean_a, mean_b, int(a.size), int(b.size), mean_a - mean_b, low, high, t, df, p)

@@ -1,0 +1,261 @@
+"""The partner zoo: a manifest of policies (name, algorithm, seed, checkpoint), and loading them.
+
+A zoo manifest is YAML or JSON (docs/evaluation.md):
+
+    policies:
+      - {name: cec_s0, algorithm: cec, seed: 0, checkpoint: runs/cec-s0/checkpoints/update_000001000}
+      - {name: ippo_cramped_s0, algorithm: ippo, seed: 0, checkpoint: runs/ippo-cr-s0, levels: [cramped_room]}
+
+`checkpoint` is a checkpoint directory or a run directory (its latest checkpoint); relative paths are
+relative to the manifest's folder. `algorithm` and `seed` default to the checkpoint's metadata; `seed`
+picks the seed out of a multi-seed checkpoint. `levels` (optional) restricts the entry to those levels
+(single-task agents): a pairing is played on the levels both partners accept. `sha256` (optional, written
+by `cec zoo build`) pins the checkpoint's state; `env`, `layout` and `env_steps` are descriptive only.
+
+A malformed manifest is a `ConfigError` (nothing is evaluated). An entry whose checkpoint is missing,
+corrupt or does not fit the evaluation is *skipped with its reason recorded* (`SkippedEntry`), never
+silently dropped.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+import yaml
+
+from cec import checkpoints
+from cec.agents.network import ActorCritic, NetworkConfig, init_params
+from cec.config import ConfigError, from_dict
+from cec.evaluation.results import SkippedEntry
+from cec.training.config import TrainConfig
+from cec.training.tasks import EnvConfig, Task
+
+_ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "levels", "sha256")
+#: Descriptive keys `cec zoo build` also writes (not used to load the policy).
+_INFO_KEYS = ("env", "layout", "env_steps")
+
+
+@dataclass(frozen=True)
+class ZooEntry:
+    """One policy of the zoo as the manifest names it.
+
+    Attributes:
+        name: unique label (used in the result table).
+        checkpoint: checkpoint or run directory (absolute, or relative to the current directory).
+        algorithm: algorithm label (`cec`, `ippo`, `fcp`, ...); None: the checkpoint's metadata.
+        seed: which seed (also picks it out of a multi-seed checkpoint); None: the checkpoint's only seed.
+        levels: level names this policy plays; None: every level of the evaluation.
+        sha256: the checkpoint state's SHA-256 when the zoo was built; a checkpoint that no longer
+            matches is skipped (it was replaced since).
+    """
+
+    name: str
+    checkpoint: str
+    algorithm: str | None = None
+    seed: int | None = None
+    levels: tuple[str, ...] | None = None
+    sha256: str | None = None
+
+
+@dataclass(frozen=True)
+class Policy:
+    """A policy ready for cross-play: parameters plus what is needed to run them.
+
+    Attributes:
+        name, algorithm, seed: its labels in the result table.
+        params: network parameters (no seed axis).
+        network: the architecture the parameters belong to.
+        env: the training environment's config (game, and the settings its observations depend on).
+        levels: level names it plays (None: all).
+    """
+
+    name: str
+    algorithm: str
+    seed: int
+    params: Any
+    network: NetworkConfig
+    env: EnvConfig
+    levels: tuple[str, ...] | None = None
+
+
+def random_policy(
+    name: str,
+    key: jax.Array,
+    *,
+    env: EnvConfig | None = None,
+    network: NetworkConfig | None = None,
+    algorithm: str = "random",
+    seed: int = 0,
+    levels: tuple[str, ...] | None = None,
+) -> Policy:
+    """A randomly initialised policy (tests, benchmarks, a chance-level partner); default `small` network."""
+    from cec.agents.network import network_preset
+
+    env = env or EnvConfig()
+    network = network or network_preset("small", env.name)
+    params = _jitted_init(Task.from_config(env), network)(key)
+    return Policy(name, algorithm, seed, params, network, env, levels)
+
+
+@cache
+def _jitted_init(task: Task, network: NetworkConfig) -> Any:
+    net = ActorCritic(network, task.num_actions)
+    return jax.jit(lambda key: init_params(net, key, task.obs_shape))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# MANIFEST
+# ---------------------------------------------------------------------------------------------------------
+
+
+def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> list[ZooEntry]:
+    """Entries from manifest data: a list of entries, or a mapping with a `policies` list."""
+    if isinstance(data, Mapping):
+        extra = sorted(set(data) - {"policies"})
+        if extra:
+            raise ConfigError(f"{where}: unknown top-level key(s) {extra}; a zoo has one key, `policies`")
+        data = data.get("policies")
+    if not isinstance(data, list) or not data:
+        raise ConfigError(f"{where}: expected a non-empty list of policies (see docs/evaluation.md)")
+    entries: list[ZooEntry] = []
+    for i, item in enumerate(data):
+        at = f"{where}: policies[{i}]"
+        if not isinstance(item, Mapping):
+            raise ConfigError(f"{at} must be a mapping with keys {list(_ENTRY_KEYS)}, got {item!r}")
+        unknown = sorted(set(item) - set(_ENTRY_KEYS) - set(_INFO_KEYS))
+        if unknown:
+            raise ConfigError(f"{at}: unknown key(s) {unknown}; valid keys: {list(_ENTRY_KEYS + _INFO_KEYS)}")
+        for key in ("name", "checkpoint"):
+            if not isinstance(item.get(key), str) or not item[key]:
+                raise ConfigError(f"{at}: `{key}` is required and must be a non-empty string")
+        algorithm = item.get("algorithm")
+        if algorithm is not None and (not isinstance(algorithm, str) or not algorithm):
+            raise ConfigError(f"{at}: `algorithm` must be a non-empty string, got {algorithm!r}")
+        seed = item.get("seed")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise ConfigError(f"{at}: `seed` must be an integer, got {seed!r}")
+        levels = item.get("levels")
+        if levels is not None:
+            if not isinstance(levels, list) or not levels or not all(isinstance(x, str) for x in levels):
+                raise ConfigError(f"{at}: `levels` must be a non-empty list of level names, got {levels!r}")
+            levels = tuple(levels)
+        sha256 = item.get("sha256")
+        if sha256 is not None and (not isinstance(sha256, str) or len(sha256) != 64):
+            raise ConfigError(f"{at}: `sha256` must be a 64-digit hex string, got {sha256!r}")
+        path = Path(item["checkpoint"])
+        if not path.is_absolute():
+            path = Path(base_dir) / path
+        entries.append(ZooEntry(item["name"], str(path), algorithm, seed, levels, sha256))
+    names = [e.name for e in entries]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ConfigError(f"{where}: policy names must be unique; repeated: {dupes}")
+    return entries
+
+
+def load_zoo(path: str | Path) -> list[ZooEntry]:
+    """Reads a zoo manifest (YAML or JSON); relative checkpoint paths are relative to its folder."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"zoo manifest {str(p)!r} does not exist (see docs/evaluation.md for the format)")
+    try:
+        data = json.loads(p.read_text()) if p.suffix == ".json" else yaml.safe_load(p.read_text())
+    except (yaml.YAMLError, json.JSONDecodeError) as err:
+        raise ConfigError(f"zoo manifest {str(p)!r} is not valid YAML/JSON: {err}") from err
+    return parse_zoo(data, p.parent, where=str(p))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# CHECKPOINTS -> POLICIES
+# ---------------------------------------------------------------------------------------------------------
+
+
+def resolve_checkpoint(path: str | Path) -> Path:
+    """A checkpoint directory, or a run directory's latest checkpoint; `CheckpointError` if neither."""
+    p = Path(path)
+    if (p / checkpoints.META_FILE).is_file():
+        return p
+    if not p.exists():
+        raise checkpoints.CheckpointError(f"checkpoint {str(p)!r} is missing (no such file or directory)")
+    latest = checkpoints.CheckpointStore(p, keep_last=1).latest()
+    if latest is None:
+        raise checkpoints.CheckpointError(
+            f"{str(p)!r} is neither a checkpoint (no {checkpoints.META_FILE}) nor a run directory with "
+            "checkpoints/update_*"
+        )
+    return latest.path
+
+
+@cache
+def _state_template(config_json: str) -> Any:
+    from cec.training.trainer import Trainer
+
+    config = from_dict(TrainConfig, json.loads(config_json))
+    return Trainer(config).state_template()
+
+
+def load_policy(entry: ZooEntry) -> Policy:
+    """Loads one entry's parameters (checksum and shapes verified by `cec.checkpoints.load`).
+
+    Raises `CheckpointError` (missing, corrupt, unknown config, seed not in the checkpoint) with the cause.
+    """
+    path = resolve_checkpoint(entry.checkpoint)
+    meta = checkpoints.read_meta(path)
+    if entry.sha256 is not None and meta.get("sha256") != entry.sha256:
+        raise checkpoints.CheckpointError(
+            f"checkpoint {path} is not the one the zoo was built with (state SHA-256 "
+            f"{str(meta.get('sha256'))[:12]}..., the manifest says {entry.sha256[:12]}...); rebuild the zoo "
+            "or fix the entry"
+        )
+    try:
+        config = from_dict(TrainConfig, meta["config"])
+    except (ConfigError, KeyError, TypeError) as err:
+        raise checkpoints.CheckpointError(
+            f"checkpoint {path} holds a config this code cannot read ({err}); re-export it with this "
+            "version or evaluate it with the version that wrote it"
+        ) from err
+    state, _ = checkpoints.load(path, _state_template(json.dumps(meta["config"], sort_keys=True)))
+    metadata = meta.get("metadata", {})
+    seeds = [int(s) for s in metadata.get("seeds", [config.seed + i for i in range(config.num_seeds)])]
+    if entry.seed is None:
+        if len(seeds) != 1:
+            raise checkpoints.CheckpointError(
+                f"checkpoint {path} holds seeds {seeds}; give the entry a `seed` to pick one"
+            )
+        seed = seeds[0]
+    else:
+        seed = entry.seed
+        if seed not in seeds:
+            raise checkpoints.CheckpointError(
+                f"checkpoint {path} holds seeds {seeds}, not seed {seed}; fix the entry's `seed`"
+            )
+    index = seeds.index(seed)
+    params = jax.tree.map(lambda x: np.asarray(x[index]), state.params)
+    algorithm = entry.algorithm or str(metadata.get("algorithm", config.algorithm))
+    return Policy(entry.name, algorithm, seed, params, config.network_config, config.env, entry.levels)
+
+
+def load_policies(entries: Sequence[ZooEntry]) -> tuple[list[Policy], list[SkippedEntry]]:
+    """Loads every entry; those that cannot be loaded are returned as `SkippedEntry` with the reason."""
+    policies: list[Policy] = []
+    skipped: list[SkippedEntry] = []
+    for entry in entries:
+        try:
+            policies.append(load_policy(entry))
+        except (checkpoints.CheckpointError, ConfigError, OSError, ValueError) as err:
+            skipped.append(
+                SkippedEntry(
+                    entry.name,
+                    entry.algorithm or "",
+                    -1 if entry.seed is None else entry.seed,
+                    f"{type(err).__name__}: {err}",
+                )
+            )
+    return policies, skipped

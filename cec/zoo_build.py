@@ -1,0 +1,386 @@
+"""`cec zoo build SPEC.yaml --out ZOO_DIR`: train a partner zoo from a declarative spec, write its manifest.
+
+The spec names what to train, one entry per preset (docs/training.md):
+
+    entries:
+      - {preset: configs/train/dd_ippo_quick.yaml, seeds: [0, 1, 2], overrides: ["total_env_steps=100000"]}
+      - {preset: configs/train/dd_fcp_quick.yaml, seeds: [0]}
+
+    preset     a training preset (relative to the current directory, else to the spec's folder)
+    seeds      the seeds to train (default: the preset's `seed` .. `seed + num_seeds - 1`); consecutive
+               seeds are one run (`num_seeds` vmapped seeds), others one run per seed
+    overrides  `key=value` overrides of the preset (not `seed`, `num_seeds`, `run_dir`, `name`)
+    name       optional run-name stem (default `<algorithm>-<env>-<levels>`); runs are `<stem>-s<first seed>`
+
+Runs go to `ZOO_DIR/runs/`, in spec order. Paths in a preset under its own `run_dir` (FCP's
+`partner.population[].run`, CEC-Finetune's `init_from`, e.g. `runs/ippo-dual_destination-fixed-s0`) are
+re-rooted to `ZOO_DIR/runs/`, so a population or a fine-tuning start can be an earlier entry of the spec.
+
+Everything is checked before any training: the spec's keys, the presets and overrides (as `cec train`
+would), run and policy names that two entries would share, populations and `init_from` runs that are
+neither on disk nor trained by an earlier entry, and finished runs whose config no longer matches the spec.
+A run that already finished is skipped, an interrupted one resumed, so running the same command again
+after an interruption continues the build.
+
+`ZOO_DIR/zoo.yaml` is a manifest in the format of `cec.evaluation.zoo` (one policy per run and seed, each
+at its run's final checkpoint, paths relative to ZOO_DIR), extended with `env`, `layout` (the training
+level distribution), `env_steps` and `sha256` (of the checkpoint's state file, from its meta.json).
+Single-task Overcooked agents carry `levels: [<kitchen>]` (they meet others on their own kitchen only).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TextIO
+
+import yaml
+
+from cec.config import ConfigError
+
+if TYPE_CHECKING:
+    from cec.training.config import TrainConfig
+
+ENTRY_KEYS = ("preset", "seeds", "overrides", "name")
+RESERVED_OVERRIDES = ("seed", "num_seeds", "run_dir", "name")
+MANIFEST = "zoo.yaml"
+
+
+@dataclass(frozen=True)
+class PlannedRun:
+    """One `train()` call of the build.
+
+    Attributes:
+        entry: index of the spec entry it comes from.
+        label: `entries[i] (preset)`, for messages.
+        config: the run's full config (run_dir under the zoo, seeds set, paths re-rooted).
+        seeds: the seeds it trains (`config.seed` .. `config.seed + config.num_seeds - 1`).
+        policy_names: the manifest name of each seed's policy.
+        depends_on: (what, run directory, seeds it needs or () for any) it reads when it starts (FCP
+            populations, init_from).
+    """
+
+    entry: int
+    label: str
+    config: TrainConfig
+    seeds: tuple[int, ...]
+    policy_names: tuple[str, ...]
+    depends_on: tuple[tuple[str, Path, tuple[int, ...]], ...]
+
+    @property
+    def run_dir(self) -> Path:
+        return Path(self.config.run_dir) / self.config.run_name
+
+
+@dataclass(frozen=True)
+class BuildResult:
+    """What `build_zoo` did: the manifest (None when interrupted), run names trained and skipped."""
+
+    manifest: Path | None
+    trained: tuple[str, ...]
+    skipped: tuple[str, ...]
+    interrupted: bool
+
+
+# ---------------------------------------------------------------------------------------------------------
+# SPEC -> PLAN (every check happens here, before any training)
+# ---------------------------------------------------------------------------------------------------------
+
+
+def load_spec(path: str | Path) -> list[dict[str, Any]]:
+    """The spec's entries as plain mappings (keys and value types checked); `ConfigError` otherwise."""
+    p = Path(path)
+    if not p.is_file():
+        raise ConfigError(f"zoo spec {str(p)!r} does not exist")
+    try:
+        data = yaml.safe_load(p.read_text())
+    except yaml.YAMLError as err:
+        raise ConfigError(f"zoo spec {str(p)!r} is not valid YAML: {err}") from err
+    if not isinstance(data, Mapping) or set(data) != {"entries"}:
+        got = sorted(data) if isinstance(data, Mapping) else type(data).__name__
+        raise ConfigError(
+            f"zoo spec {p}: expected one top-level key `entries` (a list of {{preset, seeds, overrides, "
+            f"name}}), got {got}"
+        )
+    entries = data["entries"]
+    if not isinstance(entries, list) or not entries:
+        raise ConfigError(f"zoo spec {p}: `entries` must be a non-empty list")
+    out = []
+    for i, item in enumerate(entries):
+        at = f"zoo spec {p}: entries[{i}]"
+        if not isinstance(item, Mapping):
+            raise ConfigError(f"{at} must be a mapping with keys {list(ENTRY_KEYS)}, got {item!r}")
+        unknown = sorted(set(item) - set(ENTRY_KEYS))
+        if unknown:
+            raise ConfigError(f"{at}: unknown key(s) {unknown}; valid keys: {list(ENTRY_KEYS)}")
+        if not isinstance(item.get("preset"), str) or not item["preset"]:
+            raise ConfigError(f"{at}: `preset` (a configs/train/*.yaml file) is required")
+        at = f"{at} ({item['preset']})"
+        seeds = item.get("seeds")
+        if seeds is not None and (
+            not isinstance(seeds, list)
+            or not seeds
+            or not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds)
+            or len(set(seeds)) != len(seeds)
+        ):
+            raise ConfigError(
+                f"{at}: `seeds` must be a non-empty list of distinct integers >= 0, got {seeds!r}"
+            )
+        overrides = item.get("overrides", [])
+        if not isinstance(overrides, list) or not all(isinstance(o, str) for o in overrides):
+            raise ConfigError(f'{at}: `overrides` must be a list of "key=value" strings, got {overrides!r}')
+        for o in overrides:
+            key = o.partition("=")[0].strip()
+            if key in RESERVED_OVERRIDES:
+                fix = "the entry's `seeds`" if key in ("seed", "num_seeds") else "the entry's `name`"
+                if key == "run_dir":
+                    fix = "--out (runs go to ZOO_DIR/runs)"
+                raise ConfigError(f"{at}: override {o!r} is set by the zoo; use {fix} instead")
+        name = item.get("name")
+        if name is not None and (not isinstance(name, str) or not name or "/" in name):
+            raise ConfigError(f"{at}: `name` must be a non-empty string without '/', got {name!r}")
+        out.append(dict(item))
+    return out
+
+
+def _find_preset(preset: str, spec_dir: Path) -> Path:
+    for candidate in (Path(preset), spec_dir / preset):  # an absolute preset makes both the same
+        if candidate.is_file():
+            return candidate
+    raise ConfigError(f"preset file {preset!r} does not exist (looked in . and {spec_dir})")
+
+
+def _seed_groups(seeds: list[int]) -> list[tuple[int, ...]]:
+    """Consecutive seeds train as one run; any other set as one run per seed."""
+    ordered = sorted(seeds)
+    if ordered == list(range(ordered[0], ordered[0] + len(ordered))):
+        return [tuple(ordered)]
+    return [(s,) for s in ordered]
+
+
+def _reroot(path: str, old_root: str, new_root: Path) -> str:
+    """`path` moved from under `old_root` to under `new_root` (absolute); other paths made absolute."""
+    p = Path(path)
+    try:
+        return str(new_root / p.relative_to(old_root))
+    except ValueError:
+        return str(p.resolve())
+
+
+def plan_zoo(spec_path: str | Path, out_dir: str | Path) -> list[PlannedRun]:
+    """Checks the spec and returns the runs to train, in order. Raises `ConfigError` naming the entry."""
+    from cec import checkpoints
+    from cec.config import load_config
+    from cec.training.config import TrainConfig
+
+    spec_path = Path(spec_path)
+    runs_root = Path(out_dir).resolve() / "runs"
+    plan: list[PlannedRun] = []
+    for i, item in enumerate(load_spec(spec_path)):
+        label = f"entries[{i}] ({item['preset']})"
+        at = f"zoo spec {spec_path}: {label}"
+        try:
+            preset = _find_preset(item["preset"], spec_path.parent)
+            base = load_config(TrainConfig, preset, item.get("overrides", []))
+        except ConfigError as err:
+            raise ConfigError(f"{at}: {err}") from err
+        seeds = item.get("seeds") or list(range(base.seed, base.seed + base.num_seeds))
+        population = tuple(
+            dataclasses.replace(e, run=_reroot(e.run, base.run_dir, runs_root))
+            for e in base.partner.population
+        )
+        init_from = _reroot(base.init_from, base.run_dir, runs_root) if base.init_from else ""
+        deps = tuple(("partner.population run", Path(e.run), e.seeds) for e in population)
+        if init_from:
+            deps += (
+                ("init_from", Path(init_from), () if base.init_from_seed < 0 else (base.init_from_seed,)),
+            )
+        stem = item.get("name") or f"{base.algorithm}-{base.env.name}-{base.env.levels}"
+        for group in _seed_groups(seeds):
+            try:
+                config = dataclasses.replace(
+                    base,
+                    seed=group[0],
+                    num_seeds=len(group),
+                    run_dir=str(runs_root),
+                    name=f"{item['name']}-s{group[0]}" if item.get("name") else "",
+                    partner=dataclasses.replace(base.partner, population=population),
+                    init_from=init_from,
+                )
+            except ConfigError as err:
+                raise ConfigError(f"{at}: {err}") from err
+            names = tuple(f"{stem}-s{s}" for s in group)
+            plan.append(PlannedRun(i, label, config, group, names, deps))
+    _check_plan(plan, spec_path)
+    from cec.training.trainer import config_dict
+
+    for run in plan:  # a finished run whose config differs from the spec: stop before any training
+        latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
+        if latest is not None and checkpoints.read_meta(latest.path)["config"] != config_dict(run.config):
+            raise ConfigError(
+                f"zoo spec {spec_path}: {run.label}: {run.run_dir} was trained with another config (the spec "
+                "or the preset changed since); delete that run directory to retrain it, restore the spec, "
+                "or give the entry a `name`"
+            )
+    return plan
+
+
+def _check_plan(plan: list[PlannedRun], spec_path: Path) -> None:
+    where = f"zoo spec {spec_path}"
+    producers: dict[Path, int] = {}
+    policies: dict[str, PlannedRun] = {}
+    for run in plan:
+        if run.run_dir in producers:
+            raise ConfigError(
+                f"{where}: {plan[producers[run.run_dir]].label} and {run.label} both train run "
+                f"{run.config.run_name}; give one of them a `name`"
+            )
+        producers[run.run_dir] = len(producers)
+        for name in run.policy_names:
+            if name in policies and policies[name].entry != run.entry:
+                raise ConfigError(
+                    f"{where}: {policies[name].label} and {run.label} both produce policy {name}; give one "
+                    "of them a `name`"
+                )
+            policies[name] = run
+    for k, run in enumerate(plan):
+        for what, dep, seeds in run.depends_on:
+            source = plan[producers[dep]] if dep in producers else None
+            if source is not None and producers[dep] > k:
+                raise ConfigError(
+                    f"{where}: {run.label} reads {dep.name}, which {source.label} trains later; move that "
+                    "entry before it"
+                )
+            if source is not None and not set(seeds) <= set(source.seeds):
+                raise ConfigError(
+                    f"{where}: {run.label}: {what} {dep.name} needs seeds {sorted(seeds)}, but "
+                    f"{source.label} trains seeds {list(source.seeds)} there; fix either entry's seeds"
+                )
+            if source is None and not dep.exists():
+                raise ConfigError(
+                    f"{where}: {run.label}: {what} {dep} neither exists nor is trained by an earlier entry; "
+                    "add the entry that trains it (before this one) or point the preset at an existing run"
+                )
+
+
+# ---------------------------------------------------------------------------------------------------------
+# BUILD
+# ---------------------------------------------------------------------------------------------------------
+
+
+def build_zoo(
+    spec_path: str | Path, out_dir: str | Path, *, progress: bool = True, log: TextIO = sys.stderr
+) -> BuildResult:
+    """Trains every run of the spec that has not finished (resuming interrupted ones), in spec order,
+    then writes `out_dir/zoo.yaml`. Stops early (no manifest) when a run is interrupted (SIGINT/SIGTERM)."""
+    from cec import checkpoints
+    from cec.training.trainer import MetricsWriter, train
+
+    plan = plan_zoo(spec_path, out_dir)
+    trained: list[str] = []
+    skipped: list[str] = []
+    for k, run in enumerate(plan, 1):
+        cfg = run.config
+        latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
+        head = f"[{k}/{len(plan)}] {cfg.run_name} ({run.label}, {cfg.algorithm}, seeds {_seeds(run.seeds)})"
+        if latest is not None and latest.update >= cfg.num_updates:
+            print(f"{head}: finished, skipping", file=log, flush=True)
+            skipped.append(cfg.run_name)
+            continue
+        if latest is None:
+            if run.run_dir.exists():  # killed before its first checkpoint: drop the stale metrics rows
+                MetricsWriter(run.run_dir).truncate_after(0)
+            print(f"{head}: training {cfg.num_updates} updates", file=log, flush=True)
+        else:
+            print(f"{head}: resuming at update {latest.update}/{cfg.num_updates}", file=log, flush=True)
+        result = train(cfg, resume=latest is not None, progress=progress, log=log)
+        trained.append(cfg.run_name)
+        if result.interrupted:
+            print(
+                f"zoo build interrupted in {cfg.run_name}; run the same command again to continue",
+                file=log,
+                flush=True,
+            )
+            return BuildResult(None, tuple(trained), tuple(skipped), True)
+    manifest = write_manifest(plan, out_dir)
+    print(f"wrote {manifest} ({sum(len(r.seeds) for r in plan)} policies)", file=log, flush=True)
+    return BuildResult(manifest, tuple(trained), tuple(skipped), False)
+
+
+def _seeds(seeds: tuple[int, ...]) -> str:
+    return f"{seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else str(seeds[0])
+
+
+def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[str, Any]]:
+    """One manifest entry per (run, seed) at the run's final checkpoint (paths relative to `out_dir`)."""
+    from cec import checkpoints
+
+    root = Path(out_dir).resolve()
+    entries = []
+    for run in plan:
+        cfg = run.config
+        final = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
+        if final is None or final.update < cfg.num_updates:
+            raise checkpoints.CheckpointError(f"{run.run_dir} has not finished; run `cec zoo build` again")
+        meta = checkpoints.read_meta(final.path)
+        for seed, name in zip(run.seeds, run.policy_names, strict=True):
+            entry: dict[str, Any] = {
+                "name": name,
+                "algorithm": cfg.algorithm,
+                "seed": seed,
+                "checkpoint": str(final.path.relative_to(root)),
+                "env": cfg.env.name,
+                "layout": cfg.env.levels,
+                "env_steps": int(meta["env_steps"]),
+                "sha256": meta["sha256"],
+            }
+            if cfg.env.name == "overcooked" and not cfg.env.procedural:
+                entry["levels"] = [cfg.env.levels]  # a single-task agent meets others on its own kitchen
+            entries.append(entry)
+    return entries
+
+
+def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
+    """Writes `out_dir/zoo.yaml` (atomically) and returns its path."""
+    path = Path(out_dir) / MANIFEST
+    text = (
+        "# Written by `cec zoo build`: one policy per (run, seed) at the run's final checkpoint.\n"
+        + yaml.safe_dump({"policies": manifest_entries(plan, out_dir)}, sort_keys=False)
+    )
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path
+
+
+# ---------------------------------------------------------------------------------------------------------
+# CLI: cec zoo build
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _cmd_zoo_build(args: argparse.Namespace) -> int:
+    result = build_zoo(args.spec, args.out, progress=not args.quiet)
+    if result.interrupted:
+        return 130
+    print(
+        f"zoo: {len(result.trained)} run(s) trained, {len(result.skipped)} already finished; "
+        f"manifest {result.manifest}"
+    )
+    return 0
+
+
+def add_subcommands(sub: Any) -> None:
+    """Registers `cec zoo build` on the `cec` command's subparsers."""
+    zoo = sub.add_parser("zoo", help="build a partner zoo (train from a spec, write its manifest)")
+    zoo_sub = zoo.add_subparsers(dest="zoo_command", required=True)
+    build = zoo_sub.add_parser(
+        "build", help="train the spec's entries (skipping finished runs) and write ZOO_DIR/zoo.yaml"
+    )
+    build.add_argument("spec", help="zoo spec YAML: entries: [{preset, seeds, overrides, name}]")
+    build.add_argument("--out", required=True, metavar="ZOO_DIR", help="runs go to ZOO_DIR/runs/")
+    build.add_argument("--quiet", action="store_true", help="no per-update progress lines")
+    build.set_defaults(func=_cmd_zoo_build)

@@ -1,0 +1,260 @@
+"""Analyses of the result table: statistics against scipy, replicator dynamics of textbook games, matrices,
+BR-normalised scores, the results file and the report. Pure NumPy on hand-made tables (no rollouts)."""
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats as sps
+
+from cec.evaluation import analysis as an
+from cec.evaluation import egta
+from cec.evaluation.report import write_report
+from cec.evaluation.results import ResultsError, SkippedEntry, make_table, read_csv, write_csv
+from cec.evaluation.stats import bootstrap_diff_ci, compare, iqm, sem, welch_ttest
+
+A = np.array([12.1, 9.8, 11.4, 10.2, 13.0, 9.1, 10.7])
+B = np.array([8.2, 9.9, 7.1, 8.8, 10.4, 6.5, 9.0, 7.7, 8.1])
+
+
+# ---- statistics -----------------------------------------------------------------------------------------
+
+
+def test_welch_t_test_matches_scipy_and_the_textbook_formula():
+    t, df, p = welch_ttest(A, B)
+    ref = sps.ttest_ind(A, B, equal_var=False)
+    assert t == pytest.approx(ref.statistic, rel=1e-12) and p == pytest.approx(ref.pvalue, rel=1e-12)
+    assert df == pytest.approx(ref.df, rel=1e-12)
+    va, vb = A.var(ddof=1) / A.size, B.var(ddof=1) / B.size
+    assert t == pytest.approx((A.mean() - B.mean()) / math.sqrt(va + vb), rel=1e-12)
+    assert df == pytest.approx((va + vb) ** 2 / (va**2 / (A.size - 1) + vb**2 / (B.size - 1)), rel=1e-12)
+    assert p == pytest.approx(2 * sps.t.sf(abs(t), df), rel=1e-9)
+    assert all(math.isnan(x) for x in welch_ttest(A[:1], B))  # one sample: no test
+    assert all(math.isnan(x) for x in welch_ttest(np.ones(3), np.ones(4)))  # no variance: no test
+
+
+def test_bootstrap_interval_matches_scipy():
+    low, high = bootstrap_diff_ci(A, B, n_resamples=20_000, seed=1)
+    ref = sps.bootstrap(
+        (A, B),
+        lambda x, y, axis: x.mean(axis) - y.mean(axis),
+        vectorized=True,
+        n_resamples=20_000,
+        method="percentile",
+        rng=np.random.default_rng(2),
+    ).confidence_interval
+    width = ref.high - ref.low
+    assert low == pytest.approx(ref.low, abs=0.05 * width) and high == pytest.approx(
+        ref.high, abs=0.05 * width
+    )
+    assert low < A.mean() - B.mean() < high
+    assert bootstrap_diff_ci(A, B, seed=3) == bootstrap_diff_ci(A, B, seed=3)  # reproducible
+    assert all(math.isnan(x) for x in bootstrap_diff_ci(A[:1], B))
+    c = compare(A, B)
+    assert (c.n_a, c.n_b) == (7, 9) and c.diff == pytest.approx(A.mean() - B.mean())
+
+
+def test_standard_error_and_interquartile_mean():
+    assert sem(A) == pytest.approx(sps.sem(A), rel=1e-12)
+    assert iqm(np.arange(1.0, 9.0)) == pytest.approx(4.5)  # mean of 3, 4, 5, 6
+    assert iqm(B) == pytest.approx(sps.trim_mean(B, 0.25))
+    assert math.isnan(sem(A[:1])) and math.isnan(iqm(np.array([])))
+
+
+# ---- replicator dynamics -----------------------------------------------------------------------------
+
+
+def _points(payoff):
+    return {tuple(np.round(r.x, 6)): r for r in egta.rest_points(np.asarray(payoff, float))}
+
+
+def test_replicator_rest_points_of_textbook_2x2_games():
+    # Hawk-dove (anti-coordination): both pure states repel, the mixed state (1/2, 1/2) attracts.
+    hd = _points([[0, 3], [1, 2]])
+    assert set(hd) == {(1.0, 0.0), (0.0, 1.0), (0.5, 0.5)}
+    assert hd[(0.5, 0.5)].stability == "stable" and hd[(0.5, 0.5)].nash
+    assert hd[(1.0, 0.0)].stability == hd[(0.0, 1.0)].stability == "unstable"
+    assert not hd[(1.0, 0.0)].nash
+    # Coordination game: both conventions attract, the mixed state (1/3, 2/3) separates them.
+    co = _points([[2, 0], [0, 1]])
+    assert set(co) == {(1.0, 0.0), (0.0, 1.0), (0.333333, 0.666667)}
+    assert co[(1.0, 0.0)].stability == co[(0.0, 1.0)].stability == "stable"
+    assert co[(0.333333, 0.666667)].stability == "unstable" and co[(0.333333, 0.666667)].nash
+    # Along the edge dx1/dt = x1 x2 (3 x2 - (x1 + 2 x2)) for hawk-dove: at (0.25, 0.75) it is +0.1875 x 0.5.
+    g = egta.replicator_gradient(np.array([[0, 3], [1, 2.0]]), np.array([0.25, 0.75]))
+    assert g == pytest.approx([0.25 * 0.75 * (2.25 - 1.75), -0.25 * 0.75 * (2.25 - 1.75)])
+    assert egta.integrate(np.array([[0, 3], [1, 2.0]]), np.array([0.9, 0.1]))[-1] == pytest.approx(
+        [0.5, 0.5], abs=1e-3
+    )
+
+
+def test_replicator_rest_points_of_textbook_3x3_games():
+    third = (0.333333, 0.333333, 0.333333)
+    # Rock-paper-scissors: the three pure states are saddles; the centre is a neutral centre (closed orbits).
+    rps = _points([[0, -1, 1], [1, 0, -1], [-1, 1, 0]])
+    assert set(rps) == {(1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0), third}
+    assert all(rps[v].stability == "saddle" for v in rps if v != third)
+    centre = rps[third]
+    assert centre.stability == "non-hyperbolic" and centre.nash
+    assert np.allclose(np.real(centre.eigenvalues), 0, atol=1e-9) and np.all(np.imag(centre.eigenvalues) != 0)
+    # With wins worth more than losses cost, the centre becomes an attractor.
+    good = _points([[0, -1, 2], [2, 0, -1], [-1, 2, 0]])
+    assert good[third].stability == "stable" and set(good) == set(rps)
+    # A strictly dominant strategy is the one stable rest point; edges hold the mixed points of the pairs.
+    dom = _points([[3, 3, 3], [2, 1, 2], [2, 2, 1]])
+    stable = [x for x, r in dom.items() if r.stability == "stable"]
+    assert stable == [(1.0, 0.0, 0.0)] and dom[(0.0, 0.5, 0.5)].stability == "saddle"
+    # Symmetrising averages seat orders: (A + A^T) / 2.
+    assert egta.symmetrise(np.array([[1.0, 2.0], [4.0, 3.0]])) == pytest.approx(np.array([[1, 3], [3, 3.0]]))
+
+
+def test_alpha_rank_ranks_the_dominant_algorithm_first():
+    pytest.importorskip("open_spiel")
+    payoff = np.array([[100.0, 60, 50], [60, 80, 40], [50, 40, 30]])
+    ar = egta.alpha_rank(payoff)
+    assert ar.pi is not None and ar.pi.sum() == pytest.approx(1.0)
+    assert int(np.argmax(ar.pi)) == 0 and ar.pi[0] > 0.9
+
+
+# ---- the table and its analyses ------------------------------------------------------------------------
+
+
+def _table(policies, value, levels=("cramped_room", "coord_ring"), episodes=2, env="overcooked", steps=400):
+    """Every pair (self-play once, others in both seat orders) on `levels`; return = value(p, q, level, seat,
+    episode) with p the row's policy."""
+    cols = {k: [] for k in ("policy_a", "algorithm_a", "seed_a", "policy_b", "algorithm_b", "seed_b", "level",
+                            "seat", "episode", "returns", "deliveries", "collisions", "shaped_return", "env",
+                            "episode_steps", "actions")}  # fmt: skip
+    for i, p in enumerate(policies):
+        for q in policies[i:]:
+            for level in levels:
+                for seat in (0,) if p == q else (0, 1):
+                    for ep in range(episodes):
+                        r = value(p, q, level, seat, ep)
+                        row = (f"{p[0]}{p[1]}", p[0], p[1], f"{q[0]}{q[1]}", q[0], q[1], level, seat, ep, r,
+                               r // 20, 1, 0, env, steps, "sampled")  # fmt: skip
+                        for k, v in zip(cols, row, strict=True):
+                            cols[k].append(v)
+    return make_table(cols)
+
+
+POLICIES = [("cec", 0), ("cec", 1), ("cec", 2), ("ippo", 0), ("ippo", 1)]
+BASE = {"cec": 100.0, "ippo": 40.0}
+
+
+def _value(p, q, level, seat, ep):
+    """SP 2 x base; XP the mean of the two bases; +10 on coord_ring; +4 in seat 1; +-2 by episode."""
+    r = 2 * BASE[p[0]] if p == q else (BASE[p[0]] + BASE[q[0]]) / 2
+    return r + (10 if level == "coord_ring" else 0) + 4 * seat + (2 if ep else -2)
+
+
+def test_matrices_derive_from_the_long_table():
+    t = _table(POLICIES, _value)
+    pl = an.pair_level_scores(t)
+    cec = an.seed_matrix(pl, "cec")
+    assert cec.labels == ("s0", "s1", "s2")
+    # SP: 200 + 5 (mean over levels); XP: 100 + 5 + 2 (both seat orders averaged) on every off-diagonal cell.
+    assert np.diag(cec.values) == pytest.approx([205.0] * 3)
+    assert cec.values[~np.eye(3, dtype=bool)] == pytest.approx([107.0] * 6)
+    algos = an.algorithm_matrix(pl)
+    assert algos.labels == ("cec", "ippo")
+    assert algos.values == pytest.approx(np.array([[107.0, 77.0], [77.0, 47.0]]))
+    xp, sp, adhoc = (an.algorithm_samples(pl, k) for k in ("xp", "sp", "adhoc"))
+    assert xp["cec"].size == 3 and xp["ippo"].size == 1 and sp["ippo"] == pytest.approx([85.0, 85.0])
+    assert adhoc["cec"].size == 6 and adhoc["cec"] == pytest.approx([77.0] * 6)
+    levels = {(s.algorithm, s.level): s for s in an.per_level(pl)}
+    assert levels[("cec", "coord_ring")].mean == pytest.approx(112.0) and levels[("cec", "coord_ring")].n == 3
+    assert levels[("ippo", "cramped_room")].mean == pytest.approx(42.0) and math.isnan(
+        levels[("ippo", "cramped_room")].sem
+    )
+    # Only one level set's levels: the classic set here; a level subset restricts every matrix.
+    assert an.level_sets(["generated_001", "cramped_room", "fixed"]) == {
+        "classic": ["cramped_room"],
+        "fixed": ["fixed"],
+        "held-out generated": ["generated_001"],
+    }
+    only = an.seed_matrix(an.pair_level_scores(t, ["cramped_room"]), "cec")
+    assert only.values[0, 0] == pytest.approx(200.0)
+
+
+def test_seat_orders_weigh_equally_and_orientation_does_not_matter():
+    t = _table(POLICIES[:2], _value)
+    # Drop one seat-1 episode of the XP pair: episodes are averaged within a seat order first.
+    keep = ~((t.seat == 1) & (t.episode == 1) & (t.level == "cramped_room"))
+    pl = an.pair_level_scores(t.select(keep), ["cramped_room"])
+    assert an.pair_scores(pl)[0, 1] == pytest.approx(((100 + 0) + (104 - 2)) / 2)
+    # The same games written from B's side (policy columns swapped, seat flipped) give the same scores.
+    flipped = make_table(
+        {
+            **{f: getattr(t, f) for f in ("level", "episode", "returns", "deliveries", "collisions",
+                                          "shaped_return", "env", "episode_steps", "actions")},
+            "policy_a": t.policy_b, "algorithm_a": t.algorithm_b, "seed_a": t.seed_b,
+            "policy_b": t.policy_a, "algorithm_b": t.algorithm_a, "seed_b": t.seed_a,
+            "seat": np.where(t.policy_a == t.policy_b, t.seat, 1 - t.seat),
+        }
+    )  # fmt: skip
+    assert an.pair_scores(an.pair_level_scores(flipped)) == pytest.approx(
+        an.pair_scores(an.pair_level_scores(t))
+    )
+
+
+def test_best_response_normalised_score():
+    # Two policies, one level, one episode: R(x, x) = 10, R(y, y) = 40, R(x, y) = 20.
+    returns = {("x", "x"): 10, ("y", "y"): 40}
+    table = _table([("x", 0), ("y", 0)], lambda p, q, *_: returns.get((p[0], q[0]), 20), ("cramped_room",), 1)
+    prox = an.br_prox(an.pair_level_scores(table))
+    # x with partner y: y's best response is y itself (40): 20 / 40. y with partner x: x's best is y (20): 1.
+    assert prox["x"].iqm == pytest.approx(0.5) and prox["y"].iqm == pytest.approx(1.0)
+    assert prox["x"].n == prox["y"].n == 1
+
+
+def test_results_file_round_trip_and_errors(tmp_path: Path):
+    t = _table(POLICIES[:2], _value)
+    skipped = (SkippedEntry("e3t0", "e3t", 0, "CheckpointError: checkpoint 'x' is missing"),)
+    t = make_table({f: getattr(t, f) for f in an_fields()}, skipped)
+    back = read_csv(write_csv(t, tmp_path / "r.csv"))
+    assert back.skipped == skipped and len(back) == len(t)
+    for f in an_fields():
+        assert list(getattr(back, f)) == list(getattr(t, f)), f
+    (tmp_path / "bad.csv").write_text("policy_a,return\nx,1\n")
+    with pytest.raises(ResultsError, match="missing column"):
+        read_csv(tmp_path / "bad.csv")
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    lines[3] = lines[3].replace(",sampled,", ",sampled,").replace(",overcooked,400,", ",overcooked,four,")
+    (tmp_path / "bad2.csv").write_text("\n".join(lines))
+    with pytest.raises(ResultsError, match="line 4"):
+        read_csv(tmp_path / "bad2.csv")
+    mixed = type(t).concat([t, _table(POLICIES[:1], _value, env="dual_destination", steps=100)])
+    with pytest.raises(ResultsError, match="mix games"):
+        an.check_single_env(mixed)
+    clash = _table([("cec", 0)], _value)
+    clash2 = make_table({**{f: getattr(clash, f) for f in an_fields()}, "policy_a": ["other"] * len(clash)})
+    with pytest.raises(ResultsError, match="both cec seed 0"):
+        an.policies_of(type(t).concat([clash, clash2]))
+
+
+def an_fields():
+    return ("policy_a", "algorithm_a", "seed_a", "policy_b", "algorithm_b", "seed_b", "level", "seat",
+            "episode", "returns", "deliveries", "collisions", "shaped_return", "env", "episode_steps",
+            "actions")  # fmt: skip
+
+
+def test_report_for_dual_destination_uses_oracle_normalised_scores(tmp_path: Path):
+    pols = [("cec", 0), ("cec", 1), ("fcp", 0), ("fcp", 1), ("ippo", 0), ("ippo", 1)]
+    base = {"cec": 180.0, "fcp": 120.0, "ippo": 20.0}
+
+    def value(p, q, level, seat, ep):
+        return (base[p[0]] + base[q[0]]) / 2 + (5 if p == q else 0) + ep
+
+    t = _table(pols, value, levels=("fixed",), env="dual_destination", steps=100)
+    t = make_table({f: getattr(t, f) for f in an_fields()}, [SkippedEntry("broken", "e3t", 2, "corrupt")])
+    path = write_report(t, tmp_path / "rep", sources=["x.csv"])
+    text = path.read_text()
+    assert "normalised score (return / (2 x episode length))" in text
+    assert "| fixed | 191 | 0.955 |" in text  # the oracle row: the ceiling of any pair
+    assert "| cec | 2 | 0.927 ± 0.000 | 0.903 |" in text  # SP (180 + 5 + 0.5) / 200, XP (180 + 0.5) / 200
+    assert "| broken | e3t | 2 | corrupt |" in text
+    assert "Meta-game" in text and "| cec 1.000 | stable | yes | yes |" in text
+    for name in ("seed_matrices_fixed", "algorithms_fixed", "per_level_fixed", "replicator_fixed"):
+        assert (tmp_path / "rep" / f"{name}.png").stat().st_size > 1000

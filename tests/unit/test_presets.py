@@ -1,0 +1,50 @@
+"""Every training preset in configs/train loads, and its algorithm, partner and paths fit together."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from cec.config import load_config
+from cec.levels.classic import CLASSIC_ASCII
+from cec.training.config import ALGORITHMS, TrainConfig
+
+PRESETS = sorted((Path(__file__).resolve().parents[2] / "configs" / "train").glob("*.yaml"))
+
+
+def _load(name: str) -> TrainConfig:
+    return load_config(TrainConfig, PRESETS[0].parent / f"{name}.yaml")
+
+
+def _run_path(config: TrainConfig) -> str:
+    """Where `train()` writes a preset's run (relative to the directory `cec train` runs in)."""
+    return str(Path(config.run_dir) / config.run_name)
+
+
+@pytest.mark.parametrize("path", PRESETS, ids=[p.stem for p in PRESETS])
+def test_preset_loads_and_is_consistent(path):
+    config = load_config(TrainConfig, path)  # populations / init_from need not exist yet
+    kind, procedural = ALGORITHMS[config.algorithm]
+    assert config.partner.kind == kind and config.env.procedural == procedural
+    if config.algorithm == "fcp":  # the population is the IPPO preset's run of the same game and levels
+        ippo = _load(path.stem.replace("fcp", "ippo"))
+        assert (ippo.algorithm, ippo.env, ippo.network_config) == ("ippo", config.env, config.network_config)
+        assert [e.run for e in config.partner.population] == [_run_path(ippo)]
+        assert all(e.checkpoints == ("first", "middle", "last") for e in config.partner.population)
+    if config.algorithm == "cec_finetune":  # starts from the CEC preset's run, 1e8 steps at a tenth of its LR
+        cec = _load("cec_overcooked")
+        assert config.init_from == _run_path(cec) and config.network_config == cec.network_config
+        assert config.total_env_steps == 100_000_000 and config.ppo.lr == pytest.approx(cec.ppo.lr / 10)
+        assert config.env.params.max_steps == cec.env.params.max_steps
+    if config.algorithm in ("e3t", "cec_e3t"):
+        assert 0.0 < config.partner.epsilon < 1.0
+
+
+def test_every_algorithm_has_presets_on_every_classic_kitchen():
+    names = {p.stem for p in PRESETS}
+    for layout in CLASSIC_ASCII:
+        for algorithm in ("ippo", "fcp", "e3t", "cec_finetune"):
+            assert f"{algorithm}_{layout}" in names
+    assert {"cec_overcooked", "cec_e3t", "dd_ippo_quick", "dd_fcp_quick", "dd_e3t_quick"} <= names
+    assert {load_config(TrainConfig, p).algorithm for p in PRESETS} == set(ALGORITHMS)

@@ -1,0 +1,166 @@
+"""`cec zoo build`: a tiny Dual Destination zoo (2 IPPO seeds, 1 FCP seed on them), skip/resume, bad specs."""
+
+from __future__ import annotations
+
+import io
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from cec import checkpoints
+from cec.config import ConfigError
+from cec.evaluation.zoo import load_policies, load_policy, load_zoo
+from cec.training import trainer
+from cec.zoo_build import build_zoo, plan_zoo
+
+PRESETS = Path(__file__).resolve().parents[2] / "configs" / "train"
+TINY = ["num_envs=8", "num_steps=10", "total_env_steps=160", "updates_per_call=1"]  # 2 updates, one per call
+
+
+def _spec(tmp_path: Path, entries: list[dict], name: str = "spec.yaml") -> Path:
+    path = tmp_path / name
+    path.write_text(yaml.safe_dump({"entries": entries}))
+    return path
+
+
+def _tiny_zoo_spec(tmp_path: Path) -> Path:
+    return _spec(
+        tmp_path,
+        [
+            {
+                "preset": str(PRESETS / "dd_ippo_quick.yaml"),
+                "seeds": [0, 1],
+                "overrides": [*TINY, "checkpoint.milestones=[0.0, 0.5, 1.0]"],
+            },
+            {"preset": str(PRESETS / "dd_fcp_quick.yaml"), "seeds": [0], "overrides": TINY},
+        ],
+    )
+
+
+@pytest.fixture(scope="module")
+def zoo(tmp_path_factory):
+    """The built zoo: (spec, zoo dir, build log)."""
+    tmp = tmp_path_factory.mktemp("zoo")
+    spec, out, log = _tiny_zoo_spec(tmp), tmp / "zoo", io.StringIO()
+    result = build_zoo(spec, out, log=log)
+    assert not result.interrupted and result.trained == (
+        "ippo-dual_destination-fixed-s0",
+        "fcp-dual_destination-fixed-s0",
+    )
+    return spec, out, log.getvalue()
+
+
+def test_build_writes_a_manifest_of_final_checkpoints(zoo):
+    spec, out, log = zoo
+    assert "[1/2] ippo-dual_destination-fixed-s0" in log and "[2/2] fcp-dual_destination-fixed-s0" in log
+    raw = yaml.safe_load((out / "zoo.yaml").read_text())["policies"]
+    assert [(p["name"], p["algorithm"], p["seed"]) for p in raw] == [
+        ("ippo-dual_destination-fixed-s0", "ippo", 0),
+        ("ippo-dual_destination-fixed-s1", "ippo", 1),
+        ("fcp-dual_destination-fixed-s0", "fcp", 0),
+    ]
+    for p in raw:
+        assert (p["env"], p["layout"], p["env_steps"]) == ("dual_destination", "fixed", 160)
+        assert "levels" not in p  # only single-kitchen Overcooked agents are restricted
+        ckpt = out / p["checkpoint"]
+        meta = checkpoints.read_meta(ckpt)
+        assert meta["update"] == 2 and p["sha256"] == meta["sha256"]
+    # the FCP learner trained with the zoo's own IPPO run (re-rooted population: 2 seeds x 3 milestones)
+    fcp_meta = checkpoints.read_meta(out / raw[2]["checkpoint"])
+    (population,) = fcp_meta["config"]["partner"]["population"]
+    assert Path(population["run"]) == (out / "runs/ippo-dual_destination-fixed-s0").resolve()
+    # the manifest loads as a zoo, and every entry loads as a policy
+    entries = load_zoo(out / "zoo.yaml")
+    policies, skipped = load_policies(entries)
+    assert not skipped and [p.algorithm for p in policies] == ["ippo", "ippo", "fcp"]
+    assert load_policy(entries[1]).seed == 1
+
+
+def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_path, monkeypatch):
+    spec, out, _ = zoo
+    log = io.StringIO()
+    result = build_zoo(spec, out, log=log)
+    assert result.trained == () and len(result.skipped) == 2 and "finished, skipping" in log.getvalue()
+
+    # an interrupted IPPO run (its final checkpoint gone) is resumed from its latest, not restarted
+    copy = tmp_path / "copy"
+    run = out / "runs/ippo-dual_destination-fixed-s0"
+    final = run / "checkpoints/update_000000002"
+    shutil.copytree(out, copy)
+    shutil.rmtree(final)
+    calls = []
+
+    def fake_train(config, *, resume, progress, log):
+        calls.append((config.run_name, resume))
+        shutil.copytree(copy / final.relative_to(out), final)  # "finish" the run
+        return trainer.RunResult(None, run, 2, interrupted=False)
+
+    monkeypatch.setattr(trainer, "train", fake_train)
+    log = io.StringIO()
+    result = build_zoo(spec, out, log=log)
+    assert calls == [("ippo-dual_destination-fixed-s0", True)] and "resuming at update 1/2" in log.getvalue()
+    assert result.manifest == out / "zoo.yaml"
+
+    # an interruption stops the build without a manifest; the next build continues
+    (out / "zoo.yaml").unlink()
+    shutil.rmtree(final)
+    monkeypatch.setattr(trainer, "train", lambda config, **kw: trainer.RunResult(None, run, 1, True))
+    result = build_zoo(spec, out, log=io.StringIO())
+    assert result.interrupted and result.manifest is None and not (out / "zoo.yaml").exists()
+
+
+@pytest.mark.parametrize(
+    ("entry", "message"),
+    [
+        ({"preset": "configs/train/nope.yaml"}, "entries[0] (configs/train/nope.yaml): preset file"),
+        ({"preset": "dd_ippo_quick.yaml", "overrides": ["num_env=3"]}, "did you mean 'num_envs'"),
+        ({"preset": "dd_ippo_quick.yaml", "overrides": ["nokey"]}, "not of the form key=value"),
+        ({"preset": "dd_ippo_quick.yaml", "seed": [0]}, "unknown key(s) ['seed']"),
+        ({"preset": "dd_ippo_quick.yaml", "overrides": ["seed=3"]}, "use the entry's `seeds`"),
+        ({"preset": "dd_ippo_quick.yaml", "seeds": [1, 1]}, "distinct integers"),
+        ({"preset": "dd_fcp_quick.yaml"}, "partner.population run"),
+    ],
+)
+def test_bad_specs_fail_before_any_training(tmp_path, monkeypatch, entry, message):
+    monkeypatch.chdir(PRESETS)  # presets relative to the current directory
+    monkeypatch.setattr(trainer, "train", lambda *a, **k: pytest.fail("trained despite a bad spec"))
+    with pytest.raises(ConfigError) as info:
+        build_zoo(_spec(tmp_path, [entry]), tmp_path / "zoo", log=io.StringIO())
+    assert message in str(info.value), str(info.value)
+
+
+def test_plan_checks_names_and_order(tmp_path):
+    ippo = {"preset": str(PRESETS / "dd_ippo_quick.yaml")}
+    with pytest.raises(ConfigError, match="both train run ippo-dual_destination-fixed-s0"):
+        plan_zoo(_spec(tmp_path, [ippo, ippo]), tmp_path / "zoo")
+    fcp = {"preset": str(PRESETS / "dd_fcp_quick.yaml")}
+    with pytest.raises(ConfigError, match="trains later; move that entry before it"):
+        plan_zoo(_spec(tmp_path, [fcp, ippo]), tmp_path / "zoo")
+    pop = "partner.population=[{run: runs/ippo-dual_destination-fixed-s0, seeds: [5]}]"
+    with pytest.raises(ConfigError, match=r"needs seeds \[5\], but entries\[0\]"):
+        plan_zoo(_spec(tmp_path, [{**ippo, "seeds": [0, 1]}, {**fcp, "overrides": [pop]}]), tmp_path / "zoo")
+    # non-consecutive seeds: one run per seed; a `name` renames runs and policies
+    plan = plan_zoo(_spec(tmp_path, [{**ippo, "seeds": [4, 2], "name": "short"}]), tmp_path / "zoo")
+    assert [(r.config.run_name, r.seeds, r.policy_names) for r in plan] == [
+        ("short-s2", (2,), ("short-s2",)),
+        ("short-s4", (4,), ("short-s4",)),
+    ]
+
+
+def test_a_changed_spec_is_refused_before_training(zoo, tmp_path):
+    spec, out, _ = zoo
+    entries = yaml.safe_load(spec.read_text())["entries"]
+    entries[1]["overrides"] = [*entries[1]["overrides"], "ppo.lr=0.002"]
+    with pytest.raises(ConfigError, match="fcp-dual_destination-fixed-s0 was trained with another config"):
+        plan_zoo(_spec(tmp_path, entries), out)
+
+
+def test_cli_reports_a_bad_spec_with_exit_status_2(tmp_path, capsys):
+    from cec.cli import main
+
+    spec = _spec(tmp_path, [{"preset": str(PRESETS / "dd_ippo_quick.yaml"), "overrides": ["run_dir=x"]}])
+    assert main(["zoo", "build", str(spec), "--out", str(tmp_path / "zoo")]) == 2
+    err = capsys.readouterr().err
+    assert "cec zoo: error:" in err and "entries[0]" in err and "use --out" in err
