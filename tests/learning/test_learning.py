@@ -7,11 +7,13 @@ trains 1e8 steps); with these settings the measured run passed 0.9 normalised (r
 update 21 and reached the oracle's 191 (0.955). The test asks for > 0.9 averaged over the last 5 of
 40 updates (512k env steps).
 
-IPPO on Cramped Room (configs/train/quick_cpu.yaml: 64 envs x 128-step episodes, LR 1e-3, 4 minibatches,
-full-weight shaping) cut to 40 updates (328k env steps): the agents learn the shaped sub-tasks (onions into
-the pot, plates, soups picked up). The random policy's unscaled shaped return is about 9 per episode (both
-seats); measured runs reached 26-35 by update 40. The test asks for twice the first five updates' value,
-far outside the update-to-update noise. (Delivered soups start at ~330k steps; see docs/training.md.)
+IPPO on Cramped Room (configs/train/cramped_room_ci.yaml: 64 envs x 128-step episodes, an MLP on the
+flattened observation (FC 64, FC 64, no CNN, no LSTM), LR 1e-2, no value clipping, Overcooked-AI's shaped
+rewards at full weight), 120 updates (983k env steps): the agents deliver soups. The random policy's team
+return is 0 (0.00-0.06 over the first five updates in every measured run); measured runs reached a mean team
+return over the last 5 updates of 23.7, 9.7, 13.5, 21.9, 10.9 and 14.2 for seeds 0-5 (20 per soup), in
+76-83 s on one core. The test asks for >= 4 (a soup every five episodes), and for the unscaled shaped return
+(~4 at first, 15-28 at the end) to double.
 """
 
 import json
@@ -35,13 +37,14 @@ def test_dual_destination_fixed_task_self_play_reaches_090(tmp_path):
     assert sum(last) / 5 > 0.9, last
 
 
-def test_ippo_cramped_room_learns_the_shaped_subtasks(tmp_path):
-    # configs/train/quick_cpu.yaml cut to 40 updates (the LR and shaping anneal over the shorter run).
-    overrides = [f"run_dir={tmp_path}", f"total_env_steps={64 * 128 * 40}", "updates_per_call=10"]
-    overrides += ["checkpoint.every_updates=0", "checkpoint.milestones=[]"]
-    cfg = load_config(TrainConfig, ROOT / "configs/train/quick_cpu.yaml", overrides)
+def test_ippo_cramped_room_delivers_soups(tmp_path):
+    # configs/train/cramped_room_ci.yaml as shipped: 120 updates, about 80 s on one core.
+    cfg = load_config(TrainConfig, ROOT / "configs/train/cramped_room_ci.yaml", [f"run_dir={tmp_path}"])
     rows = _rows(train(cfg, progress=False))
-    first = sum(r["mean_shaped_return"] for r in rows[:5]) / 5
-    last = sum(r["mean_shaped_return"] for r in rows[-5:]) / 5
-    assert last > 2 * first, (first, last)
+    first, last = rows[:5], rows[-5:]
+    returns = [r["mean_return"] for r in last]
+    assert sum(returns) / 5 >= 4.0, returns  # 20 per soup: a soup every five episodes or more
+    first_shaped = sum(r["mean_shaped_return"] for r in first) / 5
+    last_shaped = sum(r["mean_shaped_return"] for r in last) / 5
+    assert last_shaped > 2 * first_shaped, (first_shaped, last_shaped)
     assert rows[-1]["entropy"] < rows[0]["entropy"]
