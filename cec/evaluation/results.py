@@ -115,24 +115,8 @@ class EpisodeTable:
         return EpisodeTable(**cols, skipped=tuple(seen.values()))
 
 
-_ARRAY_FIELDS = (
-    "policy_a",
-    "algorithm_a",
-    "seed_a",
-    "policy_b",
-    "algorithm_b",
-    "seed_b",
-    "level",
-    "seat",
-    "episode",
-    "returns",
-    "deliveries",
-    "collisions",
-    "shaped_return",
-    "env",
-    "episode_steps",
-    "actions",
-)
+# EpisodeTable's array attributes: the columns (with `return` spelled `returns`), bar the status columns.
+_ARRAY_FIELDS = tuple("returns" if c == "return" else c for c in COLUMNS if c not in ("status", "reason"))
 
 
 def _column_of(field: str) -> str:

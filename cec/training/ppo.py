@@ -142,42 +142,33 @@ def make_batch(
     if learner_seat_only:
         seat = traj.learner_seat  # [T, E]
 
-        def pick(x: jax.Array) -> jax.Array:  # [T, E, 2, ...] -> [T, E, ...]
+        def rows(x: jax.Array) -> jax.Array:  # [T, E, 2, ...] -> [T, E, ...]: the learner's seat
             idx = seat.reshape((t, e, 1) + (1,) * (x.ndim - 3))
             return jnp.take_along_axis(x, idx, axis=2)[:, :, 0]
 
-        first_seat = seat[0][:, None, None]
-        return Batch(
-            obs=pick(traj.obs),
-            first=traj.first,
-            action=pick(traj.action),
-            log_prob=pick(traj.log_prob),
-            value=pick(traj.value),
-            advantage=pick(advantage),
-            target=pick(target),
-            history=pick(traj.history),
-            partner_action=pick(partner_action),
-            init_lstm=jax.tree.map(
-                lambda x: jnp.take_along_axis(x, first_seat, axis=1)[:, 0], traj.init_lstm
-            ),
+        first = traj.first
+        init_lstm = jax.tree.map(
+            lambda x: jnp.take_along_axis(x, seat[0][:, None, None], axis=1)[:, 0], traj.init_lstm
         )
+    else:
 
-    n = e * NUM_SEATS
+        def rows(x: jax.Array) -> jax.Array:  # [T, E, 2, ...] -> [T, 2E, ...]: both seats
+            return x.reshape((t, e * NUM_SEATS, *x.shape[3:]))
 
-    def seats(x: jax.Array) -> jax.Array:
-        return x.reshape((t, n, *x.shape[3:]))
+        first = jnp.repeat(traj.first, NUM_SEATS, axis=1)
+        init_lstm = jax.tree.map(lambda x: x.reshape((e * NUM_SEATS, -1)), traj.init_lstm)
 
     return Batch(
-        obs=seats(traj.obs),
-        first=jnp.repeat(traj.first, NUM_SEATS, axis=1),
-        action=seats(traj.action),
-        log_prob=seats(traj.log_prob),
-        value=seats(traj.value),
-        advantage=seats(advantage),
-        target=seats(target),
-        history=seats(traj.history),
-        partner_action=seats(partner_action),
-        init_lstm=jax.tree.map(lambda x: x.reshape((n, -1)), traj.init_lstm),
+        obs=rows(traj.obs),
+        first=first,
+        action=rows(traj.action),
+        log_prob=rows(traj.log_prob),
+        value=rows(traj.value),
+        advantage=rows(advantage),
+        target=rows(target),
+        history=rows(traj.history),
+        partner_action=rows(partner_action),
+        init_lstm=init_lstm,
     )
 
 
