@@ -40,7 +40,7 @@ from cec.levels.wire import (
     reject_unknown_fields,
 )
 from services.level_server.config import LevelServerConfig
-from services.level_server.source import InvalidRequestError, LevelSource, LimitExceededError
+from services.level_server.source import InvalidRequestError, LevelSource, LimitExceededError, take_rows
 
 log = logging.getLogger("cec.level_server")
 
@@ -142,7 +142,7 @@ class LevelServicer:
                     raise InvalidRequestError(
                         f"`packed` must hold exactly one level, got count={req.packed.count}"
                     )
-                level: Any = _first(decode(req.packed, check=False))
+                level: Any = take_rows(decode(req.packed, check=False), 0)
             else:
                 level = req.ascii
             v = await self._run(self.source.validate, level, gen)
@@ -260,12 +260,6 @@ class LevelServicer:
                 self.active_streams -= 1
                 metrics.ACTIVE_STREAMS.dec()
             metrics.RPCS.labels("StreamLevels", code.name).inc()
-
-
-def _first(levels: Any) -> Any:
-    import jax
-
-    return jax.tree.map(lambda x: x[0], levels)
 
 
 def _generic_handler(servicer: LevelServicer) -> grpc.GenericRpcHandler:
