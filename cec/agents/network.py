@@ -12,6 +12,7 @@ once; only the recurrent matmul is inside the time scan.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -272,3 +273,41 @@ def forward_partner(
         params, carry, obs, reset, history, mutable=["intermediates"]
     )
     return carry, logits, value, state["intermediates"]["partner_logits"][0]
+
+
+def embed_partner_model(params: Any, config: NetworkConfig, target: NetworkConfig, num_actions: int) -> Any:
+    """`params` of a network with `config` as parameters of `target` that compute exactly the same policy.
+
+    `target` must equal `config` but for a longer `partner_history`: the added inputs (the partner model's
+    prediction in the actor's first layer, older history slots in the partner model) get zero weights, and
+    a missing partner model gets zero weights (its prediction then reaches the actor through zero rows).
+    Lets cross-play batch E3T agents (with a partner model) and agents without one through one network.
+    """
+    if dataclasses.replace(config, partner_history=target.partner_history) != target or (
+        target.partner_history < config.partner_history
+    ):
+        raise ValueError(f"cannot embed a network {config} into {target}")
+    if config.partner_history == target.partner_history:
+        return params
+    p = dict(params["params"])
+    features = config.lstm_features or config.encoder_features[-1]
+    grow = (target.partner_history - config.partner_history) * num_actions
+    if config.partner_history:  # older history slots come first in the partner model's input
+        kernel = p["partner0"]["kernel"]
+        pad = jnp.zeros((grow, kernel.shape[1]), kernel.dtype)
+        kernel = jnp.concatenate([kernel[:features], pad, kernel[features:]], axis=0)
+        p["partner0"] = {**p["partner0"], "kernel": kernel}
+    else:
+        first = "actor0" if config.actor_features else "actor_out"
+        kernel = p[first]["kernel"]
+        p[first] = {
+            **p[first],
+            "kernel": jnp.concatenate([kernel, jnp.zeros((num_actions, kernel.shape[1]))]),
+        }
+        inputs = features + target.partner_history * num_actions
+        p["partner0"] = {"kernel": jnp.zeros((inputs, PARTNER_HIDDEN)), "bias": jnp.zeros(PARTNER_HIDDEN)}
+        p["partner_out"] = {
+            "kernel": jnp.zeros((PARTNER_HIDDEN, num_actions)),
+            "bias": jnp.zeros(num_actions),
+        }
+    return {"params": p}

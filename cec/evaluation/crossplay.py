@@ -21,6 +21,7 @@ How the work is laid out:
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import logging
 import time
@@ -33,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec.agents.network import ActorCritic, NetworkConfig
+from cec.agents.network import ActorCritic, NetworkConfig, embed_partner_model
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
@@ -169,15 +170,19 @@ def _obs_settings(policy: Policy) -> tuple:
     return ()
 
 
+def _without_partner_model(network: NetworkConfig) -> NetworkConfig:
+    return dataclasses.replace(network, partner_history=0)
+
+
 def compatibility_problem(reference: Policy, policy: Policy, level_names: Sequence[str]) -> str | None:
     """Why `policy` cannot join an evaluation led by `reference` on `level_names`, or None."""
     if policy.env.name != reference.env.name:
         return f"it plays {policy.env.name}, the evaluation plays {reference.env.name}"
-    if policy.network != reference.network:
+    if _without_partner_model(policy.network) != _without_partner_model(reference.network):
         return (
             f"its network {policy.network} differs from the evaluation's {reference.network} (the first "
-            "policy's); cross-play batches both seats through one architecture: evaluate each "
-            "architecture in its own run"
+            "policy's); cross-play batches both seats through one architecture (E3T's partner model "
+            "aside): evaluate each architecture in its own run"
         )
     if _obs_settings(policy) != _obs_settings(reference):
         return (
@@ -298,8 +303,12 @@ def crossplay(
     steps = config.max_steps or int(env_params.max_steps)
     env_params = env_params.replace(max_steps=steps)
     games = plan_games(usable, levels.names, config.pairs)
-    fn = play_fn(task, reference.network, steps, config.greedy)
-    stacked = _stack([p.params for p in usable])
+    # Networks that differ only in E3T's partner model play as one architecture: the longest history,
+    # the others embedded with zero weights (`embed_partner_model`: the same policies exactly).
+    k = max(p.network.partner_history for p in usable) if usable else 0
+    network = dataclasses.replace(reference.network, partner_history=k)
+    fn = play_fn(task, network, steps, config.greedy)
+    stacked = _stack([embed_partner_model(p.params, p.network, network, task.num_actions) for p in usable])
 
     groups: dict[tuple[int, ...], list[Game]] = {}
     for g in games:

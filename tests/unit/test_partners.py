@@ -241,3 +241,45 @@ def test_partner_model_loss_falls_with_a_fixed_partner(tmp_path):
     state, metrics = trainer.train_call(30)(state)
     loss = np.asarray(metrics.loss.partner_loss)[0]
     assert loss[0] > 1.4 and loss[-3:].mean() < 0.3 * loss[0], loss
+
+
+def test_networks_with_and_without_a_partner_model_cross_play_exactly():
+    """Cross-play embeds a network into one with a longer partner history by zero weights: same policy."""
+    import dataclasses
+
+    from cec.agents.network import ActorCritic, embed_partner_model, forward_partner, network_preset
+    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.zoo import random_policy
+    from cec.training.tasks import EnvConfig
+
+    base = network_preset("small", "dual_destination")
+    rng = np.random.default_rng(0)
+    obs = jnp.asarray(rng.normal(size=(3, 4, 5, 5, 4)), jnp.float32)
+    reset = jnp.asarray(rng.random((3, 4)) < 0.3)
+    history = jnp.asarray(rng.integers(-1, 5, (3, 4, 4)), jnp.int32)
+    target = dataclasses.replace(base, partner_history=4)
+    big = ActorCritic(target, 5)
+    for k in (0, 2):
+        small = dataclasses.replace(base, partner_history=k)
+        env = EnvConfig(name="dual_destination", levels="fixed")
+        policy = random_policy(f"k{k}", jax.random.PRNGKey(k), env=env, network=small)
+        net = ActorCritic(small, 5)
+        carry = net.initial_carry((4,))
+        if k:
+            _, logits, value, pred = forward_partner(net, policy.params, carry, obs, reset, history[..., -k:])
+        else:
+            _, logits, value = net.apply(policy.params, carry, obs, reset)
+        embedded = embed_partner_model(policy.params, small, target, 5)
+        _, logits2, value2, pred2 = forward_partner(big, embedded, carry, obs, reset, history)
+        np.testing.assert_allclose(logits2, logits, atol=1e-6)
+        np.testing.assert_allclose(value2, value, atol=1e-6)
+        if k:
+            np.testing.assert_allclose(pred2, pred, atol=1e-6)
+    env = EnvConfig(name="dual_destination", levels="fixed")
+    plain = random_policy("ippo", jax.random.PRNGKey(7), env=env, network=base)
+    e3t = random_policy("e3t", jax.random.PRNGKey(8), env=env, network=target, algorithm="e3t")
+    table = crossplay(
+        [plain, e3t], eval_levels("dual_destination", "fixed"), EvalConfig(levels="fixed", episodes=2)
+    )
+    pair = (table.policy_a == "ippo") & (table.policy_b == "e3t")
+    assert not table.skipped and set(table.seat[pair].tolist()) == {0, 1}  # both seat orders played
