@@ -102,7 +102,7 @@ def policy_step(
     lstm: LSTMState,
     obs: jax.Array,
     first: jax.Array,
-    history: jax.Array | None = None,
+    history: jax.Array,
     *,
     per_seat: bool = False,
 ) -> tuple[LSTMState, jax.Array, jax.Array]:
@@ -112,19 +112,20 @@ def policy_step(
         params: the shared parameters (self-play), or with `per_seat` each seat's own: every leaf has a
             leading axis of 2 (seat 0's, seat 1's), as in cross-play of two different policies.
         lstm: [E, 2, H] carries; obs: [E, 2, ...]; first: bool[E]; history: int32[E, 2, K] the partner's
-            recent actions (networks with a partner model only).
+            recent actions (the carry's; read only by networks with a partner model).
         per_seat: static; see `params`.
 
     Returns:
         (next lstm [E, 2, H], logits float32[E, 2, A], value float32[E, 2]).
     """
+    models_partner = bool(network.config.partner_history)
     if per_seat:
         # Each seat's E rows through its own parameters: a vmap over the seat axis (batched matmuls).
         def seat(
-            p: Any, carry: LSTMState, o: jax.Array, h: jax.Array | None
+            p: Any, carry: LSTMState, o: jax.Array, h: jax.Array
         ) -> tuple[LSTMState, jax.Array, jax.Array]:
             carry, logits, value = forward(
-                network, p, carry, o[None], first[None], None if h is None else h[None]
+                network, p, carry, o[None], first[None], h[None] if models_partner else None
             )
             return carry, logits[0], value[0]
 
@@ -134,7 +135,7 @@ def policy_step(
         return out
     e = obs.shape[0]
     flat = jax.tree.map(lambda x: x.reshape((e * NUM_SEATS, -1)), lstm)
-    hist = None if history is None else history.reshape((1, e * NUM_SEATS, -1))
+    hist = history.reshape((1, e * NUM_SEATS, -1)) if models_partner else None
     flat, logits, value = forward(
         network, params, flat, obs.reshape((1, e * NUM_SEATS, *obs.shape[2:])), _per_seat(first)[None], hist
     )
@@ -202,8 +203,9 @@ def rollout(
             if partner.kind == "fcp":
                 p = jax.tree.leaves(population)[0].shape[0]
                 index = jnp.where(c.first, jax.random.randint(k_partner, (e,), 0, p), index)
-        history = c.history if network.config.partner_history else None
-        lstm, logits, value = policy_step(network, params, c.lstm, c.obs, c.first, history, per_seat=per_seat)
+        lstm, logits, value = policy_step(
+            network, params, c.lstm, c.obs, c.first, c.history, per_seat=per_seat
+        )
         log_probs = jax.nn.log_softmax(logits)  # [E, 2, A] of the distribution each seat acts with
         if partner.kind == "fcp":
             lstm, log_probs = _fcp_partner_step(network, population, c, seat, index, lstm, log_probs)
@@ -250,9 +252,8 @@ def rollout(
         return nxt, record
 
     final, steps = jax.lax.scan(body, carry, jax.random.split(key, num_steps))
-    history = final.history if network.config.partner_history else None
     _, _, last_value = policy_step(
-        network, params, final.lstm, final.obs, final.first, history, per_seat=per_seat
+        network, params, final.lstm, final.obs, final.first, final.history, per_seat=per_seat
     )
     return final, Trajectory(**steps, init_lstm=carry.lstm, last_value=last_value)
 
