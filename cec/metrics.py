@@ -33,6 +33,96 @@ RPC_LATENCY = Histogram(
 )
 
 
+# --- learner (also exports what its actors report with each batch) ---------------------------------------
+# Actors are short-lived Ray workers with no endpoint of their own: every trajectory batch carries the actor's
+# stage timings and level-buffer state, and the learner's endpoint exports them (label `actor`: the actor's
+# index, bounded by the configured number of actors). One scrape target covers all of training.
+LEARNER_UPDATES = Counter("cec_learner_updates_total", "PPO updates applied by the learner")
+LEARNER_ENV_STEPS = Counter("cec_learner_env_steps_total", "Joint env steps trained on (all seeds)")
+LEARNER_STEPS_PER_SECOND = Gauge(
+    "cec_learner_env_steps_per_second", "Joint env steps trained per second over the last update"
+)
+LEARNER_STAGE_SECONDS = Counter(
+    "cec_learner_stage_seconds_total",
+    "Wall time by stage: rollout (actors' jitted rollout), transfer (object store to learner), update (PPO), "
+    "publish (weights into the object store), checkpoint, wait (learner idle for batches)",
+    ["stage"],
+)
+LEARNER_POLICY_VERSION = Gauge("cec_learner_policy_version", "Version of the newest published weights")
+LEARNER_POLICY_LAG = Histogram(
+    "cec_learner_policy_lag_versions",
+    "Policy versions between the weights a batch was collected with and the learner's current ones",
+    buckets=(0, 1, 2, 3, 4, 6, 8, 16, 32),
+)
+LEARNER_BATCHES = Counter(
+    "cec_learner_batches_total",
+    "Trajectory batches received, by outcome: accepted, stale (older than max_policy_lag), "
+    "dead_incarnation (from an actor process that has since been restarted)",
+    ["outcome"],
+)
+LEARNER_BYTES_RECEIVED = Counter(
+    "cec_learner_trajectory_bytes_total", "Bytes of trajectory batches fetched from the object store"
+)
+LEARNER_AGENT_STEPS_RECEIVED = Counter(
+    "cec_learner_agent_steps_total", "Agent-steps (env steps x 2 seats) in the trajectory batches fetched"
+)
+LEARNER_EPISODE_RETURN = Gauge(
+    "cec_learner_episode_return", "Mean team return of the episodes finished in the last update's batch"
+)
+LEARNER_SHAPED_RETURN = Gauge(
+    "cec_learner_episode_shaped_return", "Mean shaped return (unscaled) of the episodes in the last update"
+)
+LEARNER_LOSS = Gauge("cec_learner_loss", "PPO diagnostics of the last update, by term", ["term"])
+LEARNER_CHECKPOINTS = Counter("cec_learner_checkpoints_total", "Checkpoints written by the learner")
+LEARNER_LAST_CHECKPOINT = Gauge(
+    "cec_learner_last_checkpoint_timestamp_seconds", "Unix time of the learner's latest checkpoint"
+)
+LEARNER_RESTARTS = Gauge(
+    "cec_learner_restarts", "Times the learner process was restarted in this run (0: never)"
+)
+LEARNER_REDIS_UP = Gauge("cec_learner_redis_up", "1 if the learner's last call to Redis succeeded, else 0")
+LEARNER_CHECKPOINT_EVENTS_QUEUED = Gauge(
+    "cec_learner_checkpoint_events_queued", "Checkpoint events waiting in the outbox for Redis to return"
+)
+ACTOR_RESTARTS = Counter(
+    "cec_actor_restarts_total", "Actor processes restarted by Ray (new incarnations seen)"
+)
+ACTOR_LEVEL_BUFFER = Gauge(
+    "cec_actor_level_buffer_levels", "Levels buffered locally by an actor (streamed kitchens)", ["actor"]
+)
+ACTOR_LEVEL_RECONNECTS = Counter(
+    "cec_actor_level_server_reconnects_total", "Level-stream reconnections made by actors", ["actor"]
+)
+ACTOR_ROLLOUT_SECONDS = Counter(
+    "cec_actor_rollout_seconds_total", "Time actors spent in the jitted rollout", ["actor"]
+)
+
+# --- evaluator ------------------------------------------------------------------------------------------
+EVALUATOR_CHECKPOINTS_SCORED = Counter(
+    "cec_evaluator_checkpoints_scored_total", "Checkpoints whose evaluation finished (each counted once)"
+)
+EVALUATOR_EPISODES = Counter("cec_evaluator_episodes_total", "Episodes played by the evaluator")
+EVALUATOR_PENDING = Gauge(
+    "cec_evaluator_pending_checkpoints", "Checkpoint events read but not yet scored by this evaluator"
+)
+EVALUATOR_SCORE = Gauge(
+    "cec_evaluator_return",
+    "Mean team return of the newest scored checkpoint, by partner group (self_play for SP) and level set",
+    ["partner_group", "level_set"],
+)
+EVALUATOR_SCORED_UPDATE = Gauge(
+    "cec_evaluator_scored_update", "Training update of the newest checkpoint the evaluator scored"
+)
+EVALUATOR_DURATION = Histogram(
+    "cec_evaluator_checkpoint_duration_seconds",
+    "Time to score one checkpoint against every partner group and level set",
+    buckets=(1, 2.5, 5, 10, 25, 50, 100, 250, 500, 1000, 2500),
+)
+EVALUATOR_FAILURES = Counter(
+    "cec_evaluator_failures_total", "Checkpoint evaluations that failed (bad checkpoint, missing partner)"
+)
+
+
 class MetricsEndpoint:
     """A running `/metrics` HTTP endpoint; `close()` stops it."""
 
