@@ -20,7 +20,7 @@ import jax.numpy as jnp
 
 from cec.agents.network import ActorCritic, LSTMState, empty_history, forward
 from cec.training.partners import SELF_PLAY, PartnerConfig, mixture_log_probs
-from cec.training.tasks import Task
+from cec.training.tasks import Task, env_keys
 
 NUM_SEATS = 2
 
@@ -40,6 +40,9 @@ class RolloutCarry(NamedTuple):
         partner_index: int32[E] the population partner of the running episodes (FCP; else 0).
         history: int32[E, 2, K] each seat's view of its partner's last K actions (-1: none yet this
             episode), the input of E3T's partner model (K = `partner_history` of the network, may be 0).
+        env_id: int32[E] each env's index in the whole batch. Every random draw of an env at a step comes
+            from `fold_in(step key, env_id)`, so a slice of the envs (a Ray actor's share) plays exactly
+            what the same envs play inside the full batch.
     """
 
     env_state: Any
@@ -51,6 +54,7 @@ class RolloutCarry(NamedTuple):
     learner_seat: jax.Array
     partner_index: jax.Array
     history: jax.Array
+    env_id: jax.Array
 
 
 class Trajectory(NamedTuple):
@@ -72,6 +76,9 @@ class Trajectory(NamedTuple):
         history: int32[T, E, 2, K] the partner-action history each seat's policy saw.
         init_lstm: `LSTMState` [E, 2, H], the carry before the first step (for replay in the update).
         last_value: float32[E, 2] critic value of the observation after the last step (bootstrap).
+        state: with `record="state"`, the env states the actions were taken in, without their level
+            ([T, E] leaves; `obs` is then None): a Ray actor ships these instead of observations and the
+            learner recomputes `obs` (`cec.training.compact`).
     """
 
     obs: jax.Array
@@ -89,6 +96,7 @@ class Trajectory(NamedTuple):
     history: jax.Array
     init_lstm: LSTMState
     last_value: jax.Array
+    state: Any = None
 
 
 def _per_seat(x: jax.Array) -> jax.Array:
@@ -144,18 +152,26 @@ def policy_step(
 
 
 def init_carry(
-    task: Task, network: ActorCritic, env_params: Any, levels: Any, key: jax.Array
+    task: Task,
+    network: ActorCritic,
+    env_params: Any,
+    levels: Any,
+    key: jax.Array,
+    env_ids: jax.Array | None = None,
 ) -> RolloutCarry:
-    """Starts E envs, one on each `levels[:, 0]` (a buffer with leading axes [E, K])."""
+    """Starts E envs, one on each `levels[:, 0]` (a buffer with leading axes [E, K]).
+
+    `env_ids` (int32[E], default 0..E-1) are the envs' indices in the whole batch; env i's reset key is
+    `fold_in(key, i)`, so a slice of a batch starts as it does inside the batch.
+    """
     first_levels = jax.tree.map(lambda x: x[:, 0], levels)
     e = jax.tree.leaves(first_levels)[0].shape[0]
-    obs, state = jax.vmap(task.reset, in_axes=(0, 0, None))(
-        jax.random.split(key, e), first_levels, env_params
-    )
+    ids = jnp.arange(e, dtype=jnp.int32) if env_ids is None else jnp.asarray(env_ids, jnp.int32)
+    obs, state = jax.vmap(task.reset, in_axes=(0, 0, None))(env_keys(key, ids), first_levels, env_params)
     zeros, ints = jnp.zeros(e, jnp.float32), jnp.zeros(e, jnp.int32)
     lstm = network.initial_carry((e, NUM_SEATS))
     history = empty_history((e, NUM_SEATS), network.config.partner_history)
-    return RolloutCarry(state, obs, jnp.ones(e, bool), lstm, zeros, zeros, ints, ints, history)
+    return RolloutCarry(state, obs, jnp.ones(e, bool), lstm, zeros, zeros, ints, ints, history, ids)
 
 
 def rollout(
@@ -172,6 +188,7 @@ def rollout(
     greedy: bool = False,
     partner: PartnerConfig = SELF_PLAY,
     population: Any = None,
+    record: str = "obs",
 ) -> tuple[RolloutCarry, Trajectory]:
     """Plays `num_steps` steps of E envs in self-play (both seats act with `params`), or in cross-play.
 
@@ -188,21 +205,26 @@ def rollout(
             action's log-probability).
         partner: static; the partner strategy (`cec.training.partners`): self-play, FCP or E3T.
         population: FCP's frozen partners' parameters (leaves with a leading axis P); None otherwise.
+        record: static; `obs` records the observations (the trainer), `state` the env states without
+            their level instead (the compact form Ray actors ship; see `Trajectory.state`).
 
     Returns:
         (carry after the last step, `Trajectory` with T = num_steps).
     """
-    e = carry.obs.shape[0]
+    if record not in ("obs", "state"):
+        raise ValueError(f"record must be 'obs' or 'state', got {record!r}")
 
-    def body(c: RolloutCarry, step_key: jax.Array) -> tuple[RolloutCarry, dict[str, jax.Array]]:
-        k_act, k_env = jax.random.split(step_key)
+    def body(c: RolloutCarry, step_key: jax.Array) -> tuple[RolloutCarry, dict[str, Any]]:
+        # [E, 4, 2]: per env, keys for its actions, its env step, its seat draw and its partner draw
+        keys = jax.vmap(lambda k: jax.random.split(k, 4))(env_keys(step_key, c.env_id))
+        k_act, k_env, k_seat, k_partner = (keys[:, i] for i in range(4))
         seat, index = c.learner_seat, c.partner_index
         if partner.kind != "self_play":  # new episodes draw the learner's seat (and FCP partner) per env
-            k_seat, k_partner = jax.random.split(jax.random.fold_in(step_key, 1))
-            seat = jnp.where(c.first, jax.random.randint(k_seat, (e,), 0, NUM_SEATS), seat)
+            draw = jax.vmap(lambda k, n: jax.random.randint(k, (), 0, n), in_axes=(0, None))
+            seat = jnp.where(c.first, draw(k_seat, NUM_SEATS), seat)
             if partner.kind == "fcp":
                 p = jax.tree.leaves(population)[0].shape[0]
-                index = jnp.where(c.first, jax.random.randint(k_partner, (e,), 0, p), index)
+                index = jnp.where(c.first, draw(k_partner, p), index)
         lstm, logits, value = policy_step(
             network, params, c.lstm, c.obs, c.first, c.history, per_seat=per_seat
         )
@@ -215,15 +237,14 @@ def rollout(
         if greedy:
             action = jnp.argmax(log_probs, axis=-1).astype(jnp.int32)  # [E, 2]
         else:
-            action = jax.random.categorical(k_act, log_probs).astype(jnp.int32)  # [E, 2]
+            action = jax.vmap(jax.random.categorical)(k_act, log_probs).astype(jnp.int32)  # [E, 2]
         log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
-        out = jax.vmap(task.step, in_axes=(0, 0, 0, 0, None))(
-            jax.random.split(k_env, e), c.env_state, action, levels, env_params
-        )
+        out = jax.vmap(task.step, in_axes=(0, 0, 0, 0, None))(k_env, c.env_state, action, levels, env_params)
         ep_return = c.episode_return + out.reward
         ep_shaped = c.episode_shaped + out.shaped.sum(-1)
-        record = dict(
-            obs=c.obs,
+        recorded = dict(
+            obs=c.obs if record == "obs" else None,
+            state=task.without_level(c.env_state) if record == "state" else None,
             first=c.first,
             action=action,
             log_prob=log_prob,
@@ -248,8 +269,9 @@ def rollout(
             seat,
             index,
             _push_partner_actions(c.history, action, out.done),
+            c.env_id,
         )
-        return nxt, record
+        return nxt, recorded
 
     final, steps = jax.lax.scan(body, carry, jax.random.split(key, num_steps))
     _, _, last_value = policy_step(

@@ -135,20 +135,37 @@ class Task:
         o = dd.step_autoreset(key, state, actions, levels, params)
         return EnvStep(o.obs, o.state, o.reward, jnp.zeros(2, jnp.float32), o.done, jnp.zeros((), bool))
 
-    def sample_levels(self, key: jax.Array, n: int, k: int) -> Any:
-        """Level buffers for `n` envs, `k` levels each (leading axes [n, k]); fixed tasks are broadcast."""
-        flat: Any
+    def sample_levels(self, key: jax.Array, env_ids: jax.Array, k: int) -> Any:
+        """Level buffers for the envs `env_ids` (int32[E]), `k` levels each (leading axes [E, k]).
+
+        Env i's levels come from `fold_in(key, i)` alone, so a slice of the envs (a Ray actor's share)
+        gets the levels those envs get in the full batch. Fixed tasks are broadcast.
+        """
+        n = env_ids.shape[0]
         if self.levels == "generator":
-            flat = generate_batch(key, n * k, self.generator)
-        elif self.env == "overcooked":
+            return jax.vmap(lambda kk: generate_batch(kk, k, self.generator))(env_keys(key, env_ids))
+        if self.env == "overcooked":
             return _broadcast(classic_level(self.levels), (n, k))
-        elif self.levels in ("fixed", "multi_task"):
+        if self.levels in ("fixed", "multi_task"):
             return _broadcast(dd.fixed_level() if self.levels == "fixed" else dd.multi_task_level(), (n, k))
-        else:
-            multi = self.levels == "procedural_multi_task"
-            exclude = dd.held_out_dd_levels()
-            flat = jax.vmap(lambda kk: dd.generate_dd_level(kk, multi, exclude))(jax.random.split(key, n * k))
-        return jax.tree.map(lambda x: x.reshape((n, k, *x.shape[1:])), flat)
+        multi = self.levels == "procedural_multi_task"
+        exclude = dd.held_out_dd_levels()
+        one = lambda kk: dd.generate_dd_level(kk, multi, exclude)  # noqa: E731
+        return jax.vmap(lambda kk: jax.vmap(one)(jax.random.split(kk, k)))(env_keys(key, env_ids))
+
+    def without_level(self, state: Any) -> Any:
+        """An env state without its level (what changes step to step; `observe` puts the level back)."""
+        return state.replace(level=None)
+
+    def observe(self, state: Any, level: Any, params: Any) -> jax.Array:
+        """[2, ...] both seats' observations of a level-less `state` (`without_level`) on `level`."""
+        full = state.replace(level=level)
+        return oc.get_obs(full, params) if self.env == "overcooked" else dd.get_obs(full, params)
+
+
+def env_keys(key: jax.Array, env_ids: jax.Array) -> jax.Array:
+    """uint32[E, 2]: each env's own key, `fold_in(key, env_id)` (independent of which envs are batched)."""
+    return jax.vmap(jax.random.fold_in, in_axes=(None, 0))(key, env_ids)
 
 
 def _broadcast(level: Any, shape: tuple[int, ...]) -> Any:

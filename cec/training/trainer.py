@@ -115,7 +115,7 @@ class Trainer:
         cfg = self.config
         key, k_params, k_levels, k_reset = jax.random.split(key, 4)
         params = init_params(self.network, k_params, self.task.obs_shape)
-        levels = self.task.sample_levels(k_levels, cfg.num_envs, cfg.levels_per_env)
+        levels = self.task.sample_levels(k_levels, self.env_ids, cfg.levels_per_env)
         carry = init_carry(self.task, self.network, self.env_params, levels, k_reset)
         return TrainState(params, self.optimizer.init(params), carry, key, jnp.zeros((), jnp.int32))
 
@@ -126,14 +126,35 @@ class Trainer:
         steps = update_index.astype(jnp.float32) * self.config.steps_per_update
         return jnp.clip(1.0 - steps / float(max(self.shaping_horizon, 1)), 0.0, 1.0)
 
-    def update_step(self, state: TrainState, population: Any = None) -> tuple[TrainState, UpdateMetrics]:
-        """One rollout and one PPO update for one seed (`population`: FCP's partners, else None)."""
+    @property
+    def env_ids(self) -> jax.Array:
+        """int32[num_envs]: every env of a seed (a Ray actor plays a slice of these)."""
+        return jnp.arange(self.config.num_envs, dtype=jnp.int32)
+
+    def update_keys(self, key: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array]:
+        """(next key, levels key, rollout key, update key) of one update, from the seed's key."""
+        k = jax.random.split(key, 4)
+        return k[0], k[1], k[2], k[3]
+
+    def collect(
+        self,
+        params: Any,
+        carry: RolloutCarry,
+        k_levels: jax.Array,
+        k_roll: jax.Array,
+        population: Any = None,
+        *,
+        record: str = "obs",
+        levels: Any = None,
+    ) -> tuple[RolloutCarry, Trajectory]:
+        """One rollout of the envs in `carry` (all of a seed's, or an actor's slice): levels drawn for those
+        envs from `k_levels` unless given (streamed kitchens), then `rollout`."""
         cfg = self.config
-        key, k_levels, k_roll, k_update = jax.random.split(state.key, 4)
-        levels = self.task.sample_levels(k_levels, cfg.num_envs, cfg.levels_per_env)
-        carry, traj = rollout(
-            state.params,
-            state.carry,
+        if levels is None:
+            levels = self.task.sample_levels(k_levels, carry.env_id, cfg.levels_per_env)
+        return rollout(
+            params,
+            carry,
             levels,
             k_roll,
             task=self.task,
@@ -142,23 +163,31 @@ class Trainer:
             num_steps=cfg.num_steps,
             partner=cfg.partner,
             population=population,
+            record=record,
         )
-        weight = self.shaping_weight(state.update)
+
+    def learn(
+        self, params: Any, opt_state: Any, update_index: jax.Array, traj: Trajectory, k_update: jax.Array
+    ) -> tuple[Any, Any, UpdateMetrics]:
+        """The PPO update on one trajectory of a seed's envs (the trainer's and the Ray learner's)."""
+        cfg = self.config
+        weight = self.shaping_weight(update_index)
         batch = make_batch(traj, weight, cfg.ppo.gamma, cfg.ppo.gae_lambda, cfg.partner.learner_seat_only)
-        lr = self.schedule(_adam_count(state.opt_state))
+        lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(
-            state.params,
-            state.opt_state,
-            batch,
-            k_update,
-            network=self.network,
-            optimizer=self.optimizer,
-            config=cfg.ppo,
+            params, opt_state, batch, k_update, network=self.network, optimizer=self.optimizer, config=cfg.ppo
         )
         n, mean_return, mean_shaped, collisions = episode_stats(traj)
         metrics = UpdateMetrics(
             n, mean_return, mean_shaped, collisions, weight, jnp.asarray(lr, jnp.float32), loss
         )
+        return params, opt_state, metrics
+
+    def update_step(self, state: TrainState, population: Any = None) -> tuple[TrainState, UpdateMetrics]:
+        """One rollout and one PPO update for one seed (`population`: FCP's partners, else None)."""
+        key, k_levels, k_roll, k_update = self.update_keys(state.key)
+        carry, traj = self.collect(state.params, state.carry, k_levels, k_roll, population)
+        params, opt_state, metrics = self.learn(state.params, state.opt_state, state.update, traj, k_update)
         return TrainState(params, opt_state, carry, key, state.update + 1), metrics
 
     def train_call(self, n_updates: int) -> Any:

@@ -46,7 +46,7 @@ def ippo_run(tmp_path_factory):
 def _rollout(trainer: Trainer, population=None, key=0):
     state = jax.tree.map(lambda x: x[0], trainer.init())
     cfg = trainer.config
-    levels = trainer.task.sample_levels(jax.random.PRNGKey(1), cfg.num_envs, cfg.levels_per_env)
+    levels = trainer.task.sample_levels(jax.random.PRNGKey(1), jnp.arange(cfg.num_envs), cfg.levels_per_env)
     fn = jax.jit(
         lambda p, c, lv, k, pop: rollout(
             p, c, lv, k, task=trainer.task, network=trainer.network, env_params=trainer.env_params,

@@ -44,7 +44,7 @@ def test_rollout_and_update_shapes(tmp_path):
     )
     tr = Trainer(cfg)
     state = jax.tree.map(lambda x: x[0], tr.init())
-    levels = tr.task.sample_levels(jax.random.PRNGKey(1), cfg.num_envs, cfg.levels_per_env)
+    levels = tr.task.sample_levels(jax.random.PRNGKey(1), jnp.arange(cfg.num_envs), cfg.levels_per_env)
     carry, traj = jax.jit(
         lambda p, c, lv, k: rollout(
             p, c, lv, k, task=tr.task, network=tr.network, env_params=tr.env_params, num_steps=cfg.num_steps
