@@ -399,6 +399,72 @@ class _StopFlag:
             signal.signal(sig, handler)
 
 
+class RunFiles:
+    """A run directory's files: config, metrics rows, checkpoints (shared by the trainer and the learner).
+
+    `open` checks the directory (a run with checkpoints continues only with `resume`), loads the latest
+    checkpoint into the trainer's state template (refusing one written with another config), trims metrics
+    rows written after it, and returns the state and update count to continue from (None, 0: a new run).
+    """
+
+    def __init__(self, config: TrainConfig) -> None:
+        self.config = config
+        self.run_dir = Path(config.run_dir) / config.run_name
+        self.store = checkpoints.CheckpointStore(self.run_dir, config.checkpoint.keep_last)
+        self.writer = MetricsWriter(self.run_dir)
+        total = config.num_updates
+        self.milestones = sorted({min(total, max(0, round(f * total))) for f in config.checkpoint.milestones})
+        self.metadata = {
+            "algorithm": config.algorithm,
+            "seeds": [config.seed + i for i in range(config.num_seeds)],
+            "env": config.env.name,
+            "levels": config.env.levels,
+            "network": config.network,
+            "code_version": checkpoints.code_version(),
+            "jax_version": jax.__version__,
+        }
+
+    def open(self, template: TrainState, resume: bool, log: TextIO) -> tuple[TrainState | None, int]:
+        latest = self.store.latest()
+        if latest is not None and not resume:
+            raise checkpoints.CheckpointError(
+                f"{self.run_dir} already has checkpoints; resume it with --resume {self.run_dir} "
+                "or choose another name or run_dir"
+            )
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        if latest is None:
+            (self.run_dir / "config.yaml").write_text(
+                yaml.safe_dump(config_dict(self.config), sort_keys=False)
+            )
+            return None, 0
+        state, meta = checkpoints.load(latest.path, template)
+        if meta["config"] != config_dict(self.config):
+            raise checkpoints.CheckpointError(
+                f"checkpoint {latest.path} was written with a different config; resume with the run's own "
+                f"config ({self.run_dir / 'config.yaml'}) and no overrides"
+            )
+        done = int(meta["update"])
+        self.writer.truncate_after(done)
+        print(f"resuming {self.run_dir} from update {done} ({latest.path.name})", file=log, flush=True)
+        return state, done
+
+    def due(self, prev: int, done: int) -> tuple[bool, bool]:
+        """(a checkpoint is due after going from update `prev` to `done`, it is a milestone)."""
+        every = self.config.checkpoint.every_updates
+        crossed = any(prev < m <= done for m in self.milestones)
+        return crossed or (every > 0 and done // every > prev // every), crossed
+
+    def save(self, state: TrainState, update: int, milestone: bool) -> Path:
+        return self.store.save(
+            state,
+            update=update,
+            env_steps=update * self.config.steps_per_update,
+            config=config_dict(self.config),
+            metadata=self.metadata,
+            milestone=milestone,
+        )
+
+
 def train(
     config: TrainConfig,
     *,
@@ -412,61 +478,19 @@ def train(
     The run directory `<run_dir>/<name>` gets `config.yaml`, `metrics.jsonl`, `metrics.csv` and
     `checkpoints/`. A run directory that already has checkpoints is only continued with `resume=True`.
     """
-    run_dir = Path(config.run_dir) / config.run_name
-    store = checkpoints.CheckpointStore(run_dir, config.checkpoint.keep_last)
-    writer = MetricsWriter(run_dir)
     trainer = Trainer(config)
     trainer.load_partners()  # a bad population stops the run here, before any work
-    latest = store.latest()
-    if latest is not None and not resume:
-        raise checkpoints.CheckpointError(
-            f"{run_dir} already has checkpoints; resume it with --resume {run_dir} "
-            "or choose another name or run_dir"
-        )
-    run_dir.mkdir(parents=True, exist_ok=True)
-    if resume and latest is not None:
-        state, meta = checkpoints.load(latest.path, trainer.state_template())
-        if meta["config"] != config_dict(config):
-            raise checkpoints.CheckpointError(
-                f"checkpoint {latest.path} was written with a different config; resume with the run's own "
-                f"config ({run_dir / 'config.yaml'}) and no overrides"
-            )
-        done = int(meta["update"])
-        writer.truncate_after(done)
-        print(f"resuming {run_dir} from update {done} ({latest.path.name})", file=log, flush=True)
-    else:
-        state = trainer.init()
-        done = 0
-        (run_dir / "config.yaml").write_text(yaml.safe_dump(config_dict(config), sort_keys=False))
+    files = RunFiles(config)
+    run_dir, writer = files.run_dir, files.writer
+    loaded, done = files.open(trainer.state_template(), resume, log)
+    state = trainer.init() if loaded is None else loaded
     total = config.num_updates
     stop_at = total if max_updates is None else min(total, done + max_updates)
     per_call = config.updates_per_call
-    milestones = sorted({min(total, max(0, round(f * total))) for f in config.checkpoint.milestones})
     meter = Progress(total, config.steps_per_update * config.num_seeds, log)
-    metadata = {
-        "algorithm": config.algorithm,
-        "seeds": [config.seed + i for i in range(config.num_seeds)],
-        "env": config.env.name,
-        "levels": config.env.levels,
-        "network": config.network,
-        "code_version": checkpoints.code_version(),
-        "jax_version": jax.__version__,
-    }
-
-    def save(upd: int, milestone: bool) -> None:
-        store.save(
-            state,
-            update=upd,
-            env_steps=upd * config.steps_per_update,
-            config=config_dict(config),
-            metadata=metadata,
-            milestone=milestone,
-        )
-
-    if done == 0 and 0 in milestones:
-        save(0, milestone=True)
+    if done == 0 and 0 in files.milestones:
+        files.save(state, 0, milestone=True)
     interrupted = False
-    every = config.checkpoint.every_updates
     with _StopFlag() as flag:
         while done < stop_at:
             n = min(per_call, stop_at - done)
@@ -488,11 +512,10 @@ def train(
                 meter.show(
                     done, sps, sum(returns) / len(returns) if returns else None, (total - done) * dt / n
                 )
-            crossed = any(prev < m <= done for m in milestones)
-            due = every > 0 and done // every > prev // every
+            due, crossed = files.due(prev, done)
             interrupted = flag.stop
-            if due or crossed or done == stop_at or interrupted:
-                save(done, milestone=crossed)
+            if due or done == stop_at or interrupted:
+                files.save(state, done, milestone=crossed)
             if interrupted:
                 print(
                     f"interrupted at update {done}; checkpoint saved. Continue with: "

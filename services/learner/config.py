@@ -1,0 +1,81 @@
+"""How training is distributed over Ray: actors, sync/async, staleness, the level feed, metrics."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cec.config import ConfigError
+from cec.training.config import TrainConfig
+
+MODES = ("sync", "async")
+
+
+@dataclass(frozen=True)
+class DistributedConfig:
+    """The distributed trainer's settings (the run itself is a `TrainConfig`).
+
+    Attributes:
+        mode: `sync`: every update waits for one batch from every actor, all collected with the current
+            weights; with the same seed it reproduces the single-process trainer's learning curve. `async`:
+            actors never wait; the learner updates on the first `num_actors` batches to arrive and drops
+            those more than `max_policy_lag` versions old (PPO's ratio uses each batch's own behaviour
+            log-probabilities).
+        num_actors: Ray actors; each plays `num_envs / num_actors` of the run's envs.
+        max_policy_lag: async only: the oldest weights (in versions behind the learner) a batch may be from.
+        actor_cpus: CPUs Ray reserves per actor.
+        actor_threads: XLA CPU threads per actor process (0: XLA's default, all cores).
+        actor_max_restarts: how often Ray restarts a dead actor (-1: always).
+        learner_max_restarts: how often the driver restarts a dead learner, which resumes from its latest
+            checkpoint.
+        level_server: `host:port` of the level server that streams procedural kitchens to the actors
+            (Overcooked `generator` runs); empty: actors draw levels themselves from the learner's keys.
+        level_token: bearer token for the level server (empty: the CEC_LEVEL_SERVER_TOKEN variable).
+        metrics_port: the learner's Prometheus `/metrics` port (0: a free port; -1: off).
+        metrics_host: bind address of the metrics endpoint.
+        publish_checkpoints: register the run and publish checkpoint events to Redis (the evaluator's feed).
+        ray_address: Ray cluster to attach to (`auto`, `ray://host:10001`, ...); empty: start a local Ray.
+        ray_num_cpus: CPUs of a local Ray (0: all of this machine's).
+    """
+
+    mode: str = "sync"
+    num_actors: int = 2
+    max_policy_lag: int = 1
+    actor_cpus: float = 1.0
+    actor_threads: int = 1
+    actor_max_restarts: int = -1
+    learner_max_restarts: int = 3
+    level_server: str = ""
+    level_token: str = ""
+    metrics_port: int = 9402
+    metrics_host: str = "127.0.0.1"
+    publish_checkpoints: bool = True
+    ray_address: str = ""
+    ray_num_cpus: int = 0
+
+    def __post_init__(self) -> None:
+        if self.mode not in MODES:
+            raise ConfigError(f"distributed.mode {self.mode!r} is unknown; choose one of {list(MODES)}")
+        if self.num_actors < 1:
+            raise ConfigError(f"distributed.num_actors must be >= 1, got {self.num_actors}")
+        if self.max_policy_lag < 0:
+            raise ConfigError(f"distributed.max_policy_lag must be >= 0, got {self.max_policy_lag}")
+        if self.actor_cpus <= 0 or self.actor_threads < 0:
+            raise ConfigError("distributed.actor_cpus must be > 0 and distributed.actor_threads >= 0")
+        if self.metrics_port < -1 or self.metrics_port > 65535:
+            raise ConfigError(
+                f"distributed.metrics_port must be -1 (off), 0 (free) or a port, got {self.metrics_port}"
+            )
+
+    def check(self, train: TrainConfig) -> None:
+        """Checks this distribution against the run (before any process starts)."""
+        if train.num_seeds != 1:
+            raise ConfigError(
+                f"distributed training runs one seed per run (num_seeds=1), got num_seeds={train.num_seeds}; "
+                "start one run per seed (seed=0, seed=1, ...)"
+            )
+        if train.num_envs % self.num_actors:
+            raise ConfigError(
+                f"num_envs={train.num_envs} must split evenly over distributed.num_actors={self.num_actors}"
+            )
+        if train.updates_per_call != 1:
+            raise ConfigError("the distributed learner applies one update per batch: set updates_per_call=1")

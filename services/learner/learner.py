@@ -1,0 +1,462 @@
+"""The learner: drives Ray rollout actors, applies the PPO update, publishes weights, checkpoints.
+
+    learner = Learner(train_config_dict, distributed_config_dict, store_config_dict)
+    summary = learner.run(resume=True)           # until the run's end, `stop()`, or `max_updates`
+
+It is a plain object (DESIGN rule 5): the driver (`cec up`, `cec train --distributed`) runs it as a Ray
+actor so that Ray restarts it if its process dies; `run(resume=True)` then continues from the latest
+checkpoint with exact counters. Each update:
+
+    sync:  weights -> ray.put (once) -> every actor's rollout(weights, version, k_levels, k_roll)
+           -> concatenate the slices in env order -> expand observations -> Trainer.learn
+    async: the same calls, but each actor is resubmitted with the newest weights the moment its batch
+           lands; the update takes the first num_actors batches no older than max_policy_lag versions
+
+The update is the single-process trainer's own `Trainer.learn`, keys come from the same per-update split
+(`Trainer.update_keys`), and the checkpoint is the trainer's `TrainState` with one seed, so a `sync` run
+reproduces `cec train` and either can resume the other's checkpoints.
+
+Faults: a dead actor (its call raises) is restarted by Ray; the learner gives it a new incarnation and a
+fresh carry and resubmits the rollout (batches stamped with an older incarnation are dropped and counted).
+Redis being down queues checkpoint events in the run's outbox; they are published when it returns.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import sys
+import threading
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cec import metrics as M  # noqa: N812 - the metric objects, read as M.NAME
+from cec.config import from_dict
+from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
+from cec.training.config import TrainConfig
+from cec.training.ppo import LossInfo
+from cec.training.rollout import RolloutCarry
+from cec.training.trainer import Progress, RunFiles, Trainer, TrainState, metrics_rows
+from services.actors.actor import ActorNotReadyError, RolloutActor, decode_batch
+from services.learner.config import DistributedConfig
+
+log = logging.getLogger("cec.learner")
+
+
+@dataclass
+class _Slot:
+    """The learner's view of one actor."""
+
+    handle: Any
+    start: int
+    stop: int
+    incarnation: int = 0
+    submitted: int = 0  # async: rollouts submitted (for its keys)
+
+
+class Learner:
+    """See the module docstring."""
+
+    def __init__(self, train: dict, distributed: dict, store: dict | None = None) -> None:
+        self.train_dict = train
+        self.config = from_dict(TrainConfig, train)
+        self.dist = from_dict(DistributedConfig, distributed)
+        self.dist.check(self.config)
+        self.store_dict = store
+        self.trainer = Trainer(self.config)
+        self.trainer.load_partners()
+        self.files = RunFiles(self.config)
+        self._stop = threading.Event()
+        self._learn = jax.jit(self._learn_fn, donate_argnums=(0, 1))
+        self.endpoint = None
+        if self.dist.metrics_port >= 0:
+            self.endpoint = M.MetricsEndpoint(self.dist.metrics_port, self.dist.metrics_host)
+            log.info("learner metrics on %s", self.endpoint.url)
+        self.plane: Any = None
+        self.slots: list[_Slot] = []
+
+    # ---- pure pieces -------------------------------------------------------------------------------------
+
+    def _learn_fn(
+        self, params: Any, opt_state: Any, update: jax.Array, rollout: CompactRollout, key: jax.Array
+    ) -> tuple[Any, Any, Any]:
+        traj = expand(self.trainer.task, self.trainer.env_params, rollout)
+        return self.trainer.learn(params, opt_state, update, traj, key)
+
+    def _slice_template(self) -> CompactRollout:
+        """Shapes of one actor's `CompactRollout` (to decode its bytes)."""
+        n = self.config.num_envs // self.dist.num_actors
+
+        def shaped(k: jax.Array) -> CompactRollout:
+            state = self.trainer.init_one(k)
+            carry = jax.tree.map(lambda x: x[:n], state.carry)
+            levels = self.trainer.task.sample_levels(k, carry.env_id, self.config.levels_per_env)
+            _, traj = self.trainer.collect(
+                state.params, carry, k, k, self.trainer.population, record="state", levels=levels
+            )
+            return CompactRollout(traj, carry.env_state.level, levels)
+
+        return jax.eval_shape(shaped, jax.random.PRNGKey(0))
+
+    def _carry_template(self) -> RolloutCarry:
+        """Shapes of one actor's carry."""
+        n = self.config.num_envs // self.dist.num_actors
+        return jax.eval_shape(
+            lambda k: jax.tree.map(lambda x: x[:n], self.trainer.init_one(k).carry), jax.random.PRNGKey(0)
+        )
+
+    # ---- control ------------------------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        """Asks `run` to finish the current update, checkpoint and return (SIGINT/SIGTERM of the driver)."""
+        self._stop.set()
+
+    def ping(self) -> int:
+        return os.getpid()
+
+    def metrics_url(self) -> str:
+        return "" if self.endpoint is None else self.endpoint.url
+
+    def run(self, resume: bool = True, max_updates: int | None = None, log_to: Any = None) -> dict:
+        """Trains to the end of the run (or `max_updates` more updates, or `stop()`); returns a summary."""
+        out = log_to or sys.stderr
+        cfg = self.config
+        loaded, done = self.files.open(self.trainer.state_template(), resume, out)
+        restarts = int(os.environ.get("CEC_LEARNER_RESTARTS", "0"))
+        M.LEARNER_RESTARTS.set(restarts)
+        state = self.trainer.init() if loaded is None else loaded
+        one = jax.tree.map(lambda x: x[0], state)  # the run's one seed
+        self._connect_store(resume=loaded is not None)
+        self._start_actors(one.carry)
+        total = cfg.num_updates
+        stop_at = total if max_updates is None else min(total, done + max_updates)
+        if done == 0 and 0 in self.files.milestones:
+            self._checkpoint(one, 0, True)
+        meter = Progress(total, cfg.steps_per_update, out)
+        template = self._slice_template()
+        params, opt_state, key = one.params, one.opt_state, one.key
+        version = done
+        weights = self._publish(params, version)
+        pending: dict[Any, int] = {}  # async: in-flight rollout -> slot index
+        status = "finished"
+        try:
+            while done < stop_at:
+                if self._stop.is_set():
+                    status = "interrupted"
+                    break
+                t0 = time.perf_counter()
+                key, k_levels, k_roll, k_update = self.trainer.update_keys(key)
+                if self.dist.mode == "sync":
+                    parts = self._sync_batches(weights, version, k_levels, k_roll, template)
+                else:
+                    parts = self._async_batches(weights, version, key, pending, template)
+                t_update = time.perf_counter()
+                rollout = _concat_slices(parts)
+                params, opt_state, metrics = self._learn(
+                    params, opt_state, jnp.int32(done), rollout, k_update
+                )
+                jax.block_until_ready(params)
+                M.LEARNER_STAGE_SECONDS.labels("update").inc(time.perf_counter() - t_update)
+                done += 1
+                version = done
+                weights = self._publish(params, version)
+                dt = time.perf_counter() - t0
+                sps = cfg.steps_per_update / dt
+                self._record(done, metrics, sps)
+                rows = metrics_rows(cfg, done - 1, jax.tree.map(lambda x: x[None, None], metrics), sps)
+                self.files.writer.write(rows)
+                meter.show(done, sps, rows[-1]["mean_return"], (stop_at - done) * dt)
+                due, crossed = self.files.due(done - 1, done)
+                if due or done == stop_at or self._stop.is_set():
+                    carry = self._gather_carry(key, pending)
+                    self._checkpoint(
+                        TrainState(params, opt_state, carry, key, jnp.int32(done)), done, crossed
+                    )
+                self._heartbeat()
+            if self._stop.is_set() and done < stop_at:
+                status = "interrupted"
+        except BaseException:
+            status = "failed"
+            raise
+        finally:
+            partial = status == "finished" and done < total  # max_updates reached
+            self._set_status("interrupted" if partial else status)
+            self._close_actors()
+        return {"updates": done, "status": status, "run_dir": str(self.files.run_dir)}
+
+    # ---- actors -----------------------------------------------------------------------------------------
+
+    def _start_actors(self, carry: RolloutCarry) -> None:
+        import ray
+
+        cfg, d = self.config, self.dist
+        n = cfg.num_envs // d.num_actors
+        env_vars = {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
+        if d.actor_threads > 0:
+            env_vars["XLA_FLAGS"] = (
+                f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={d.actor_threads}"
+            )
+        remote = ray.remote(RolloutActor).options(
+            num_cpus=d.actor_cpus,
+            max_restarts=d.actor_max_restarts,
+            max_task_retries=0,
+            runtime_env={"env_vars": env_vars},
+        )
+        token = d.level_token or os.environ.get("CEC_LEVEL_SERVER_TOKEN", "")
+        self.slots = []
+        for i in range(d.num_actors):
+            handle = remote.remote(
+                self.train_dict, i, i * n, (i + 1) * n, d.level_server, token, cfg.seed * 1000 + i
+            )
+            self.slots.append(_Slot(handle, i * n, (i + 1) * n))
+        ray.get([s.handle.reset.remote(0, to_bytes(_rows(carry, s.start, s.stop))) for s in self.slots])
+        log.info("%d actors ready (%d envs each, %s mode)", d.num_actors, n, d.mode)
+
+    def _revive(self, i: int, key: jax.Array) -> None:
+        """After slot i's actor died: wait for Ray's restart, give it a new incarnation and fresh episodes."""
+        import ray
+
+        slot = self.slots[i]
+        slot.incarnation += 1
+        M.ACTOR_RESTARTS.inc()
+        fresh = np.asarray(jax.random.fold_in(key, 10_000 + 97 * i + slot.incarnation))
+        log.warning("actor %d died; waiting for its restart (incarnation %d)", i, slot.incarnation)
+        deadline = time.monotonic() + 300
+        while True:
+            try:
+                ray.get(slot.handle.reset.remote(slot.incarnation, None, fresh), timeout=120)
+                return
+            except (ray.exceptions.RayActorError, ray.exceptions.GetTimeoutError) as err:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"actor {i} did not come back after a crash: {err}") from err
+                time.sleep(0.5)
+
+    def _submit(self, i: int, weights: Any, version: int, k_levels: Any, k_roll: Any) -> Any:
+        return self.slots[i].handle.rollout.remote(weights, version, np.asarray(k_levels), np.asarray(k_roll))
+
+    def _fetch(self, i: int, ref: Any) -> tuple[Any, Any] | None:
+        """(header, rollout bytes) of a finished rollout, or None if its actor died (it is revived)."""
+        import ray
+
+        t0 = time.perf_counter()
+        try:
+            data = ray.get(ref)
+        except (ray.exceptions.RayActorError, ActorNotReadyError) as err:
+            log.warning("actor %d: rollout lost (%s)", i, type(err).__name__)
+            return None
+        header, stats, payload = decode_batch(data)
+        M.LEARNER_STAGE_SECONDS.labels("transfer").inc(time.perf_counter() - t0)
+        M.LEARNER_STAGE_SECONDS.labels("rollout").inc(stats.rollout_s)
+        M.ACTOR_ROLLOUT_SECONDS.labels(str(i)).inc(stats.rollout_s)
+        M.ACTOR_LEVEL_BUFFER.labels(str(i)).set(stats.levels_buffered)
+        reconnects = M.ACTOR_LEVEL_RECONNECTS.labels(str(i))
+        reconnects.inc(max(0, stats.reconnects - reconnects._value.get()))
+        M.LEARNER_BYTES_RECEIVED.inc(len(data))
+        M.LEARNER_AGENT_STEPS_RECEIVED.inc(2 * (header.env_stop - header.env_start) * self.config.num_steps)
+        return header, payload
+
+    def _accept(self, i: int, header: Any, version: int) -> bool:
+        slot = self.slots[i]
+        if header.incarnation != slot.incarnation:
+            M.LEARNER_BATCHES.labels("dead_incarnation").inc()
+            return False
+        lag = version - header.version
+        if lag > self.dist.max_policy_lag and self.dist.mode == "async":
+            M.LEARNER_BATCHES.labels("stale").inc()
+            return False
+        M.LEARNER_POLICY_LAG.observe(lag)
+        M.LEARNER_BATCHES.labels("accepted").inc()
+        return True
+
+    def _sync_batches(self, weights: Any, version: int, k_levels: Any, k_roll: Any, template: Any) -> list:
+        import ray
+
+        refs = [self._submit(i, weights, version, k_levels, k_roll) for i in range(len(self.slots))]
+        t0 = time.perf_counter()
+        ray.wait(refs, num_returns=len(refs))
+        M.LEARNER_STAGE_SECONDS.labels("wait").inc(time.perf_counter() - t0)
+        parts = []
+        for i, ref in enumerate(refs):
+            while True:
+                got = self._fetch(i, ref)
+                if got is not None and self._accept(i, got[0], version):
+                    parts.append(from_bytes(template, got[1]))
+                    break
+                if got is None:
+                    self._revive(i, k_roll)
+                ref = self._submit(i, weights, version, k_levels, k_roll)
+        return parts
+
+    def _async_keys(self, key: jax.Array, i: int) -> tuple[Any, Any]:
+        slot = self.slots[i]
+        slot.submitted += 1
+        k = jax.random.fold_in(jax.random.fold_in(key, i), slot.submitted)
+        k_levels, k_roll = jax.random.split(k)
+        return k_levels, k_roll
+
+    def _async_batches(self, weights: Any, version: int, key: Any, pending: dict, template: Any) -> list:
+        import ray
+
+        base = self.config.seed + 7919  # actors' own key chain, independent of the learner's
+        root = jax.random.PRNGKey(base)
+        busy = set(pending.values())
+        for i in range(len(self.slots)):
+            if i not in busy:
+                pending[self._submit(i, weights, version, *self._async_keys(root, i))] = i
+        parts: list = []
+        while len(parts) < len(self.slots):
+            t0 = time.perf_counter()
+            ready, _ = ray.wait(list(pending), num_returns=1)
+            M.LEARNER_STAGE_SECONDS.labels("wait").inc(time.perf_counter() - t0)
+            ref = ready[0]
+            i = pending.pop(ref)
+            got = self._fetch(i, ref)
+            if got is None:
+                self._revive(i, root)
+            pending[self._submit(i, weights, version, *self._async_keys(root, i))] = i  # never idle
+            if got is not None and self._accept(i, got[0], version):
+                parts.append((got[0].env_start, from_bytes(template, got[1])))
+        parts.sort(key=lambda p: p[0])
+        return [p for _, p in parts]
+
+    def _gather_carry(self, key: Any, pending: dict) -> RolloutCarry:
+        """Every actor's carry, concatenated in env order (for the checkpoint)."""
+        import ray
+
+        template = jax.tree.map(
+            lambda x: jax.ShapeDtypeStruct(
+                (self.config.num_envs // self.dist.num_actors, *x.shape[1:]), x.dtype
+            ),
+            jax.eval_shape(self.trainer.init_one, jax.random.PRNGKey(0)).carry,
+        )
+        parts = []
+        for i, slot in enumerate(self.slots):
+            while True:
+                try:
+                    parts.append(from_bytes(template, ray.get(slot.handle.carry_bytes.remote())))
+                    break
+                except (ray.exceptions.RayActorError, ActorNotReadyError):
+                    self._revive(i, key)
+        return jax.tree.map(lambda *xs: jnp.concatenate([jnp.asarray(x) for x in xs]), *parts)
+
+    def _close_actors(self) -> None:
+        import ray
+
+        for slot in self.slots:
+            with contextlib.suppress(Exception):  # already gone
+                ray.kill(slot.handle, no_restart=True)
+        self.slots = []
+
+    # ---- weights, checkpoints, Redis, metrics --------------------------------------------------------------
+
+    def _publish(self, params: Any, version: int) -> Any:
+        import ray
+
+        t0 = time.perf_counter()
+        ref = ray.put(to_bytes(params))
+        M.LEARNER_POLICY_VERSION.set(version)
+        M.LEARNER_STAGE_SECONDS.labels("publish").inc(time.perf_counter() - t0)
+        return ref
+
+    def _checkpoint(self, one: TrainState, update: int, milestone: bool) -> None:
+        t0 = time.perf_counter()
+        state = jax.tree.map(lambda x: jnp.asarray(x)[None], one)
+        path = self.files.save(state, update, milestone)
+        M.LEARNER_CHECKPOINTS.inc()
+        M.LEARNER_LAST_CHECKPOINT.set(time.time())
+        M.LEARNER_STAGE_SECONDS.labels("checkpoint").inc(time.perf_counter() - t0)
+        log.info("checkpoint %s", path)
+        if self.plane is not None:
+            from cec.store import CheckpointEvent, StoreError
+
+            try:
+                result = self.plane.publish_checkpoint(
+                    CheckpointEvent.from_checkpoint(path, self.config.run_name)
+                )
+                M.LEARNER_REDIS_UP.set(result.outcome != "queued")
+                if result.outcome == "queued":
+                    log.warning(
+                        "Redis unreachable: checkpoint event %s queued in the outbox", result.checkpoint_id
+                    )
+            except StoreError as err:
+                M.LEARNER_REDIS_UP.set(0)
+                log.error("could not publish checkpoint %s: %s (kept in the outbox)", path, err)
+            M.LEARNER_CHECKPOINT_EVENTS_QUEUED.set(len(self.plane.pending_outbox()))
+
+    def _connect_store(self, resume: bool) -> None:
+        if not (self.dist.publish_checkpoints and self.store_dict is not None):
+            return
+        from cec.store import ControlPlane, StoreConfig
+        from cec.training.trainer import config_dict
+
+        self.plane = ControlPlane.connect(
+            from_dict(StoreConfig, self.store_dict), outbox_dir=self.files.run_dir
+        )
+        self.plane.register_run(
+            self.config.run_name, config=config_dict(self.config), algorithm=self.config.algorithm
+        )
+        self.plane.flush_outbox()  # events queued before a crash or an outage
+        M.LEARNER_REDIS_UP.set(1)
+
+    def _heartbeat(self) -> None:
+        if self.plane is None:
+            return
+        from cec.store import StoreError
+
+        try:
+            if self.plane.pending_outbox():
+                self.plane.flush_outbox()
+            self.plane.heartbeat(self.config.run_name)
+            M.LEARNER_REDIS_UP.set(1)
+        except StoreError:
+            M.LEARNER_REDIS_UP.set(0)
+        M.LEARNER_CHECKPOINT_EVENTS_QUEUED.set(len(self.plane.pending_outbox()))
+
+    def _set_status(self, status: str) -> None:
+        if self.plane is None:
+            return
+        from cec.store import StoreError
+
+        try:
+            self.plane.set_run_status(self.config.run_name, status)
+        except StoreError as err:
+            log.warning("could not record run status %s: %s", status, err)
+
+    def _record(self, done: int, metrics: Any, sps: float) -> None:
+        host = jax.device_get(metrics)
+        M.LEARNER_UPDATES.inc()
+        M.LEARNER_ENV_STEPS.inc(self.config.steps_per_update)
+        M.LEARNER_STEPS_PER_SECOND.set(sps)
+        if np.isfinite(host.mean_return):
+            M.LEARNER_EPISODE_RETURN.set(float(host.mean_return))
+            M.LEARNER_SHAPED_RETURN.set(float(host.mean_shaped_return))
+        for name in LossInfo._fields:
+            M.LEARNER_LOSS.labels(name).set(float(getattr(host.loss, name)))
+
+
+def _rows(tree: Any, start: int, stop: int) -> Any:
+    return jax.tree.map(lambda x: x[start:stop], tree)
+
+
+def _concat_slices(parts: list[CompactRollout]) -> CompactRollout:
+    """The actors' rollouts (in env order) as one rollout of all the envs."""
+    traj_axis = {name: (0 if name in ("init_lstm", "last_value") else 1) for name in parts[0].traj._fields}
+    cat = lambda axis, *xs: np.concatenate([np.asarray(x) for x in xs], axis=axis)  # noqa: E731
+    traj = parts[0].traj._replace(
+        **{
+            name: jax.tree.map(
+                lambda *xs, a=traj_axis[name]: cat(a, *xs), *[getattr(p.traj, name) for p in parts]
+            )
+            for name in parts[0].traj._fields
+            if getattr(parts[0].traj, name) is not None
+        }
+    )
+    start = jax.tree.map(lambda *xs: cat(0, *xs), *[p.start_level for p in parts])
+    levels = jax.tree.map(lambda *xs: cat(0, *xs), *[p.levels for p in parts])
+    return CompactRollout(traj, start, levels)
