@@ -123,12 +123,13 @@ class Learner:
     def metrics_url(self) -> str:
         return "" if self.endpoint is None else self.endpoint.url
 
-    def run(self, resume: bool = True, max_updates: int | None = None, log_to: Any = None) -> dict:
-        """Trains to the end of the run (or `max_updates` more updates, or `stop()`); returns a summary."""
-        out = log_to or sys.stderr
+    def run(self, resume: bool = True, max_updates: int | None = None, restarts: int = 0) -> dict:
+        """Trains to the end of the run (or `max_updates` more updates, or `stop()`); returns a summary.
+
+        `restarts`: how often the driver restarted this learner (exported as a metric)."""
+        out = sys.stderr
         cfg = self.config
         loaded, done = self.files.open(self.trainer.state_template(), resume, out)
-        restarts = int(os.environ.get("CEC_LEARNER_RESTARTS", "0"))
         M.LEARNER_RESTARTS.set(restarts)
         state = self.trainer.init() if loaded is None else loaded
         one = jax.tree.map(lambda x: x[0], state)  # the run's one seed

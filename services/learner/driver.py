@@ -1,0 +1,188 @@
+"""The driver of a distributed run: starts the learner as a Ray actor and keeps it going.
+
+    code = run_distributed(train_config, distributed_config, store_config, resume=False)
+
+The learner runs in its own Ray worker process (`ray.remote(Learner)`), so that a crash of that process is
+survived: Ray restarts the actor and the driver calls `run(resume=True)` again, which continues from the
+latest checkpoint with the run's exact counters. SIGINT/SIGTERM ask the learner to finish its update,
+checkpoint and return (a second signal stops at once). Used by `cec up` and `cec train --distributed`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import signal
+import sys
+import threading
+import time
+from types import FrameType
+from typing import Any, TextIO
+
+from cec import checkpoints
+from cec.config import ConfigError
+from cec.store import StoreConfig
+from cec.training.config import TrainConfig
+from cec.training.trainer import RunFiles, config_dict
+from services.learner.config import DistributedConfig
+
+log = logging.getLogger("cec.driver")
+
+EXIT_INTERRUPTED = 130
+
+
+def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig | None, resume: bool) -> None:
+    """Everything that can be checked before a process starts: the config pair, the run directory and the
+    checkpoint to resume, Redis and the level server (each failure a `ConfigError` naming the fix)."""
+    dist.check(train)
+    files = RunFiles(train)
+    latest = files.store.latest()
+    if latest is not None and not resume:
+        raise ConfigError(
+            f"{files.run_dir} already has checkpoints; continue it with --resume, or choose another name"
+        )
+    if latest is not None:
+        try:
+            meta = checkpoints.read_meta(latest.path)
+        except checkpoints.CheckpointError as err:
+            raise ConfigError(f"cannot resume from {latest.path}: {err}") from err
+        if meta.get("config") != config_dict(train):
+            raise ConfigError(
+                f"checkpoint {latest.path} was written with a different config; resume with the run's own "
+                f"config ({files.run_dir / 'config.yaml'}) and no overrides, or start a new run (name=...)"
+            )
+    if store is not None and dist.publish_checkpoints:
+        from cec.store import ControlPlane, StoreError
+
+        try:
+            ControlPlane.connect(store).close()
+        except StoreError as err:
+            raise ConfigError(str(err)) from err
+    if dist.level_server and train.env.levels == "generator":
+        check_level_server(dist.level_server, dist.level_token)
+
+
+def check_level_server(address: str, token: str = "", timeout: float = 10.0) -> None:
+    import grpc
+
+    from services.level_server.client import LevelClient
+
+    client = LevelClient(address, token=token or None)
+    try:
+        client.wait_ready(timeout=timeout)
+    except (grpc.FutureTimeoutError, grpc.RpcError) as err:
+        raise ConfigError(
+            f"the level server at {address} does not answer ({type(err).__name__}); start it with "
+            "`cec level-server` or set distributed.level_server to its host:port"
+        ) from err
+    finally:
+        client.close()
+
+
+class _Signals:
+    """First SIGINT/SIGTERM: ask the learner to stop after its update; second: stop now."""
+
+    def __init__(self, on_first: Any) -> None:
+        self.count = 0
+        self.on_first = on_first
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _Signals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum: int, frame: FrameType | None) -> None:
+        self.count += 1
+        if self.count > 1:
+            raise KeyboardInterrupt
+        print(
+            f"\n{signal.Signals(signum).name}: the learner finishes its update and checkpoints "
+            "(send again to stop at once)",
+            file=sys.stderr,
+            flush=True,
+        )
+        self.on_first()
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._old.items():
+            signal.signal(sig, handler)
+
+
+def run_distributed(
+    train: TrainConfig,
+    dist: DistributedConfig,
+    store: StoreConfig | None,
+    *,
+    resume: bool = False,
+    max_updates: int | None = None,
+    log_to: TextIO = sys.stderr,
+) -> int:
+    """Runs the learner (Ray must be initialised) until the run ends; 0, or 130 when interrupted."""
+    import ray
+
+    from services.learner.learner import Learner
+
+    check_start(train, dist, store, resume)
+    remote = ray.remote(Learner).options(
+        num_cpus=0,
+        max_restarts=dist.learner_max_restarts,
+        max_task_retries=0,
+        max_concurrency=2,  # `stop` runs while `run` does
+        runtime_env={"env_vars": {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}},
+    )
+    store_dict = None if store is None else _asdict(store)
+    learner: Any = remote.remote(config_dict(train), _asdict(dist), store_dict)
+    stopping = threading.Event()
+
+    def stop() -> None:
+        stopping.set()
+        with contextlib.suppress(Exception):
+            learner.stop.remote()
+
+    restarts = 0
+    with _Signals(stop):
+        while True:
+            ref = learner.run.remote(
+                resume=resume or restarts > 0, max_updates=max_updates, restarts=restarts
+            )
+            try:
+                summary = _wait(ref)
+                break
+            except ray.exceptions.RayActorError as err:
+                restarts += 1
+                if restarts > dist.learner_max_restarts >= 0:
+                    print(f"the learner died {restarts} times; giving up: {err}", file=log_to, flush=True)
+                    return 1
+                print(
+                    f"the learner process died ({type(err).__name__}); Ray restarts it and it resumes from "
+                    f"its latest checkpoint (restart {restarts})",
+                    file=log_to,
+                    flush=True,
+                )
+                if stopping.is_set():  # the stop request went to the dead process: ask the new one
+                    time.sleep(1.0)
+                    stop()
+    print(
+        f"learner: {summary['status']} after {summary['updates']} updates ({summary['run_dir']})", file=log_to
+    )
+    with contextlib.suppress(Exception):
+        ray.kill(learner, no_restart=True)
+    return EXIT_INTERRUPTED if summary["status"] == "interrupted" else 0
+
+
+def _wait(ref: Any) -> dict:
+    import ray
+
+    while True:  # short waits keep the main thread responsive to signals
+        ready, _ = ray.wait([ref], timeout=0.5)
+        if ready:
+            return dict(ray.get(ref))
+
+
+def _asdict(config: Any) -> dict:
+    import dataclasses
+
+    return dataclasses.asdict(config)

@@ -1,0 +1,375 @@
+"""`cec up`: the whole service on one machine, started in order and shut down cleanly.
+
+    cec up [--config configs/up/default.yaml] [--monitoring] [key=value ...] [train.key=value ...]
+
+Start-up (each step checked before the next; a failure stops everything started so far and names the fix):
+1. Redis: `store.url` (or CEC_REDIS_URL) when given, else a local `redis-server` on a free port in the run
+   directory (`cec.store.LocalRedis`).
+2. The level server (`python -m services.level_server`) unless `level_server_address` points at one.
+3. Ray (local, or `distributed.ray_address`), then the learner and its rollout actors
+   (`services.learner.driver`), streaming kitchens from the level server for procedural Overcooked runs.
+4. The evaluator (`python -m services.evaluator`), scoring each checkpoint the learner publishes.
+5. With `monitoring`: Prometheus (and Grafana when installed) scraping all of the above.
+
+The URLs of everything are printed; Ctrl-C (or SIGTERM) makes the learner checkpoint, then the evaluator,
+level server, Ray, Redis and Prometheus are stopped in reverse order.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import logging
+import os
+import selectors
+import socket
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any, TextIO
+
+from cec.config import ConfigError, load_config
+from cec.store import StoreConfig
+from cec.training.config import TrainConfig
+from services.learner.config import DistributedConfig
+
+log = logging.getLogger("cec.up")
+DEFAULT_CONFIG = "configs/up/default.yaml"
+
+
+@dataclass(frozen=True)
+class UpConfig:
+    """The embedded stack (`cec up`).
+
+    Attributes:
+        train: the training preset (a `TrainConfig` YAML, e.g. configs/train/cramped_room_ci.yaml).
+        train_overrides: `key=value` overrides of the preset (also `train.key=value` on the command line).
+        distributed: actors, sync/async, the learner's metrics port (`DistributedConfig`).
+        store: Redis; empty `url` and no CEC_REDIS_URL: a local redis-server is started for the run.
+        level_server_address: an existing level server (`host:port`); empty: start one.
+        level_server_port: gRPC port of the level server started here (0: a free one).
+        level_server_metrics_port: its Prometheus port (0: a free one, -1: off).
+        evaluator: start the evaluator service.
+        evaluator_config: its preset (`EvaluatorConfig` YAML); the stack sets its Redis URL, results
+            directory and metrics port.
+        evaluator_metrics_port: the evaluator's Prometheus port (0: a free one, -1: off).
+        monitoring: start Prometheus (and Grafana when installed) against the stack.
+        ray_dashboard: start Ray's dashboard with the local Ray.
+        start_timeout_s: how long each service may take to report ready.
+    """
+
+    train: str = "configs/train/cramped_room_ci.yaml"
+    train_overrides: tuple[str, ...] = ()
+    distributed: DistributedConfig = field(default_factory=DistributedConfig)
+    store: StoreConfig = field(default_factory=StoreConfig)
+    level_server_address: str = ""
+    level_server_port: int = 50051
+    level_server_metrics_port: int = 9401
+    evaluator: bool = True
+    evaluator_config: str = "configs/evaluator.yaml"
+    evaluator_metrics_port: int = 9403
+    monitoring: bool = False
+    ray_dashboard: bool = True
+    start_timeout_s: float = 120.0
+
+    def train_config(self, extra: tuple[str, ...] = ()) -> TrainConfig:
+        return load_config(TrainConfig, preset_path(self.train), [*self.train_overrides, *extra])
+
+
+def preset_path(path: str) -> Path:
+    """`path` as given, or else relative to the repository (presets ship in its `configs/`)."""
+    p = Path(path)
+    repo = Path(__file__).resolve().parent.parent
+    return p if p.exists() or p.is_absolute() or not (repo / p).exists() else repo / p
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+def _port(requested: int) -> int:
+    return free_port() if requested == 0 else requested
+
+
+class ServiceProcess:
+    """A service in a child process (`python -m <module> ...`): waits for its ready line, then copies its
+    output to a log file in the run directory."""
+
+    def __init__(self, name: str, args: list[str], log_path: Path, ready: str, timeout: float) -> None:
+        self.name = name
+        log_path.parent.mkdir(parents=True, exist_ok=True)
+        self.log_path = log_path
+        self._log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
+        self.proc = subprocess.Popen(
+            [sys.executable, "-u", *args],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            env={**os.environ, "JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")},
+        )
+        self.ready_line = self._wait_for(ready, timeout)
+
+    def _wait_for(self, marker: str, timeout: float) -> str:
+        assert self.proc.stdout is not None
+        out: IO[bytes] = self.proc.stdout
+        sel = selectors.DefaultSelector()
+        sel.register(out, selectors.EVENT_READ)
+        deadline = time.monotonic() + timeout
+        tail: list[str] = []
+        while time.monotonic() < deadline:
+            if not sel.select(timeout=0.5):
+                continue
+            line = out.readline()
+            if not line:
+                break
+            self._log.write(line)
+            self._log.flush()
+            text = line.decode(errors="replace").rstrip()
+            tail = (tail + [text])[-15:]
+            if marker in text:
+                sel.close()
+                self._pump()
+                return text
+        sel.close()
+        self.stop()
+        raise ConfigError(
+            f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
+            + "\n  ".join(tail)
+        )
+
+    def _pump(self) -> None:
+        import threading
+
+        def copy() -> None:
+            assert self.proc.stdout is not None
+            for line in self.proc.stdout:
+                self._log.write(line)
+                self._log.flush()
+
+        threading.Thread(target=copy, name=f"{self.name}-log", daemon=True).start()
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def stop(self, timeout: float = 30.0) -> None:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        with contextlib.suppress(Exception):
+            self._log.close()
+
+
+class Stack:
+    """The services of `cec up` (see the module docstring); `start()` then `train()`, `stop()` always."""
+
+    def __init__(self, config: UpConfig, train: TrainConfig, out: TextIO = sys.stderr) -> None:
+        self.config = config
+        self.train_config = train
+        self.out = out
+        self.run_dir = Path(train.run_dir) / train.run_name
+        self.services: list[ServiceProcess] = []
+        self.redis: Any = None
+        self.monitoring: Any = None
+        self.store = config.store
+        self.dist = config.distributed
+        self.urls: dict[str, str] = {}
+        self.ray_started = False
+
+    def say(self, text: str) -> None:
+        print(text, file=self.out, flush=True)
+
+    def start(self) -> None:
+        cfg = self.config
+        self.dist.check(self.train_config)
+        logs = self.run_dir / "logs"
+        # 1. Redis
+        if self.store.url_given:
+            from cec.store import ControlPlane, StoreError
+
+            try:
+                ControlPlane.connect(self.store).close()
+            except StoreError as err:
+                raise ConfigError(str(err)) from err
+            self.say(f"redis                  {self.store.display_url} (given)")
+        else:
+            from cec.store import LocalRedis
+
+            self.redis = LocalRedis(self.run_dir / "redis").start()
+            self.store = self.redis.config()
+            self.say(
+                f"redis                  {self.redis.url} (started here; data in {self.run_dir / 'redis'})"
+            )
+        self.urls["redis"] = self.store.display_url
+        # 2. level server
+        address = cfg.level_server_address
+        if not address:
+            port, mport = _port(cfg.level_server_port), cfg.level_server_metrics_port
+            mport = mport if mport < 0 else _port(mport)
+            server = ServiceProcess(
+                "level server",
+                [
+                    "-m",
+                    "services.level_server",
+                    f"port={port}",
+                    f"metrics_port={mport}",
+                    f"seed={self.train_config.seed}",
+                ],
+                logs / "level_server.log",
+                "level server ready on",
+                cfg.start_timeout_s,
+            )
+            self.services.append(server)
+            address = server.ready_line.rsplit(" ", 1)[-1]
+            self.say(f"level server           grpc://{address}  (log: {server.log_path})")
+            if mport >= 0:
+                self.urls["level server metrics"] = f"http://127.0.0.1:{mport}/metrics"
+        else:
+            from services.learner.driver import check_level_server
+
+            check_level_server(address, self.dist.level_token)
+            self.say(f"level server           grpc://{address} (given)")
+        if self.train_config.env.levels == "generator" and not self.dist.level_server:
+            self.dist = dataclasses.replace(self.dist, level_server=address)
+        if self.dist.metrics_port == 0:
+            self.dist = dataclasses.replace(self.dist, metrics_port=free_port())
+        if self.dist.metrics_port >= 0:
+            self.urls["learner metrics"] = f"http://{self.dist.metrics_host}:{self.dist.metrics_port}/metrics"
+        # 3. evaluator
+        if cfg.evaluator:
+            eport = (
+                cfg.evaluator_metrics_port
+                if cfg.evaluator_metrics_port < 0
+                else _port(cfg.evaluator_metrics_port)
+            )
+            evaluator = ServiceProcess(
+                "evaluator",
+                [
+                    "-m",
+                    "services.evaluator",
+                    "--config",
+                    str(preset_path(cfg.evaluator_config)),
+                    f"store.url={self.store.resolved_url}",
+                    f"results_dir={self.train_config.run_dir}",
+                    f"metrics_port={eport}",
+                ],
+                logs / "evaluator.log",
+                "evaluator ready",
+                cfg.start_timeout_s,
+            )
+            self.services.append(evaluator)
+            self.say(f"evaluator              consuming checkpoint events  (log: {evaluator.log_path})")
+            if eport >= 0:
+                self.urls["evaluator metrics"] = f"http://127.0.0.1:{eport}/metrics"
+        # 4. Ray
+        import ray
+
+        if self.dist.ray_address:
+            info = ray.init(address=self.dist.ray_address)
+        else:
+            info = ray.init(
+                num_cpus=self.dist.ray_num_cpus or None,
+                include_dashboard=cfg.ray_dashboard,
+                logging_level=logging.WARNING,
+            )
+        self.ray_started = True
+        dash = getattr(info, "dashboard_url", "") or ""
+        if dash:
+            self.urls["ray dashboard"] = dash if dash.startswith("http") else f"http://{dash}"
+        # 5. monitoring
+        if cfg.monitoring:
+            from cec.monitoring import MonitoringError, start_monitoring
+
+            targets = {
+                job: [url.split("//", 1)[1].split("/", 1)[0]]
+                for job, url in (
+                    ("level_server", self.urls.get("level server metrics", "")),
+                    ("learner", self.urls.get("learner metrics", "")),
+                    ("evaluator", self.urls.get("evaluator metrics", "")),
+                )
+                if url
+            }
+            try:
+                self.monitoring = start_monitoring(self.run_dir / "monitoring", targets)
+                self.say(self.monitoring.describe())
+            except MonitoringError as err:
+                self.say(f"monitoring not started: {err}")
+        for name, url in self.urls.items():
+            self.say(f"{name:<22} {url}")
+
+    def train(self, resume: bool, max_updates: int | None = None) -> int:
+        from services.learner.driver import run_distributed
+
+        t = self.train_config
+        self.say(
+            f"training {t.run_name}: {t.algorithm} on {t.env.name}/{t.env.levels}, "
+            f"{self.dist.num_actors} actors ({self.dist.mode}); Ctrl-C stops with a checkpoint"
+        )
+        return run_distributed(
+            self.train_config, self.dist, self.store, resume=resume, max_updates=max_updates, log_to=self.out
+        )
+
+    def stop(self) -> None:
+        if self.ray_started:
+            import ray
+
+            ray.shutdown()
+        for service in reversed(self.services):
+            service.stop()
+        if self.monitoring is not None:
+            self.monitoring.stop()
+        if self.redis is not None:
+            self.redis.stop()
+        self.say("stack stopped")
+
+
+# ---- command line ---------------------------------------------------------------------------------------
+
+
+def add_subcommands(sub: Any) -> None:
+    up = sub.add_parser(
+        "up", help="start the whole stack on this machine and train (Ctrl-C stops it cleanly)"
+    )
+    up.add_argument("--config", default=DEFAULT_CONFIG, help=f"stack preset (default {DEFAULT_CONFIG})")
+    up.add_argument(
+        "--monitoring", action="store_true", help="also start Prometheus (and Grafana if installed)"
+    )
+    up.add_argument("--resume", action="store_true", help="continue the run from its latest checkpoint")
+    up.add_argument("--max-updates", type=int, help="stop (with a checkpoint) after this many more updates")
+    up.add_argument(
+        "overrides",
+        nargs="*",
+        metavar="KEY=VALUE",
+        help="stack overrides; train.KEY=VALUE overrides the preset",
+    )
+    up.set_defaults(func=cmd_up)
+
+
+def split_overrides(overrides: list[str]) -> tuple[list[str], tuple[str, ...]]:
+    stack = [o for o in overrides if not o.startswith("train.")]
+    train = tuple(o.removeprefix("train.") for o in overrides if o.startswith("train."))
+    return stack, train
+
+
+def cmd_up(args: argparse.Namespace) -> int:
+    stack_overrides, train_overrides = split_overrides(list(args.overrides))
+    if args.monitoring:
+        stack_overrides.append("monitoring=true")
+    config = load_config(UpConfig, preset_path(args.config), stack_overrides)
+    train = config.train_config(train_overrides)
+    stack = Stack(config, train)
+    try:
+        stack.start()
+        return stack.train(resume=args.resume, max_updates=args.max_updates)
+    except KeyboardInterrupt:
+        print("stopped", file=sys.stderr)
+        return 130
+    finally:
+        stack.stop()
