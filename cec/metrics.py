@@ -93,6 +93,11 @@ ACTOR_LEVEL_BUFFER = Gauge(
 ACTOR_LEVEL_RECONNECTS = Counter(
     "cec_actor_level_server_reconnects_total", "Level-stream reconnections made by actors", ["actor"]
 )
+ACTOR_LEVELS_REUSED = Counter(
+    "cec_actor_levels_reused_total",
+    "Kitchens an actor replayed from its local pool because the level stream had none (server outage)",
+    ["actor"],
+)
 ACTOR_ROLLOUT_SECONDS = Counter(
     "cec_actor_rollout_seconds_total", "Time actors spent in the jitted rollout", ["actor"]
 )

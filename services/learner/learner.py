@@ -256,8 +256,8 @@ class Learner:
         M.LEARNER_STAGE_SECONDS.labels("rollout").inc(stats.rollout_s)
         M.ACTOR_ROLLOUT_SECONDS.labels(str(i)).inc(stats.rollout_s)
         M.ACTOR_LEVEL_BUFFER.labels(str(i)).set(stats.levels_buffered)
-        reconnects = M.ACTOR_LEVEL_RECONNECTS.labels(str(i))
-        reconnects.inc(max(0, stats.reconnects - reconnects._value.get()))
+        _catch_up(M.ACTOR_LEVEL_RECONNECTS.labels(str(i)), stats.reconnects)
+        _catch_up(M.ACTOR_LEVELS_REUSED.labels(str(i)), stats.levels_reused)
         M.LEARNER_BYTES_RECEIVED.inc(len(data))
         M.LEARNER_AGENT_STEPS_RECEIVED.inc(2 * (header.env_stop - header.env_start) * self.config.num_steps)
         return header, payload
@@ -439,6 +439,11 @@ class Learner:
             M.LEARNER_SHAPED_RETURN.set(float(host.mean_shaped_return))
         for name in LossInfo._fields:
             M.LEARNER_LOSS.labels(name).set(float(getattr(host.loss, name)))
+
+
+def _catch_up(counter: Any, total: int) -> None:
+    """Raises a counter to an actor's cumulative count (a restarted actor counts from 0 again)."""
+    counter.inc(max(0, total - counter._value.get()))
 
 
 def _rows(tree: Any, start: int, stop: int) -> Any:
