@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: install demo test lint typecheck unit bench clean
+.PHONY: install up demo test lint typecheck unit bench clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -13,7 +13,14 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-## Main job (for now: random agents in every classic kitchen, side by side, written to out/demo.gif)
+## Main job: the whole service on this machine (local Redis, level server, Ray actors + learner, evaluator)
+## training the default preset until done or Ctrl-C; installs redis-server from Debian's packages if missing.
+up: install
+	@command -v redis-server >/dev/null || { SUDO=$$([ "$$(id -u)" = 0 ] || echo sudo); \
+	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq redis-server; }
+	$(BIN)/cec up $(ARGS)
+
+## Random agents in every classic kitchen, side by side, written to out/demo.gif
 demo: install
 	$(BIN)/cec demo --out out/demo.gif
 

@@ -12,6 +12,10 @@ cec train --config configs/train/X.yaml [k=v]  train (IPPO / CEC) in one process
 cec eval --zoo zoo.yaml [--levels heldout]     cross-play a zoo of checkpoints -> results.csv (one long table)
 cec report results.csv [...] [--out DIR]       Markdown report + PNG figures from result tables
 cec zoo build SPEC.yaml --out ZOO_DIR          train a partner zoo from a spec (resumable) -> ZOO_DIR/zoo.yaml
+cec up [--config YAML] [--monitoring]         the whole stack: Redis, level server, Ray learner, evaluator
+cec evaluator [--config YAML] [k=v]            score new checkpoints from Redis vs the zoo (a service)
+cec play serve [STUDY.yaml] [--checkpoint DIR]  human-AI play in the browser (study flow, records)
+cec play export STUDY.yaml --out DIR           a study's records -> results.csv (cec report) + survey.csv
 """
 
 from __future__ import annotations
@@ -210,6 +214,9 @@ def _cmd_train(args: argparse.Namespace) -> int:
     from cec.training.config import TrainConfig
     from cec.training.trainer import train
 
+    train_overrides = [o for o in args.overrides if not o.startswith(("distributed.", "store."))]
+    if args.distributed:
+        return _train_distributed(args, [o for o in args.overrides if o not in train_overrides])
     if args.resume:
         if args.config or args.overrides:
             raise ConfigError(
@@ -222,11 +229,39 @@ def _cmd_train(args: argparse.Namespace) -> int:
     else:
         if not args.config:
             raise ConfigError("give --config configs/train/<preset>.yaml (or --resume RUN_DIR)")
-        config = load_config(TrainConfig, args.config, args.overrides)
+        config = load_config(TrainConfig, args.config, train_overrides)
     result = train(config, resume=bool(args.resume), max_updates=args.max_updates, progress=not args.quiet)
     state = "interrupted" if result.interrupted else "finished"
     print(f"{state} after {result.updates_done} updates; run directory: {result.run_dir}")
     return 130 if result.interrupted else 0
+
+
+def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -> int:
+    """`cec train --distributed`: the learner and actors on an existing Ray cluster (`ray up`), Redis from
+    `store.url` / CEC_REDIS_URL, kitchens from `distributed.level_server`."""
+    import ray
+
+    from cec.config import load_config
+    from cec.store import StoreConfig
+    from cec.training.config import TrainConfig
+    from services.learner.config import DistributedConfig
+    from services.learner.driver import run_distributed
+
+    run_config = Path(args.resume) / "config.yaml" if args.resume else None
+    if not args.config and run_config is None:
+        raise ConfigError("give --config configs/train/<preset>.yaml (or --resume RUN_DIR)")
+    train_overrides = [o for o in args.overrides if o not in service_overrides]
+    config = load_config(TrainConfig, run_config or args.config, [] if run_config else train_overrides)
+    dist = load_config(DistributedConfig, None, [o.removeprefix("distributed.") for o in service_overrides
+                                                  if o.startswith("distributed.")])  # fmt: skip
+    store = load_config(
+        StoreConfig, None, [o.removeprefix("store.") for o in service_overrides if o.startswith("store.")]
+    )
+    ray.init(address=dist.ray_address or "auto")
+    try:
+        return run_distributed(config, dist, store, resume=bool(args.resume), max_updates=args.max_updates)
+    finally:
+        ray.shutdown()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -308,6 +343,12 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tr.add_argument("--max-updates", type=int, help="stop (with a checkpoint) after this many more updates")
     tr.add_argument("--quiet", action="store_true", help="no progress lines")
+    tr.add_argument(
+        "--distributed",
+        action="store_true",
+        help="run the Ray learner + actors on an existing Ray cluster (distributed.KEY=VALUE and "
+        "store.KEY=VALUE set services/learner/config.py and the Redis settings; see docs/distributed.md)",
+    )
     tr.set_defaults(func=_cmd_train)
 
     from cec.evaluation.cli import add_subcommands as add_evaluation_subcommands
@@ -316,6 +357,18 @@ def build_parser() -> argparse.ArgumentParser:
     from cec.zoo_build import add_subcommands as add_zoo_subcommands
 
     add_zoo_subcommands(sub)  # cec zoo build
+    from services.stack import add_subcommands as add_stack_subcommands
+
+    add_stack_subcommands(sub)  # cec up
+    from services.cluster import add_subcommands as add_cluster_subcommands
+
+    add_cluster_subcommands(sub)  # cec cluster check
+    from services.evaluator.main import add_subcommands as add_evaluator_subcommands
+
+    add_evaluator_subcommands(sub)  # cec evaluator
+    from services.play.main import add_subcommands as add_play_subcommands
+
+    add_play_subcommands(sub)  # cec play serve, cec play export
     return parser
 
 

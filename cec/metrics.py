@@ -128,6 +128,24 @@ EVALUATOR_FAILURES = Counter(
 )
 
 
+# --- play (`cec play`, served on the app's own /metrics route) -----------------------------------------
+PLAY_PARTICIPANTS = Counter("cec_play_participants_total", "Participants who joined a study")
+PLAY_ROUNDS = Counter(
+    "cec_play_rounds_total", "Rounds that ended, by outcome: completed or aborted", ["outcome"]
+)
+PLAY_ACTIVE_ROUNDS = Gauge("cec_play_active_rounds", "Rounds being played now")
+PLAY_STEPS = Counter("cec_play_steps_total", "Game steps played, by mode (turn_based, real_time)", ["mode"])
+PLAY_STEP_SECONDS = Histogram(
+    "cec_play_step_duration_seconds",
+    "Server time of one step: the jitted env step, the agent's next action, the next six branches, transfer",
+    buckets=(0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 1.0),
+)
+PLAY_SURVEYS = Counter("cec_play_surveys_total", "Post-round surveys answered")
+PLAY_TICK_OVERRUNS = Counter(
+    "cec_play_tick_overruns_total", "Real-time ticks that started late because the previous one overran"
+)
+
+
 class MetricsEndpoint:
     """A running `/metrics` HTTP endpoint; `close()` stops it."""
 

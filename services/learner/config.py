@@ -77,5 +77,3 @@ class DistributedConfig:
             raise ConfigError(
                 f"num_envs={train.num_envs} must split evenly over distributed.num_actors={self.num_actors}"
             )
-        if train.updates_per_call != 1:
-            raise ConfigError("the distributed learner applies one update per batch: set updates_per_call=1")

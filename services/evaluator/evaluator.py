@@ -1,0 +1,565 @@
+"""The evaluator as a plain object: checkpoint events in, cross-play results out (Redis, files, metrics).
+
+    with Evaluator(config) as ev:          # connects to Redis, joins the consumer group
+        ev.poll_once()                     # reads one checkpoint event (if any), scores it, acknowledges it
+        ev.serve(stop_event)               # ... until `stop_event` is set
+
+Scoring a checkpoint (`score`): each of its seeds plays, on each level set of its game, with itself
+(`self_play`) and with every zoo partner (both seat orders, `cec.evaluation.crossplay` with common random
+numbers). The work is stored in *parts*, one per (partner group, level set): the part's episodes go to a
+staging file, then its summary to Redis (`put_result`, keyed by checkpoint, group and level set). Parts
+already in Redis are never played again, so a restart resumes a half-scored checkpoint where it stopped.
+When every part is stored, the staging files are merged into `<results_dir>/<run_id>/eval/update_<N>.csv`
+(the canonical long table of `cec.evaluation.results`, written to a temporary file and renamed), the
+checkpoint is marked scored, the gauges move, and only then is the event acknowledged. A redelivered event
+of a scored checkpoint is acknowledged without work.
+
+A checkpoint that cannot be loaded (missing, corrupt, replaced since its event, a config this code cannot
+read) is a failure: logged, counted (`cec_evaluator_failures_total`), recorded as the result
+(`failed`, `checkpoint`) with the reason, and acknowledged, so the stream moves on. Any other error leaves
+the event unacknowledged: it is delivered again after `store.claim_idle_s`, and given up on (dead-lettered
+by the consumer group) after `store.max_deliveries` deliveries.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import shutil
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import numpy as np
+
+from cec import checkpoints
+from cec.config import ConfigError
+from cec.evaluation.analysis import pair_level_scores, pair_scores
+from cec.evaluation.crossplay import EvalConfig, EvalLevels, crossplay, eval_levels
+from cec.evaluation.results import (
+    EpisodeTable,
+    ResultsError,
+    SkippedEntry,
+    empty_table,
+    read_csv,
+    write_csv,
+)
+from cec.evaluation.stats import sem
+from cec.evaluation.zoo import Policy, ZooEntry, load_policy, resolve_checkpoint
+from cec.metrics import (
+    EVALUATOR_CHECKPOINTS_SCORED,
+    EVALUATOR_DURATION,
+    EVALUATOR_EPISODES,
+    EVALUATOR_FAILURES,
+    EVALUATOR_PENDING,
+    EVALUATOR_SCORE,
+    EVALUATOR_SCORED_UPDATE,
+)
+from cec.store import CheckpointEvent, CheckpointMessage, ControlPlane, EvalResult, StoreError
+from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
+from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in
+
+log = logging.getLogger("cec.evaluator")
+
+#: The result recorded for a checkpoint that could not be scored: (partner group, level set).
+FAILED_GROUP = "failed"
+FAILED_LEVEL_SET = "checkpoint"
+#: Summary statistics stored per part, as `<metric>_mean` (see `summarize`).
+SUMMARY_METRICS = ("return", "score", "deliveries", "collisions", "shaped_return")
+
+
+class Outcome(NamedTuple):
+    """What handling one checkpoint event did.
+
+    Attributes:
+        checkpoint_id: the checkpoint.
+        status: `scored` (finished now), `already_scored` (a redelivery: nothing done), `failed` (the
+            checkpoint cannot be scored; recorded and acknowledged), `ignored` (a run outside `runs`),
+            `abandoned` (a stop request; stored parts kept, event left pending) or `error` (unexpected; the
+            event stays pending and is delivered again later).
+        computed: parts played and stored by this call, as `<partner_group>|<level_set>`.
+        reused: parts found already stored (a resumed checkpoint).
+        results: the checkpoint's results in Redis afterwards (scored and already_scored).
+        error: the reason, for failed and error.
+        seconds: wall time of the call.
+    """
+
+    checkpoint_id: str
+    status: str
+    computed: tuple[str, ...] = ()
+    reused: tuple[str, ...] = ()
+    results: tuple[EvalResult, ...] = ()
+    error: str = ""
+    seconds: float = 0.0
+
+
+class AbandonedError(Exception):
+    """A stop was requested while a checkpoint was being scored; its unfinished part was dropped."""
+
+
+# ---------------------------------------------------------------------------------------------------------
+# LEVEL SETS, SUMMARIES
+# ---------------------------------------------------------------------------------------------------------
+
+
+def level_set_levels(spec: LevelSetConfig) -> EvalLevels:
+    """The levels of a level set (`eval_levels`), cut to its first `max_levels`."""
+    try:
+        levels = eval_levels(spec.env, spec.levels)
+    except ConfigError as err:
+        raise ConfigError(f"level set {spec.name!r}: {err}") from err
+    n = spec.max_levels
+    if n and len(levels.names) > n:
+        cut = levels.levels
+        levels = EvalLevels(levels.names[:n], _take(cut, n))
+    return levels
+
+
+def _take(tree: Any, n: int) -> Any:
+    return jax.tree.map(lambda x: x[:n], tree)
+
+
+def _number(x: float) -> float | None:
+    x = float(x)
+    return x if math.isfinite(x) else None
+
+
+def summarize(part: EpisodeTable, checkpoint_label: str, *, self_play: bool) -> dict[str, Any]:
+    """The stored result of one part: the checkpoint's seeds with themselves or with one group's partners.
+
+    Scores aggregate as `cec report` does: per pair (seed, partner) and level, the mean over episodes and
+    seat orders; per pair, the mean over levels; `<metric>_mean` is the mean over pairs and `return_sem`
+    its standard error (null with one pair). `score` is the return, or for Dual Destination the paper's
+    normalised return / (2 x episode length). `per_seed` and `per_partner` (`algorithm/s<seed>`) break the
+    mean return down. A part with no playable partner has `episodes` 0 and null scores.
+    """
+    out: dict[str, Any] = {
+        "episodes": len(part),
+        "partners": sorted({str(n) for n in part.policy_b} - {str(n) for n in part.policy_a}),
+        "levels": sorted({str(n) for n in part.level}),
+        "skipped": [{"name": s.name, "reason": s.reason} for s in part.skipped],
+    }
+    if len(part) == 0:
+        out.update({f"{m}_mean": None for m in SUMMARY_METRICS})
+        out.update(return_sem=None, pairs=0, per_seed={}, per_partner={})
+        return out
+    out.update(env=str(part.env[0]), episode_steps=int(part.episode_steps[0]), actions=str(part.actions[0]))
+    for metric in SUMMARY_METRICS:
+        pl = pair_level_scores(part, metric=metric)
+        matrix = pair_scores(pl)
+        mine = [i for i, p in enumerate(pl.policies) if p.algorithm == checkpoint_label]
+        others = [j for j in range(len(pl.policies)) if j not in mine]
+        block = matrix[np.ix_(mine, mine)].diagonal() if self_play else matrix[np.ix_(mine, others)]
+        values = block[~np.isnan(block)]
+        out[f"{metric}_mean"] = _number(values.mean())
+        if metric == "return":
+            out["pairs"] = int(values.size)
+            out["return_sem"] = _number(sem(values))
+            rows = block.reshape(len(mine), -1)
+            out["per_seed"] = {
+                str(pl.policies[i].seed): _number(np.nanmean(rows[k])) for k, i in enumerate(mine)
+            }
+            out["per_partner"] = (
+                {}
+                if self_play
+                else {pl.policies[j].label(): _number(np.nanmean(block[:, k])) for k, j in enumerate(others)}
+            )
+    return out
+
+
+def _dedupe(table: EpisodeTable) -> EpisodeTable:
+    """The table without repeated episodes (same pairing, level, seat and episode): the last copy wins."""
+    keys = list(zip(table.policy_a, table.policy_b, table.level, table.seat, table.episode, strict=True))
+    seen: set[tuple] = set()
+    keep = np.zeros(len(keys), bool)
+    for i in range(len(keys) - 1, -1, -1):
+        if keys[i] not in seen:
+            seen.add(keys[i])
+            keep[i] = True
+    return table.select(keep)
+
+
+class ResultFiles:
+    """One checkpoint's result table in the run directory, built part by part.
+
+    Parts are staged in `<run>/eval/.parts/update_<N>/<level_set>/<group>.csv`; `finish()` merges them
+    (and an earlier table, if any) into `<run>/eval/update_<N>.csv` without repeated episodes, then removes
+    the staging folder. Every file is written to a temporary name and renamed.
+    """
+
+    def __init__(self, results_dir: str | Path, event: CheckpointEvent) -> None:
+        run = event.run_id.replace("/", "_")
+        run = "_" + run if run.startswith(".") else run
+        base = Path(results_dir) / run / "eval"
+        self.final = base / f"update_{event.update:09d}.csv"
+        self.staging = base / ".parts" / f"update_{event.update:09d}"
+
+    def part(self, group: str, level_set: str) -> Path:
+        return self.staging / level_set / f"{group}.csv"
+
+    def needs_rows(self, group: str, level_set: str) -> bool:
+        """Whether the part's episodes are in no file yet."""
+        return not self.final.exists() and not self.part(group, level_set).exists()
+
+    def write_part(self, group: str, level_set: str, table: EpisodeTable) -> None:
+        write_csv(table, self.part(group, level_set))
+
+    def finish(self) -> Path:
+        tables = []
+        if self.final.exists():  # an earlier table of this checkpoint (its results were lost from Redis)
+            try:
+                tables.append(read_csv(self.final))
+            except ResultsError as err:
+                log.warning("replacing the unreadable result table %s: %s", self.final, err)
+        tables += [read_csv(p) for p in sorted(self.staging.glob("*/*.csv"))]
+        write_csv(_dedupe(EpisodeTable.concat(tables)), self.final)
+        shutil.rmtree(self.staging, ignore_errors=True)
+        parts = self.staging.parent
+        if parts.is_dir() and not any(parts.iterdir()):
+            parts.rmdir()
+        return self.final
+
+
+# ---------------------------------------------------------------------------------------------------------
+# THE EVALUATOR
+# ---------------------------------------------------------------------------------------------------------
+
+
+class Evaluator:
+    """Scores checkpoints from the event stream against the zoo; stores results; exports metrics.
+
+    Args:
+        config: the service's config.
+        plane: a connected control plane to use (None: connect to `config.store`; closed by `close()`).
+
+    Raises `StoreError` when Redis cannot be reached and `ConfigError` for a bad zoo manifest or level set,
+    before any event is read.
+    """
+
+    def __init__(self, config: EvaluatorConfig, plane: ControlPlane | None = None) -> None:
+        self.config = config
+        self._own_plane = plane is None
+        self.plane = plane if plane is not None else ControlPlane.connect(config.store)
+        try:
+            self.zoo = PartnerZoo(config, self.plane)
+            self.levels = {s.name: level_set_levels(s) for s in config.level_sets}
+            self.consumer = self.plane.consumer(
+                config.consumer_group, config.consumer_name, from_start=config.from_start
+            )
+        except BaseException:
+            self.close()
+            raise
+        self._retry: CheckpointMessage | None = None
+        self._gauges: set[tuple[str, str]] = set()
+
+    def close(self) -> None:
+        if self._own_plane:
+            self.plane.close()
+
+    def __enter__(self) -> Evaluator:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # --- the loop -----------------------------------------------------------------------------------------
+
+    def serve(self, stop: threading.Event) -> None:
+        """Scores checkpoints as their events arrive until `stop` is set. Redis outages are waited out
+        (with backoff); no checkpoint failure ends the loop."""
+        delay = 0.5
+        while not stop.is_set():
+            try:
+                self.poll_once(stop=stop)
+                delay = 0.5
+            except StoreError as err:
+                log.warning("control plane: %s; retrying in %.1f s", err, delay)
+                stop.wait(delay)
+                delay = min(2 * delay, 30.0)
+
+    def poll_once(self, block_s: float | None = None, stop: threading.Event | None = None) -> list[Outcome]:
+        """Reads one checkpoint event (waiting up to `block_s`, default `poll_s`) and handles it.
+
+        An event whose handling was cut short by a Redis failure is handled again first. Raises
+        `StoreError` when Redis fails (the event is kept for the next call)."""
+        if self._retry is not None:
+            messages, self._retry = [self._retry], None
+        else:
+            wait = self.config.poll_s if block_s is None else block_s
+            messages = self.consumer.read(count=1, block_s=wait)
+        return [self.handle(m, stop) for m in messages]
+
+    def handle(self, message: CheckpointMessage, stop: threading.Event | None = None) -> Outcome:
+        """Scores the event's checkpoint (unless done before) and acknowledges the event once its results
+        are stored. See `Outcome.status` for what can happen."""
+        event = message.event
+        cid = event.checkpoint_id
+        EVALUATOR_PENDING.set(1)
+        try:
+            if self.config.runs and event.run_id not in self.config.runs:
+                log.info("ignoring %s: run %s is not in `runs`", cid, event.run_id)
+                self.consumer.ack(message)
+                return Outcome(cid, "ignored")
+            try:
+                outcome = self.score(event, stop=stop, keepalive=self._keepalive(message))
+            except AbandonedError:
+                log.info("stop requested: left %s unfinished (stored parts are kept and resumed)", cid)
+                return Outcome(cid, "abandoned")
+            except StoreError:
+                self._retry = message
+                raise
+            except Exception as err:  # a bug or an exhausted resource: the event is delivered again later
+                log.exception("scoring %s failed; its event stays pending and is retried later", cid)
+                EVALUATOR_FAILURES.inc()
+                return Outcome(cid, "error", error=f"{type(err).__name__}: {err}")
+            try:
+                self.consumer.ack(message)
+            except StoreError:
+                self._retry = message  # done and stored: the retry finds it scored and only acknowledges
+                raise
+            return outcome
+        finally:
+            EVALUATOR_PENDING.set(0)
+
+    def _keepalive(self, message: CheckpointMessage) -> Callable[[], None]:
+        """Keeps a long job's event from being reclaimed by another consumer (at most every claim_idle/4)."""
+        every = self.config.store.claim_idle_s / 4
+        last = [time.monotonic()]
+
+        def touch() -> None:
+            if time.monotonic() - last[0] >= every:
+                self.consumer.touch(message)
+                last[0] = time.monotonic()
+
+        return touch
+
+    # --- scoring ------------------------------------------------------------------------------------------
+
+    def score(
+        self,
+        event: CheckpointEvent,
+        *,
+        stop: threading.Event | None = None,
+        keepalive: Callable[[], None] | None = None,
+    ) -> Outcome:
+        """Scores one checkpoint against self-play and the zoo on its game's level sets; stores every part
+        not stored yet, writes the result table and marks the checkpoint scored (see the module docstring).
+
+        Raises `AbandonedError` if `stop` is set before it finishes (between compiled calls), `StoreError` if
+        Redis fails; a checkpoint that cannot be loaded gives a `failed` outcome.
+        """
+        cid = event.checkpoint_id
+        t0 = time.perf_counter()
+        if self.plane.is_scored(cid):
+            log.info("%s was scored before; nothing to do", cid)
+            return Outcome(cid, "already_scored", results=tuple(self.plane.get_results(cid)))
+        try:
+            seeds = self.load_checkpoint(event)
+        except (checkpoints.CheckpointError, ConfigError, OSError, ValueError) as err:
+            return self._fail(event, f"{type(err).__name__}: {err}", t0)
+        env = seeds[0].env.name
+        level_sets = self.config.level_sets_of(env)
+        if not level_sets:
+            names = [s.name for s in self.config.level_sets]
+            return self._fail(
+                event,
+                f"it plays {env} and no level set does (level sets: {names}); add one with env: {env}",
+                t0,
+            )
+        zoo = self.zoo.snapshot().for_game(env)
+        groups = ([SELF_PLAY] if self.config.self_play else []) + zoo.groups()
+        files = ResultFiles(self.config.results_dir, event) if self.config.results_dir else None
+        log.info(
+            "scoring %s (%s): %d seed(s); partner groups %s; level sets %s",
+            cid,
+            event.path,
+            len(seeds),
+            groups,
+            [s.name for s in level_sets],
+        )
+        computed: list[str] = []
+        reused: list[str] = []
+        for spec in level_sets:
+            if stop is not None and stop.is_set():
+                raise AbandonedError
+            stored = {g: self.plane.has_result(cid, g, spec.name) for g in groups}
+            todo = [
+                g for g in groups if not stored[g] or (files is not None and files.needs_rows(g, spec.name))
+            ]
+            reused += [f"{g}|{spec.name}" for g in groups if g not in todo]
+            if not todo:
+                continue
+            partners = [p.policy for p in zoo.partners if p.group in todo]
+            if partners or SELF_PLAY in todo:
+                table = self._play(seeds, partners, spec, stop, keepalive)
+            else:  # only groups none of whose partners can play
+                table = empty_table()
+            for group in todo:
+                part = self._part(table, group, zoo)
+                if files is not None:
+                    files.write_part(group, spec.name, part)
+                if stored[group]:
+                    log.warning(
+                        "%s: replayed %s on %s for the results file only (its result was stored, its "
+                        "episodes were in no file)",
+                        cid,
+                        group,
+                        spec.name,
+                    )
+                    continue
+                metrics = summarize(part, _label(event), self_play=group == SELF_PLAY)
+                metrics.update(_event_info(event, self.config))
+                self.plane.put_result(cid, group, spec.name, metrics)
+                computed.append(f"{group}|{spec.name}")
+                log.info(
+                    "%s %s on %s: return %s over %d episode(s)",
+                    cid,
+                    group,
+                    spec.name,
+                    _fmt(metrics["return_mean"]),
+                    metrics["episodes"],
+                )
+        if files is not None:
+            path = files.finish()
+            log.info("%s: result table %s", cid, path)
+        results = self.plane.get_results(cid)
+        self.plane.mark_scored(cid)
+        seconds = time.perf_counter() - t0
+        EVALUATOR_CHECKPOINTS_SCORED.inc()
+        EVALUATOR_DURATION.observe(seconds)
+        self._publish(event.update, results)
+        log.info(
+            "scored %s in %.1f s (%d part(s) computed, %d already stored)",
+            cid,
+            seconds,
+            len(computed),
+            len(reused),
+        )
+        return Outcome(cid, "scored", tuple(computed), tuple(reused), tuple(results), "", seconds)
+
+    def load_checkpoint(self, event: CheckpointEvent) -> list[Policy]:
+        """One policy per seed of the event's checkpoint (named `<checkpoint id>/s<seed>`, labelled
+        `<run_id>@<update>`). `CheckpointError` if it is missing, corrupt, or replaced since the event."""
+        path = Path(event.path)
+        if not path.exists():
+            raise checkpoints.CheckpointError(
+                f"checkpoint {path} is missing (deleted by the run's keep-last-N before it was scored, or "
+                "not on this machine's file system)"
+            )
+        path = resolve_checkpoint(path)
+        meta = checkpoints.read_meta(path)
+        if meta.get("sha256") != event.sha256:
+            raise checkpoints.CheckpointError(
+                f"checkpoint {path} was replaced after its event was published (state SHA-256 "
+                f"{str(meta.get('sha256'))[:12]}..., the event says {event.sha256[:12]}...)"
+            )
+        config = meta.get("config", {})
+        seeds = meta.get("metadata", {}).get("seeds")
+        if not seeds:
+            first = int(config.get("seed", event.seed))
+            seeds = [first + i for i in range(int(config.get("num_seeds", 1)))]
+        label = _label(event)
+        return [load_policy(ZooEntry(f"{event.checkpoint_id}/s{s}", str(path), label, int(s))) for s in seeds]
+
+    def _play(
+        self,
+        seeds: Sequence[Policy],
+        partners: Sequence[Policy],
+        spec: LevelSetConfig,
+        stop: threading.Event | None,
+        keepalive: Callable[[], None] | None,
+    ) -> EpisodeTable:
+        """Each seed with itself and with every partner (both seats) on the level set: one table."""
+        cfg = self.config
+
+        def progress(message: str) -> None:
+            log.debug("%s: %s", spec.name, message)
+            if stop is not None and stop.is_set():
+                raise AbandonedError
+            if keepalive is not None:
+                keepalive()
+
+        tables = []
+        for policy in seeds:
+            eval_config = EvalConfig(
+                levels=spec.levels,
+                episodes=cfg.episodes,
+                greedy=cfg.greedy,
+                seed=cfg.seed,
+                max_steps=cfg.max_steps,
+                pairs=f"with:{policy.name}",
+                games_per_call=cfg.games_per_call,
+            )
+            table = crossplay([policy, *partners], self.levels[spec.name], eval_config, progress=progress)
+            EVALUATOR_EPISODES.inc(len(table))
+            tables.append(table)
+        return EpisodeTable.concat(tables)
+
+    @staticmethod
+    def _part(table: EpisodeTable, group: str, zoo: ZooSnapshot) -> EpisodeTable:
+        """The rows and skipped entries of one partner group (or self-play)."""
+        if group == SELF_PLAY:
+            return table.select(table.policy_a == table.policy_b)
+        names = names_in(zoo.partners, group)
+        rows = table.select(np.isin(table.policy_b, names))
+        skipped: list[SkippedEntry] = [s for s in table.skipped if s.name in names]  # could not join
+        skipped += [s.entry for s in zoo.skipped if s.group == group]  # could not be loaded
+        return dataclasses.replace(rows, skipped=tuple(skipped))
+
+    def _fail(self, event: CheckpointEvent, reason: str, t0: float) -> Outcome:
+        cid = event.checkpoint_id
+        log.error("cannot score %s: %s", cid, reason)
+        EVALUATOR_FAILURES.inc()
+        self.plane.put_result(
+            cid, FAILED_GROUP, FAILED_LEVEL_SET, {"error": reason, **_event_info(event, self.config)}
+        )
+        return Outcome(cid, "failed", error=reason, seconds=time.perf_counter() - t0)
+
+    # --- gauges -------------------------------------------------------------------------------------------
+
+    def _publish(self, update: int, results: Sequence[EvalResult]) -> None:
+        """Sets the return gauges to these results (a scored checkpoint's) and drops series it lacks."""
+        now: set[tuple[str, str]] = set()
+        for r in results:
+            value = r.metrics.get("return_mean")
+            if r.partner_group != FAILED_GROUP and isinstance(value, int | float):
+                EVALUATOR_SCORE.labels(r.partner_group, r.level_set).set(value)
+                now.add((r.partner_group, r.level_set))
+        for labels in self._gauges - now:
+            EVALUATOR_SCORE.remove(*labels)
+        self._gauges = now
+        EVALUATOR_SCORED_UPDATE.set(update)
+
+    def restore_gauges(self) -> str | None:
+        """Sets the gauges from the newest scored checkpoint in Redis (after a restart); returns its id."""
+        scored = self.plane.list_scored()
+        if not scored:
+            return None
+        cid = max(scored, key=lambda k: scored[k])
+        event = self.plane.get_checkpoint(cid)
+        self._publish(event.update if event is not None else 0, self.plane.get_results(cid))
+        return cid
+
+
+def _label(event: CheckpointEvent) -> str:
+    """The algorithm label of a scored checkpoint's policies in result tables: `<run_id>@<update>`."""
+    return f"{event.run_id}@{event.update}"
+
+
+def _event_info(event: CheckpointEvent, config: EvaluatorConfig) -> dict[str, Any]:
+    return {
+        "run_id": event.run_id,
+        "update": event.update,
+        "env_steps": event.env_steps,
+        "algorithm": event.algorithm,
+        "path": event.path,
+        "crn_seed": config.seed,
+    }
+
+
+def _fmt(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.3f}"

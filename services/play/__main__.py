@@ -1,0 +1,5 @@
+"""`python -m services.play serve|export ...` (the same as `cec play ...`)."""
+
+from services.play.main import main
+
+raise SystemExit(main())

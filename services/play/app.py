@@ -1,0 +1,271 @@
+"""The web app of `cec play` (Starlette on uvicorn): the study pages, the game over a WebSocket, metrics.
+
+Routes:
+
+    GET  /                 the single page (static/index.html); it asks /api/state what to show
+    GET  /static/...       its script and style
+    POST /api/join         starts a participant: sets the session cookie (opaque, HttpOnly, SameSite=Strict)
+    GET  /api/state        the participant's current stage (`{"stage": "welcome"}` without a session)
+    POST /api/submit       a form of the current stage (consent, info, instructions, survey) -> next stage
+    WS   /ws/round         the current round: start message, then steps (see below)
+    GET  /metrics          Prometheus exposition; GET /healthz: "ok"
+
+WebSocket messages (JSON). Server -> browser: `start` (kitchen, seat, start state, in turn-based mode the six
+next states), `frame` (t, state, reward, score, collision, done, in turn-based mode the next six states; in
+real-time mode `ack`, the sequence number of the key it played), `error` (message; the action was not
+played), `end` (the round is over; fetch /api/state). Browser -> server: turn-based `{"type": "act", "t": T,
+"action": A, "rt_ms": R}` (T: steps played so far, so a repeated message is not played twice), real-time
+`{"type": "key", "seq": S, "action": A, "rt_ms": R}` (the latest key before a tick is played at that tick).
+
+The JAX work and the record writes run in worker threads, so one participant's step never blocks another's.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+from urllib.parse import urlsplit
+
+from prometheus_client import CONTENT_TYPE_LATEST, REGISTRY, generate_latest
+from starlette.applications import Starlette
+from starlette.requests import Request
+from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, Response
+from starlette.routing import Mount, Route, WebSocketRoute
+from starlette.staticfiles import StaticFiles
+from starlette.websockets import WebSocket, WebSocketDisconnect
+
+from services.play import metrics
+from services.play.game import STAY, Round
+from services.play.study import InputError, Participant, Study, validate_action, validate_rt
+
+log = logging.getLogger("cec.play")
+
+STATIC = Path(__file__).with_name("static")
+COOKIE = "cec_play"
+MAX_BODY_BYTES = 16_384
+MAX_WS_MESSAGE_BYTES = 4_096
+
+
+def create_app(study: Study) -> Starlette:
+    """The ASGI app serving `study`."""
+
+    async def index(request: Request) -> Response:
+        return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})
+
+    def session(request: Request | WebSocket) -> Participant | None:
+        return study.participant(request.cookies.get(COOKIE))
+
+    async def read_json(request: Request) -> Any:
+        if not _is_json(request):
+            raise InputError("send the body as JSON (Content-Type: application/json)")
+        if int(request.headers.get("content-length") or 0) > MAX_BODY_BYTES:
+            raise InputError(f"request body larger than {MAX_BODY_BYTES} bytes")
+        body = await request.body()
+        if len(body) > MAX_BODY_BYTES:
+            raise InputError(f"request body larger than {MAX_BODY_BYTES} bytes")
+        try:
+            return json.loads(body or b"{}")
+        except (json.JSONDecodeError, UnicodeDecodeError) as err:
+            raise InputError(f"the request body is not JSON: {err}") from err
+
+    async def join(request: Request) -> Response:
+        if not _is_json(request):  # a plain cross-site form cannot send JSON
+            return JSONResponse({"error": "send the body as JSON (Content-Type: application/json)"}, 415)
+        p = session(request)
+        if p is not None:  # already joined in this browser: continue where they are
+            return JSONResponse(study.view(p))
+        token, joined = await asyncio.to_thread(study.join)
+        response = JSONResponse(study.view(joined))
+        response.set_cookie(
+            COOKIE, token, httponly=True, samesite="strict", secure=request.url.scheme == "https", path="/"
+        )
+        return response
+
+    async def state(request: Request) -> Response:
+        p = session(request)
+        if p is None:
+            return JSONResponse({"stage": "welcome", "title": study.config.title})
+        return JSONResponse(study.view(p))
+
+    async def submit(request: Request) -> Response:
+        p = session(request)
+        if p is None:
+            return JSONResponse({"error": "no session: start the study first"}, status_code=401)
+        try:
+            payload = await read_json(request)
+            view = await asyncio.to_thread(study.submit, p, payload)
+        except InputError as err:
+            return JSONResponse({"error": str(err)}, status_code=400)
+        return JSONResponse(view)
+
+    async def metrics_route(request: Request) -> Response:
+        return Response(generate_latest(REGISTRY), media_type=CONTENT_TYPE_LATEST)
+
+    async def healthz(request: Request) -> Response:
+        return PlainTextResponse("ok")
+
+    async def round_ws(ws: WebSocket) -> None:
+        origin = ws.headers.get("origin")
+        if origin is not None and urlsplit(origin).netloc != ws.headers.get("host"):
+            await ws.close(code=1008, reason="cross-origin connection refused")
+            return
+        p = session(ws)
+        if p is None:
+            await ws.close(code=1008, reason="no session: start the study first")
+            return
+        await ws.accept()
+        try:
+            rnd, start = await asyncio.to_thread(study.begin_round, p)
+        except InputError as err:
+            await ws.send_json({"type": "error", "message": str(err), "fatal": True})
+            await ws.close()
+            return
+        await ws.send_json(start)
+        try:
+            if start["mode"] == "turn_based":
+                await _turn_based(ws, study, p, rnd)
+            else:
+                await _real_time(ws, study, p, rnd)
+        except WebSocketDisconnect:
+            pass
+        finally:
+            if not rnd.done:
+                await asyncio.to_thread(study.abort_round, p, rnd)
+        if rnd.done:
+            with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+                await ws.send_json({"type": "end", "return": rnd.team_return, "collisions": rnd.collisions})
+                await ws.close()
+
+    routes = [
+        Route("/", index),
+        Route("/api/join", join, methods=["POST"]),
+        Route("/api/state", state),
+        Route("/api/submit", submit, methods=["POST"]),
+        Route("/metrics", metrics_route),
+        Route("/healthz", healthz),
+        WebSocketRoute("/ws/round", round_ws),
+        Mount("/static", StaticFiles(directory=STATIC), name="static"),
+    ]
+    return Starlette(routes=routes)
+
+
+def _is_json(request: Request) -> bool:
+    return request.headers.get("content-type", "").split(";")[0].strip() == "application/json"
+
+
+def _frame(result: Any, rnd: Round, ack: int | None = None) -> dict[str, Any]:
+    msg: dict[str, Any] = {
+        "type": "frame",
+        "t": result.t,
+        "state": result.state,
+        "reward": result.reward,
+        "score": rnd.team_return,
+        "collision": result.collision,
+        "done": result.done,
+    }
+    if result.branches is not None:
+        msg["branches"] = result.branches
+    if ack is not None:
+        msg["ack"] = ack
+    return msg
+
+
+async def _receive(ws: WebSocket) -> dict[str, Any] | None:
+    """The next JSON object from the browser; None (after an error reply) for a malformed message."""
+    text = await ws.receive_text()
+    if len(text) > MAX_WS_MESSAGE_BYTES:
+        await ws.send_json({"type": "error", "message": f"message larger than {MAX_WS_MESSAGE_BYTES} bytes"})
+        return None
+    try:
+        msg = json.loads(text)
+    except json.JSONDecodeError:
+        await ws.send_json({"type": "error", "message": "messages must be JSON objects"})
+        return None
+    if not isinstance(msg, dict):
+        await ws.send_json({"type": "error", "message": "messages must be JSON objects"})
+        return None
+    return msg
+
+
+async def _turn_based(ws: WebSocket, study: Study, p: Participant, rnd: Round) -> None:
+    while not rnd.done:
+        msg = await _receive(ws)
+        if msg is None:
+            continue
+        if msg.get("type") != "act":
+            await ws.send_json(
+                {"type": "error", "message": "turn-based rounds take {type: act, t, action, rt_ms}"}
+            )
+            continue
+        if msg.get("t") != rnd.t:
+            await ws.send_json(
+                {"type": "error", "message": f"stale action for step {msg.get('t')!r}; now {rnd.t}"}
+            )
+            continue
+        try:
+            result = await asyncio.to_thread(study.step, p, rnd, msg.get("action"), msg.get("rt_ms"))
+        except InputError as err:
+            replaced = p.round is not rnd  # restarted from another tab or connection
+            await ws.send_json({"type": "error", "message": str(err), "fatal": replaced})
+            if replaced:
+                return
+            continue
+        await ws.send_json(_frame(result, rnd))
+
+
+async def _real_time(ws: WebSocket, study: Study, p: Participant, rnd: Round) -> None:
+    pending: dict[str, Any] = {}  # the latest valid key since the last tick: action, rt_ms, seq
+
+    async def receive_keys() -> None:
+        while True:
+            msg = await _receive(ws)
+            if msg is None:
+                continue
+            try:
+                if msg.get("type") != "key":
+                    raise InputError("real-time rounds take {type: key, seq, action, rt_ms}")
+                seq = msg.get("seq")
+                if isinstance(seq, bool) or not isinstance(seq, int):
+                    raise InputError("seq must be an integer")
+                pending.update(
+                    action=validate_action(msg.get("action")), rt_ms=validate_rt(msg.get("rt_ms")), seq=seq
+                )
+            except InputError as err:
+                await ws.send_json({"type": "error", "message": str(err)})
+
+    receiver = asyncio.create_task(receive_keys())
+    period = 1.0 / study.config.ticks_per_second
+    next_tick = time.monotonic() + period
+    try:
+        while not rnd.done:
+            delay = next_tick - time.monotonic()
+            if delay > 0:
+                done, _ = await asyncio.wait({receiver}, timeout=delay)
+                if done:  # the browser went away (or sent garbage that broke the socket)
+                    receiver.result()
+                    return
+            else:
+                metrics.TICK_OVERRUNS.inc()
+                next_tick = time.monotonic()
+            next_tick += period
+            key = dict(pending)
+            pending.clear()
+            action = key.get("action", STAY)
+            try:
+                result = await asyncio.to_thread(study.step, p, rnd, action, key.get("rt_ms"))
+            except InputError as err:  # the round was restarted from another connection
+                await ws.send_json({"type": "error", "message": str(err), "fatal": True})
+                return
+            await ws.send_json(_frame(result, rnd, ack=key.get("seq")))
+    finally:
+        receiver.cancel()
+        with contextlib.suppress(asyncio.CancelledError, WebSocketDisconnect, RuntimeError):
+            await receiver
+
+
+__all__ = ["COOKIE", "create_app"]

@@ -1,0 +1,471 @@
+"""The game on the server: kitchens from level specs, partners from checkpoints, and a round stepped one
+human action at a time with the agent's LSTM state carried.
+
+Latency. Every round keeps the agent's action for the *current* state ready (it depends only on what the
+agent sees, not on the human's next key) and the six next states the human's six actions lead to (one
+vmapped env step). A turn-based client gets those six as compact JSON and draws the chosen one the moment
+a key goes down; the server then commits that branch, runs the agent on the new observation and prepares
+the next six, all in one jitted call (`_advance`). A real-time tick commits the branch of the human's
+latest key (STAY without one). The env functions are compiled once; the agent's once per network
+architecture (parameters are arguments, so every checkpoint of one architecture shares the compile).
+
+Compact state (what the browser draws and what the records keep for every step), JSON:
+
+    {"t": 12, "pos": [[r, c], [r, c]], "dir": [d0, d1], "inv": [i0, i1],
+     "items": [[r, c, item], ...], "pots": [[r, c, status], ...]}
+
+with `dir` the `Direction` codes (0 N, 1 S, 2 E, 3 W), `inv`/`item` the `Item` codes (0 none, 1 onion,
+2 plate, 3 dish) and `status` the pot status of `cec.envs.overcooked.state` (23 empty .. 20 full, counting
+down to 0 ready). Together with the round's level (ASCII in the records) it determines the `EnvState`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from cec import checkpoints
+from cec.agents.network import ActorCritic, LSTMState, NetworkConfig, empty_history, forward, network_preset
+from cec.config import ConfigError
+from cec.envs import overcooked as oc
+from cec.evaluation.zoo import Policy, ZooEntry, load_policies, load_policy, load_zoo, random_policy
+from cec.levels import Level, LevelError, Tile, from_ascii, unstack_levels
+from cec.levels.classic import CLASSIC_ASCII, classic_level
+from cec.levels.generator import GeneratorConfig, generate_batch
+from cec.levels.heldout import heldout_levels
+from cec.training.tasks import EnvConfig
+from services.play.config import PartnerSpec, StudyConfig
+
+log = logging.getLogger("cec.play")
+
+NUM_ACTIONS = oc.NUM_ACTIONS
+STAY = int(oc.Action.STAY)
+GENERATED_PREFIX = "generated:"
+
+
+# ---------------------------------------------------------------------------------------------------------
+# LEVELS
+# ---------------------------------------------------------------------------------------------------------
+
+
+def check_level_spec(spec: str, base_dir: Path) -> None:
+    """Raises `ConfigError` if `spec` names no kitchen (without generating anything)."""
+    if spec in CLASSIC_ASCII or spec == GENERATED_PREFIX + "random":
+        return
+    if spec.startswith(GENERATED_PREFIX):
+        seed = spec[len(GENERATED_PREFIX) :]
+        if not seed.isdigit():
+            raise ConfigError(
+                f"level {spec!r}: write generated:SEED with a non-negative integer, or generated:random"
+            )
+        return
+    if spec in dict(heldout_levels()):
+        return
+    path = Path(spec) if Path(spec).is_absolute() else base_dir / spec
+    if not path.is_file():
+        raise ConfigError(
+            f"level {spec!r} is not a classic kitchen ({', '.join(sorted(CLASSIC_ASCII))}), a held-out one "
+            "(generated_000 .. generated_099), generated:SEED, generated:random, or an ASCII kitchen file"
+        )
+    try:
+        from_ascii(path.read_text())
+    except LevelError as err:
+        raise ConfigError(f"level file {str(path)!r}: {err}") from err
+
+
+def resolve_level(spec: str, base_dir: Path, rng: np.random.Generator) -> tuple[str, Level]:
+    """(recorded name, level) for a level spec; `generated:random` draws a seed from `rng`."""
+    if spec in CLASSIC_ASCII:
+        return spec, classic_level(spec)
+    if spec.startswith(GENERATED_PREFIX):
+        seed_text = spec[len(GENERATED_PREFIX) :]
+        seed = int(rng.integers(0, 2**31 - 1)) if seed_text == "random" else int(seed_text)
+        return f"{GENERATED_PREFIX}{seed}", _generated(seed)
+    held = dict(heldout_levels())
+    if spec in held:
+        return spec, jax.device_get(held[spec])
+    path = Path(spec) if Path(spec).is_absolute() else base_dir / spec
+    return path.stem, from_ascii(path.read_text())
+
+
+@cache
+def _generated(seed: int) -> Level:
+    level: Level = jax.device_get(
+        unstack_levels(generate_batch(jax.random.PRNGKey(seed), 1, GeneratorConfig()))[0]
+    )
+    return level
+
+
+def level_json(level: Level) -> dict[str, Any]:
+    """The static kitchen for the browser: {"h", "w", "grid": rows of `Tile` codes}."""
+    kitchen = level.kitchen()
+    return {"h": int(kitchen.shape[0]), "w": int(kitchen.shape[1]), "grid": kitchen.astype(int).tolist()}
+
+
+# ---------------------------------------------------------------------------------------------------------
+# PARTNERS
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PartnerPool:
+    """The policies one partner condition draws from (one for a checkpoint, a zoo group's several)."""
+
+    spec: PartnerSpec
+    policies: tuple[Policy, ...]
+
+    def eligible(self, level_spec: str) -> list[int]:
+        """Indices of the policies that play `level_spec` (single-task agents only their own kitchens)."""
+        return [i for i, p in enumerate(self.policies) if p.levels is None or level_spec in p.levels]
+
+
+def load_partner(spec: PartnerSpec, base_dir: Path) -> PartnerPool:
+    """Loads a partner condition's policies. `ConfigError` naming the partner and the cause on failure."""
+    where = f"partner {spec.name!r}"
+    if spec.random_init:
+        env = EnvConfig()
+        network = network_preset(spec.network, "overcooked")
+        policy = random_policy(
+            spec.name, jax.random.PRNGKey(spec.init_seed), env=env, network=network, seed=spec.init_seed
+        )
+        return PartnerPool(spec, (policy,))
+    if spec.checkpoint:
+        path = Path(spec.checkpoint) if Path(spec.checkpoint).is_absolute() else base_dir / spec.checkpoint
+        try:
+            policy = load_policy(ZooEntry(spec.name, str(path), seed=spec.seed))
+        except (checkpoints.CheckpointError, OSError, ValueError) as err:
+            raise ConfigError(f"{where}: {err}") from err
+        policies: tuple[Policy, ...] = (policy,)
+    else:
+        path = Path(spec.zoo) if Path(spec.zoo).is_absolute() else base_dir / spec.zoo
+        entries = load_zoo(path)
+        loaded, skipped = load_policies(entries)
+        for s in skipped:
+            log.warning("%s: zoo entry %s skipped: %s", where, s.name, s.reason)
+        policies = tuple(p for p in loaded if not spec.group or p.algorithm == spec.group)
+        if not policies:
+            groups = sorted({p.algorithm for p in loaded})
+            raise ConfigError(
+                f"{where}: zoo {str(path)!r} has no loadable entry of group {spec.group!r} "
+                f"(groups there: {groups}; skipped: {[s.name for s in skipped]})"
+            )
+    for p in policies:
+        if p.env.name != "overcooked":
+            raise ConfigError(
+                f"{where}: policy {p.name!r} plays {p.env.name}; only Overcooked agents can be played"
+            )
+    return PartnerPool(spec, policies)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# JITTED STEP FUNCTIONS
+# ---------------------------------------------------------------------------------------------------------
+
+
+class Prepared(NamedTuple):
+    """What a round keeps on the device between steps.
+
+    Attributes:
+        branches: `StepOutput` with a leading axis of 6: the step for each human action (the agent's
+            action fixed to `agent_action`).
+        lstm: the agent's LSTM carry after seeing the current observation, [1, H] leaves.
+        history: int32[1, 1, K] the human's last K actions as the agent saw them (E3T's partner model).
+        agent_action: int32[] the agent's action in the current state.
+    """
+
+    branches: oc.StepOutput
+    lstm: LSTMState
+    history: jax.Array
+    agent_action: jax.Array
+
+
+def _joint(human: jax.Array, agent: jax.Array, agent_seat: jax.Array) -> jax.Array:
+    """int32[2] actions by seat."""
+    return jnp.where(agent_seat == 0, jnp.stack([agent, human]), jnp.stack([human, agent])).astype(jnp.int32)
+
+
+def _branches(
+    state: oc.EnvState, agent_action: jax.Array, agent_seat: jax.Array, params: oc.EnvParams
+) -> oc.StepOutput:
+    key = jax.random.PRNGKey(0)  # the dynamics are deterministic
+    humans = jnp.arange(NUM_ACTIONS, dtype=jnp.int32)
+    out: oc.StepOutput = jax.vmap(lambda h: oc.step(key, state, _joint(h, agent_action, agent_seat), params))(
+        humans
+    )
+    return out
+
+
+def _act(
+    network: ActorCritic,
+    params: Any,
+    lstm: LSTMState,
+    obs: jax.Array,
+    first: jax.Array,
+    history: jax.Array,
+    key: jax.Array,
+    greedy: bool,
+) -> tuple[LSTMState, jax.Array]:
+    """The agent's next action on one observation ([9, 9, 26]); carry [1, H]."""
+    hist = history if network.config.partner_history else None
+    lstm, logits, _ = forward(network, params, lstm, obs[None, None], jnp.reshape(first, (1, 1)), hist)
+    action = jnp.argmax(logits[0, 0]) if greedy else jax.random.categorical(key, logits[0, 0])
+    return lstm, action.astype(jnp.int32)
+
+
+def _push(history: jax.Array, human_action: jax.Array) -> jax.Array:
+    if history.shape[-1] == 0:
+        return history
+    return jnp.concatenate(
+        [history[..., 1:], jnp.reshape(human_action, (1, 1, 1)).astype(jnp.int32)], axis=-1
+    )
+
+
+class Compiled:
+    """The jitted `start` and `advance` of one network architecture (and action choice)."""
+
+    def __init__(self, config: NetworkConfig, greedy: bool) -> None:
+        self.network = ActorCritic(config, NUM_ACTIONS)
+        self.greedy = greedy
+        self.start = jax.jit(self._start)
+        self.advance = jax.jit(self._advance)
+
+    def _start(
+        self, params: Any, level: Level, key: jax.Array, agent_seat: jax.Array, env_params: oc.EnvParams
+    ) -> tuple[oc.EnvState, Prepared]:
+        k_reset, k_act = jax.random.split(key)
+        obs, state = oc.reset(k_reset, level, env_params)
+        lstm = self.network.initial_carry((1,))
+        history = empty_history((1, 1), self.network.config.partner_history)
+        lstm, action = _act(
+            self.network, params, lstm, obs[agent_seat], jnp.array(True), history, k_act, self.greedy
+        )
+        return state, Prepared(_branches(state, action, agent_seat, env_params), lstm, history, action)
+
+    def _advance(
+        self,
+        params: Any,
+        prepared: Prepared,
+        human_action: jax.Array,
+        key: jax.Array,
+        agent_seat: jax.Array,
+        env_params: oc.EnvParams,
+    ) -> tuple[oc.StepOutput, Prepared]:
+        out: oc.StepOutput = jax.tree.map(lambda x: x[human_action], prepared.branches)
+        history = _push(prepared.history, human_action)
+        lstm, action = _act(
+            self.network,
+            params,
+            prepared.lstm,
+            out.obs[agent_seat],
+            jnp.array(False),
+            history,
+            key,
+            self.greedy,
+        )
+        return out, Prepared(_branches(out.state, action, agent_seat, env_params), lstm, history, action)
+
+
+@cache
+def compiled(config: NetworkConfig, greedy: bool) -> Compiled:
+    """One `Compiled` per (architecture, action choice) for the life of the process."""
+    return Compiled(config, greedy)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# COMPACT STATES
+# ---------------------------------------------------------------------------------------------------------
+
+
+def pot_cells(level: Level) -> np.ndarray:
+    """int[P, 2] the (row, col) of every pot of the kitchen."""
+    return np.argwhere(np.asarray(level.grid) == Tile.POT)
+
+
+def compact_state(state: Any, pots: np.ndarray, index: int | None = None) -> dict[str, Any]:
+    """The compact JSON of a host (NumPy) `EnvState`, or of its `index`-th entry when batched."""
+
+    def leaf(x: Any) -> np.ndarray:
+        a = np.asarray(x)
+        return a if index is None else a[index]
+
+    items = leaf(state.items)
+    pot = leaf(state.pot)
+    return {
+        "t": int(leaf(state.time)),
+        "pos": leaf(state.agent_pos).astype(int).tolist(),
+        "dir": leaf(state.agent_dir).astype(int).tolist(),
+        "inv": leaf(state.agent_inv).astype(int).tolist(),
+        "items": [[int(r), int(c), int(items[r, c])] for r, c in np.argwhere(items != 0)],
+        "pots": [[int(r), int(c), int(pot[r, c])] for r, c in pots],
+    }
+
+
+# ---------------------------------------------------------------------------------------------------------
+# ROUNDS
+# ---------------------------------------------------------------------------------------------------------
+
+
+class StepResult(NamedTuple):
+    """One committed step, on the host.
+
+    Attributes:
+        t: steps played in the round after this one (1-based index of the step).
+        actions: [seat 0's, seat 1's] actions.
+        reward: team sparse reward of the step.
+        shaped: per-seat shaped rewards (unscaled).
+        collision: a move was cancelled because both agents wanted the same cell or to swap.
+        done: the round ended with this step.
+        state: compact state after the step.
+        branches: the compact states the human's six next actions lead to (None once done).
+        compute_s: server time of the step (jitted call and transfer).
+    """
+
+    t: int
+    actions: list[int]
+    reward: float
+    shaped: list[float]
+    collision: bool
+    done: bool
+    state: dict[str, Any]
+    branches: list[dict[str, Any]] | None
+    compute_s: float
+
+
+@dataclass(frozen=True)
+class RoundSetup:
+    """Everything that fixes a round before it starts (recorded in its `round_start` event)."""
+
+    policy: Policy
+    level_name: str
+    level: Level
+    human_seat: int
+    steps: int
+    mode: str
+    seed: int
+
+
+class Round:
+    """One round in progress: the device state between steps, and running totals.
+
+    Not thread-safe; the session holding it calls `start` once and then `step` one call at a time.
+    """
+
+    def __init__(self, setup: RoundSetup, study: StudyConfig) -> None:
+        self.setup = setup
+        self.env_params = dataclasses.replace(study.env, max_steps=setup.steps)
+        self.greedy = study.agent_actions == "greedy"
+        self.fns = compiled(setup.policy.network, self.greedy)
+        self.agent_seat = jnp.int32(1 - setup.human_seat)
+        self.key = jax.random.PRNGKey(setup.seed)
+        self.pots = pot_cells(setup.level)
+        self.prepared: Prepared | None = None
+        self.t = 0
+        self.done = False
+        self.team_return = 0.0
+        self.shaped_return = 0.0
+        self.collisions = 0
+
+    def _next_key(self) -> jax.Array:
+        self.key, sub = jax.random.split(self.key)
+        return sub
+
+    def start(self) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        """Resets the env; returns (compact start state, the six next-state branches)."""
+        state, self.prepared = self.fns.start(
+            self.setup.policy.params, self.setup.level, self._next_key(), self.agent_seat, self.env_params
+        )
+        host_state, host_branches = jax.device_get((state, self.prepared.branches.state))
+        return compact_state(host_state, self.pots), self._branch_states(host_branches)
+
+    def _branch_states(self, branches: Any) -> list[dict[str, Any]]:
+        return [compact_state(branches, self.pots, a) for a in range(NUM_ACTIONS)]
+
+    def step(self, human_action: int, *, with_branches: bool) -> StepResult:
+        """Plays the human's action (0..5) with the agent's prepared one; prepares the next step."""
+        if self.prepared is None or self.done:
+            raise RuntimeError("the round has not started or is over")
+        if not 0 <= human_action < NUM_ACTIONS:
+            raise ValueError(f"action must be an integer in [0, {NUM_ACTIONS - 1}], got {human_action}")
+        t0 = time.perf_counter()
+        agent_action = self.prepared.agent_action
+        out, self.prepared = self.fns.advance(
+            self.setup.policy.params,
+            self.prepared,
+            jnp.int32(human_action),
+            self._next_key(),
+            self.agent_seat,
+            self.env_params,
+        )
+        fetch: tuple[Any, ...] = (
+            out.state,
+            out.reward,
+            out.shaped_reward,
+            out.collision,
+            out.done,
+            agent_action,
+        )
+        if with_branches:
+            fetch = (*fetch, self.prepared.branches.state)
+        host = jax.device_get(fetch)
+        state, reward, shaped, collision, done, agent = host[:6]
+        self.t += 1
+        self.done = bool(done)
+        self.team_return += float(reward)
+        self.shaped_return += float(np.sum(shaped))
+        self.collisions += int(bool(collision))
+        actions = [0, 0]
+        actions[self.setup.human_seat] = human_action
+        actions[1 - self.setup.human_seat] = int(agent)
+        branches = self._branch_states(host[6]) if with_branches and not self.done else None
+        return StepResult(
+            self.t,
+            actions,
+            float(reward),
+            [float(s) for s in np.asarray(shaped)],
+            bool(collision),
+            self.done,
+            compact_state(state, self.pots),
+            branches,
+            time.perf_counter() - t0,
+        )
+
+
+def warm_up(pools: list[PartnerPool], study: StudyConfig) -> float:
+    """Compiles every architecture's `start`/`advance` (one short dummy round each); returns seconds."""
+    t0 = time.perf_counter()
+    seen: set[NetworkConfig] = set()
+    for pool in pools:
+        for policy in pool.policies:
+            if policy.network in seen:
+                continue
+            seen.add(policy.network)
+            setup = RoundSetup(policy, "cramped_room", classic_level("cramped_room"), 0, 2, study.mode, 0)
+            r = Round(setup, study)
+            r.start()
+            r.step(STAY, with_branches=True)
+    return time.perf_counter() - t0
+
+
+__all__ = [
+    "Compiled",
+    "PartnerPool",
+    "Round",
+    "RoundSetup",
+    "StepResult",
+    "check_level_spec",
+    "compact_state",
+    "compiled",
+    "level_json",
+    "load_partner",
+    "resolve_level",
+    "warm_up",
+]

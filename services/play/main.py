@@ -1,0 +1,232 @@
+"""`cec play serve` (a study, or free play with one partner) and `cec play export` (records -> tables).
+
+    cec play serve configs/study/default.yaml --port 8000          # the paper's study design
+    cec play serve --checkpoint runs/cec-s0 --level coord_ring     # try one agent in the browser
+    cec play serve --zoo zoo/zoo.yaml --group cec --level generated:random --mode real_time
+    cec play export configs/study/default.yaml --out out/human    # results.csv (+ survey.csv)
+
+Serving prints `cec play: serving ... at http://HOST:PORT/` once the port accepts connections (port 0: a
+free one), and stops on Ctrl-C / SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import socket
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from cec.config import ConfigError, from_dict
+from cec.store import StoreError
+from services.play.config import MODES, StudyConfig, load_study
+
+log = logging.getLogger("cec.play")
+
+
+def add_subcommands(sub: Any) -> None:
+    """Registers `cec play serve` and `cec play export` on the `cec` command's subparsers."""
+    play = sub.add_parser("play", help="human-AI play in the browser: serve a study, export its records")
+    play_sub = play.add_subparsers(dest="play_command", required=True)
+
+    serve = play_sub.add_parser("serve", help="serve a study (or free play with one partner) over HTTP")
+    serve.add_argument(
+        "study", nargs="?", help="study YAML (e.g. configs/study/default.yaml); omit for free play"
+    )
+    serve.add_argument("set", nargs="*", metavar="KEY=VALUE", help="study overrides, e.g. mode=real_time")
+    src = serve.add_argument_group("free play (no study file): one partner, one kitchen, no survey")
+    src.add_argument("--checkpoint", help="checkpoint or run directory of the partner")
+    src.add_argument("--seed", type=int, help="with --checkpoint: the seed of a multi-seed checkpoint")
+    src.add_argument("--zoo", help="zoo manifest: a random entry per round")
+    src.add_argument("--group", default="", help="with --zoo: only entries of this algorithm")
+    src.add_argument("--random-init", action="store_true", help="a randomly initialised `small` network")
+    src.add_argument(
+        "--level", default="counter_circuit", help="level spec (classic, generated_NNN, generated:SEED)"
+    )
+    src.add_argument("--mode", choices=MODES, default="turn_based")
+    src.add_argument("--steps", type=int, default=200, help="round length")
+    serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
+    serve.add_argument("--port", type=int, default=8000, help="port (0: a free one; default 8000)")
+    serve.add_argument("--data", help="records folder (overrides storage.dir)")
+    serve.add_argument("--redis-url", help="also record to this Redis (overrides storage.redis_url)")
+    serve.set_defaults(func=_cmd_serve)
+
+    export = play_sub.add_parser(
+        "export", help="a study's records -> results.csv (cec report) and survey.csv"
+    )
+    export.add_argument("study", help="the study YAML the records belong to")
+    export.add_argument("set", nargs="*", metavar="KEY=VALUE", help="study overrides (e.g. storage.dir=...)")
+    export.add_argument("--data", help="records folder (overrides storage.dir)")
+    export.add_argument("--redis-url", help="read the records from this Redis instead of files")
+    export.add_argument(
+        "--out", required=True, metavar="DIR", help="writes DIR/results.csv and DIR/survey.csv"
+    )
+    export.set_defaults(func=_cmd_export)
+
+
+def _storage_overrides(args: argparse.Namespace) -> list[str]:
+    out = []
+    if args.data is not None:
+        out.append(f"storage.dir={args.data}")
+    if args.redis_url is not None:
+        out.append(f"storage.redis_url={args.redis_url}")
+    return out
+
+
+def free_play_config(args: argparse.Namespace) -> StudyConfig:
+    """A one-partner study without consent, practice or survey, from `cec play serve` flags."""
+    partner: dict[str, Any] = {"name": "partner"}
+    if args.checkpoint:
+        partner.update(checkpoint=str(Path(args.checkpoint).resolve()), seed=args.seed)
+    if args.zoo:
+        partner.update(zoo=str(Path(args.zoo).resolve()), group=args.group)
+    if args.random_init:
+        partner.update(random_init=True)
+    data = {
+        "name": "free_play",
+        "title": "Cook with an agent",
+        "levels": [args.level],
+        "partners": [partner],
+        "rounds_per_partner": 1,
+        "mode": args.mode,
+        "env": {"max_steps": args.steps, "random_start_facing": False},
+        "survey": {"items": []},
+        "storage": {
+            "dir": args.data if args.data is not None else "play_data",
+            "redis_url": args.redis_url or "",
+        },
+    }
+    return from_dict(StudyConfig, data)
+
+
+def prepare(config: StudyConfig, base_dir: Path) -> dict[str, Any]:
+    """Checks the levels and loads (and compiles) every partner; `ConfigError` naming what is wrong."""
+    from services.play.game import check_level_spec, load_partner, warm_up
+
+    for level in (*config.levels, *([config.practice.level] if config.practice else [])):
+        check_level_spec(level, base_dir)
+    t0 = time.perf_counter()
+    pools = {}
+    for partner in config.partners:
+        pools[partner.name] = pool = load_partner(partner, base_dir)
+        log.info("partner %s: %d policies loaded", partner.name, len(pool.policies))
+    practice = (
+        [(config.practice.partner or config.partners[0].name, config.practice.level)]
+        if config.practice
+        else []
+    )
+    for name, spec in [*((p.name, lv) for p in config.partners for lv in config.levels), *practice]:
+        if not pools[name].eligible(spec):
+            kitchens = sorted({lv for p in pools[name].policies for lv in p.levels or ()})
+            raise ConfigError(
+                f"partner {name!r} has no policy that plays {spec!r} (its policies are single-task agents of "
+                f"{kitchens}); change the levels or the partner's zoo group"
+            )
+    log.info("loaded %d partner conditions in %.1f s; compiling", len(pools), time.perf_counter() - t0)
+    log.info("compiled the game and the agents in %.1f s", warm_up(list(pools.values()), config))
+    return pools
+
+
+def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
+    """Serves `config` until interrupted. Returns the exit status."""
+    import uvicorn
+
+    from services.play.app import MAX_WS_MESSAGE_BYTES, create_app
+    from services.play.recording import Recorder, open_stores
+    from services.play.study import Study
+
+    pools = prepare(config, base_dir)
+    stores = open_stores(config.name, config.storage.dir, config.storage.redis_url, config.storage.key_prefix)
+    recorder = Recorder(stores)
+    study = Study(config, base_dir, pools, recorder)
+    known = stores[0].participants()
+    restored = study.restore({pid: stores[0].events(pid) for pid in known})
+    app = create_app(study)
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:
+        sock.bind((host, port))
+    except OSError as err:
+        raise ConfigError(
+            f"cannot listen on {host}:{port} ({err}); choose another --port (0: any free one)"
+        ) from err
+    sock.listen(128)
+    bound = sock.getsockname()[1]
+    where = [f"files in {Path(config.storage.dir).resolve() / config.name}"] if config.storage.dir else []
+    where += [f"Redis {config.storage.redis_url}"] if config.storage.redis_url else []
+    log.info(
+        "recording to %s (%d participants so far, %d can continue)", " and ".join(where), len(known), restored
+    )
+    uv = uvicorn.Config(
+        app, log_level="warning", access_log=False, ws_max_size=MAX_WS_MESSAGE_BYTES, lifespan="off"
+    )
+    server = uvicorn.Server(uv)
+    print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
+    try:
+        server.run(sockets=[sock])
+    finally:
+        recorder.close()
+        sock.close()
+    return 0
+
+
+def _cmd_serve(args: argparse.Namespace) -> int:
+    free = args.checkpoint or args.zoo or args.random_init
+    if args.study and free:
+        raise ConfigError(
+            "give a study file or a free-play partner (--checkpoint/--zoo/--random-init), not both"
+        )
+    if args.study:
+        config, base_dir = load_study(args.study, [*args.set, *_storage_overrides(args)])
+    elif free:
+        if args.set:
+            raise ConfigError("KEY=VALUE overrides apply to a study file; free play takes flags only")
+        config, base_dir = free_play_config(args), Path.cwd()
+    else:
+        raise ConfigError(
+            "give a study file (e.g. configs/study/default.yaml) or a partner to play with: "
+            "--checkpoint RUN_DIR, --zoo ZOO.yaml [--group ALG] or --random-init"
+        )
+    try:
+        return serve(config, base_dir, args.host, args.port)
+    except StoreError as err:
+        print(f"cec play serve: error: {err}", file=sys.stderr)
+        return 1
+
+
+def _cmd_export(args: argparse.Namespace) -> int:
+    from cec.evaluation.results import write_csv
+    from services.play.recording import RecordError, export_tables, open_stores, write_survey_csv
+
+    config, _ = load_study(args.study, [*args.set, *_storage_overrides(args)])
+    directory = "" if args.redis_url is not None else config.storage.dir
+    try:
+        stores = open_stores(
+            config.name, directory, config.storage.redis_url, config.storage.key_prefix, create=False
+        )
+        try:
+            if not stores[0].participants():
+                raise RecordError(f"no records of study {config.name!r} in {directory or 'Redis'}")
+            table, survey = export_tables(stores[0])
+        finally:
+            for s in stores:
+                s.close()
+    except StoreError as err:
+        print(f"cec play export: error: {err}", file=sys.stderr)
+        return 1
+    out = Path(args.out)
+    results = write_csv(table, out / "results.csv")
+    answers = write_survey_csv(survey, out / "survey.csv")
+    participants = len(set(table.policy_a.tolist()))
+    print(f"wrote {results} ({len(table)} rounds, {participants} participants)")
+    print(f"wrote {answers} ({len(survey)} answers)")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """`python -m services.play ...`: the same as `cec play ...`."""
+    from cec.cli import main as cec_main
+
+    return cec_main(["play", *(argv if argv is not None else sys.argv[1:])])
