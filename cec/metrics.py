@@ -7,7 +7,9 @@ a seed or a client address). Metrics live in the default registry of the process
 
 from __future__ import annotations
 
-from prometheus_client import REGISTRY, Counter, Gauge, Histogram, start_http_server
+from collections.abc import Iterator
+
+from prometheus_client import REGISTRY, Counter, Gauge, Histogram, Metric, start_http_server
 
 # --- level server ------------------------------------------------------------------------------------------
 LEVELS_GENERATED = Counter(
@@ -146,11 +148,36 @@ PLAY_TICK_OVERRUNS = Counter(
 )
 
 
-class MetricsEndpoint:
-    """A running `/metrics` HTTP endpoint; `close()` stops it."""
+#: which metric families each component's endpoint serves (every process imports them all; a process
+#: serves only its own, so that Prometheus does not get a zero series of every metric from every job)
+COMPONENTS: dict[str, tuple[str, ...]] = {
+    "level_server": ("cec_level_server_",),
+    "learner": ("cec_learner_", "cec_actor_"),
+    "evaluator": ("cec_evaluator_",),
+    "play": ("cec_play_",),
+}
 
-    def __init__(self, port: int, host: str = "127.0.0.1") -> None:
-        self._server, self._thread = start_http_server(port, addr=host, registry=REGISTRY)
+
+class ComponentRegistry:
+    """The default registry seen through one component: its `cec_*` families and the process ones."""
+
+    def __init__(self, component: str | None) -> None:
+        if component is not None and component not in COMPONENTS:
+            raise ValueError(f"unknown metrics component {component!r}; one of {sorted(COMPONENTS)}")
+        self.prefixes = ("cec_",) if component is None else COMPONENTS[component]
+
+    def collect(self) -> Iterator[Metric]:
+        for family in REGISTRY.collect():
+            if not family.name.startswith("cec_") or family.name.startswith(self.prefixes):
+                yield family
+
+
+class MetricsEndpoint:
+    """A running `/metrics` HTTP endpoint of one component (None: every metric); `close()` stops it."""
+
+    def __init__(self, port: int, host: str = "127.0.0.1", component: str | None = None) -> None:
+        view = ComponentRegistry(component)
+        self._server, self._thread = start_http_server(port, addr=host, registry=view)
         self.host = host
         self.port: int = self._server.server_port  # the bound port (port 0 picks a free one)
 

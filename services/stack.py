@@ -22,16 +22,18 @@ import contextlib
 import dataclasses
 import logging
 import os
-import selectors
+import queue
 import socket
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any, TextIO
+from typing import Any, TextIO
 
 from cec.config import ConfigError, load_config
+from cec.monitoring import MonitoringConfig
 from cec.store import StoreConfig
 from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig
@@ -57,6 +59,7 @@ class UpConfig:
             directory and metrics port.
         evaluator_metrics_port: the evaluator's Prometheus port (0: a free one, -1: off).
         monitoring: start Prometheus (and Grafana when installed) against the stack.
+        monitoring_config: their ports and settings (`cec.monitoring.MonitoringConfig`).
         ray_dashboard: start Ray's dashboard with the local Ray.
         start_timeout_s: how long each service may take to report ready.
     """
@@ -72,6 +75,7 @@ class UpConfig:
     evaluator_config: str = "configs/evaluator.yaml"
     evaluator_metrics_port: int = 9403
     monitoring: bool = False
+    monitoring_config: MonitoringConfig = field(default_factory=MonitoringConfig)
     ray_dashboard: bool = True
     start_timeout_s: float = 120.0
 
@@ -100,7 +104,9 @@ class ServiceProcess:
     """A service in a child process (`python -m <module> ...`): waits for its ready line, then copies its
     output to a log file in the run directory."""
 
-    def __init__(self, name: str, args: list[str], log_path: Path, ready: str, timeout: float) -> None:
+    def __init__(
+        self, name: str, args: list[str], log_path: Path, ready: str, timeout: float, env: dict | None = None
+    ) -> None:
         self.name = name
         log_path.parent.mkdir(parents=True, exist_ok=True)
         self.log_path = log_path
@@ -109,48 +115,40 @@ class ServiceProcess:
             [sys.executable, "-u", *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
-            env={**os.environ, "JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")},
+            env={"JAX_PLATFORMS": "cpu", **os.environ, **(env or {})},
         )
         self.ready_line = self._wait_for(ready, timeout)
 
     def _wait_for(self, marker: str, timeout: float) -> str:
-        assert self.proc.stdout is not None
-        out: IO[bytes] = self.proc.stdout
-        sel = selectors.DefaultSelector()
-        sel.register(out, selectors.EVENT_READ)
-        deadline = time.monotonic() + timeout
-        tail: list[str] = []
-        while time.monotonic() < deadline:
-            if not sel.select(timeout=0.5):
-                continue
-            line = out.readline()
-            if not line:
-                break
-            self._log.write(line)
-            self._log.flush()
-            text = line.decode(errors="replace").rstrip()
-            tail = (tail + [text])[-15:]
-            if marker in text:
-                sel.close()
-                self._pump()
-                return text
-        sel.close()
-        self.stop()
-        raise ConfigError(
-            f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
-            + "\n  ".join(tail)
-        )
-
-    def _pump(self) -> None:
-        import threading
+        """Copies the child's output to the log (a thread, for its whole life) until `marker` appears."""
+        lines: queue.Queue[str | None] = queue.Queue()
 
         def copy() -> None:
             assert self.proc.stdout is not None
             for line in self.proc.stdout:
                 self._log.write(line)
                 self._log.flush()
+                lines.put(line.decode(errors="replace").rstrip())
+            lines.put(None)  # the child closed its output (exited)
 
         threading.Thread(target=copy, name=f"{self.name}-log", daemon=True).start()
+        deadline = time.monotonic() + timeout
+        tail: list[str] = []
+        while (left := deadline - time.monotonic()) > 0:
+            try:
+                text = lines.get(timeout=left)
+            except queue.Empty:
+                break
+            if text is None:
+                break
+            tail = (tail + [text])[-15:]
+            if marker in text:
+                return text
+        self.stop()
+        raise ConfigError(
+            f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
+            + "\n  ".join(tail)
+        )
 
     def alive(self) -> bool:
         return self.proc.poll() is None
@@ -263,6 +261,7 @@ class Stack:
                 logs / "evaluator.log",
                 "evaluator ready",
                 cfg.start_timeout_s,
+                env={"JAX_COMPILATION_CACHE_DIR": str(self.run_dir / "jax_cache")},  # fast restarts
             )
             self.services.append(evaluator)
             self.say(f"evaluator              consuming checkpoint events  (log: {evaluator.log_path})")
@@ -297,7 +296,9 @@ class Stack:
                 if url
             }
             try:
-                self.monitoring = start_monitoring(self.run_dir / "monitoring", targets)
+                self.monitoring = start_monitoring(
+                    self.run_dir / "monitoring", targets, cfg.monitoring_config
+                )
                 self.say(self.monitoring.describe())
             except MonitoringError as err:
                 self.say(f"monitoring not started: {err}")

@@ -71,6 +71,7 @@ class RolloutActor:
         level_server: str = "",
         level_token: str = "",
         level_seed: int = 0,
+        level_buffer_rollouts: int = 8,
     ) -> None:
         self.config = from_dict(TrainConfig, config)
         self.index, self.env_start, self.env_stop = index, env_start, env_stop
@@ -94,7 +95,8 @@ class RolloutActor:
             self.stream = LevelStreamBuffer(
                 level_server,
                 seed=level_seed,
-                capacity=max(4 * per_rollout, 1024),
+                capacity=level_buffer_rollouts * per_rollout,
+                batch_size=min(512, level_buffer_rollouts * per_rollout),
                 config=self.config.env.generator,
                 token=level_token or None,
             )

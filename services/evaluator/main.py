@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         if config.metrics_port >= 0:
             try:
-                endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host)
+                endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host, component="evaluator")
             except OSError as err:
                 print(
                     f"error: cannot serve metrics on {config.metrics_host}:{config.metrics_port} ({err}); "

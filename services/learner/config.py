@@ -30,6 +30,8 @@ class DistributedConfig:
         level_server: `host:port` of the level server that streams procedural kitchens to the actors
             (Overcooked `generator` runs); empty: actors draw levels themselves from the learner's keys.
         level_token: bearer token for the level server (empty: the CEC_LEVEL_SERVER_TOKEN variable).
+        level_buffer_rollouts: kitchens each actor keeps buffered from the stream, in rollouts' worth: what
+            it trains on through a level-server outage before it starts replaying kitchens it has seen.
         metrics_port: the learner's Prometheus `/metrics` port (0: a free port; -1: off).
         metrics_host: bind address of the metrics endpoint.
         publish_checkpoints: register the run and publish checkpoint events to Redis (the evaluator's feed).
@@ -46,6 +48,7 @@ class DistributedConfig:
     learner_max_restarts: int = 3
     level_server: str = ""
     level_token: str = ""
+    level_buffer_rollouts: int = 8
     metrics_port: int = 9402
     metrics_host: str = "127.0.0.1"
     publish_checkpoints: bool = True
@@ -59,6 +62,10 @@ class DistributedConfig:
             raise ConfigError(f"distributed.num_actors must be >= 1, got {self.num_actors}")
         if self.max_policy_lag < 0:
             raise ConfigError(f"distributed.max_policy_lag must be >= 0, got {self.max_policy_lag}")
+        if self.level_buffer_rollouts < 1:
+            raise ConfigError(
+                f"distributed.level_buffer_rollouts must be >= 1, got {self.level_buffer_rollouts}"
+            )
         if self.actor_cpus <= 0 or self.actor_threads < 0:
             raise ConfigError("distributed.actor_cpus must be > 0 and distributed.actor_threads >= 0")
         if self.metrics_port < -1 or self.metrics_port > 65535:

@@ -76,7 +76,7 @@ class Learner:
         self._learn = jax.jit(self._learn_fn, donate_argnums=(0, 1))
         self.endpoint = None
         if self.dist.metrics_port >= 0:
-            self.endpoint = M.MetricsEndpoint(self.dist.metrics_port, self.dist.metrics_host)
+            self.endpoint = M.MetricsEndpoint(self.dist.metrics_port, self.dist.metrics_host, "learner")
             log.info("learner metrics on %s", self.endpoint.url)
         self.plane: Any = None
         self.slots: list[_Slot] = []
@@ -213,7 +213,14 @@ class Learner:
         self.slots = []
         for i in range(d.num_actors):
             handle = remote.remote(
-                self.train_dict, i, i * n, (i + 1) * n, d.level_server, token, cfg.seed * 1000 + i
+                self.train_dict,
+                i,
+                i * n,
+                (i + 1) * n,
+                d.level_server,
+                token,
+                cfg.seed * 1000 + i,
+                d.level_buffer_rollouts,
             )
             self.slots.append(_Slot(handle, i * n, (i + 1) * n))
         ray.get([s.handle.reset.remote(0, to_bytes(_rows(carry, s.start, s.stop))) for s in self.slots])

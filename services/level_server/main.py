@@ -26,7 +26,7 @@ async def serve(config: LevelServerConfig) -> None:
     server = LevelServer(config)
     endpoint = None
     if config.metrics_port >= 0:
-        endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host)
+        endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host, "level_server")
         log.info("metrics at %s", endpoint.url)
     await server.start()
     print(f"level server ready on {server.address}", flush=True)  # a line scripts and tests wait for

@@ -1,0 +1,247 @@
+"""The distributed trainer with real Ray, a real redis-server and a real level server: equivalence with the
+single-process trainer, and every fault of issue 7 survived (killed actor, level-server outage, Redis
+restart, killed learner, SIGTERM)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+ray = pytest.importorskip("ray")
+
+from cec import metrics as M  # noqa: E402,N812
+from cec.config import ConfigError, load_config  # noqa: E402
+from cec.store import ControlPlane, LocalRedis, StoreConfig  # noqa: E402
+from cec.training.config import TrainConfig  # noqa: E402
+from cec.training.trainer import config_dict, train  # noqa: E402
+from services.learner.config import DistributedConfig  # noqa: E402
+from services.learner.driver import check_start  # noqa: E402
+from services.learner.learner import Learner  # noqa: E402
+from services.stack import ServiceProcess, free_port  # noqa: E402
+
+pytestmark = pytest.mark.timeout(600)
+REPO = Path(__file__).resolve().parents[2]
+DD_QUICK = str(REPO / "configs/train/dd_ippo_quick.yaml")
+MLP = [
+    "network_overrides.conv_features=[]",
+    "network_overrides.encoder_features=[32]",
+    "network_overrides.lstm_features=0",
+    "network_overrides.actor_features=[32]",
+    "network_overrides.critic_features=[32]",
+]
+
+
+@pytest.fixture(scope="module")
+def local_ray() -> Any:
+    ray.init(num_cpus=4, include_dashboard=False, logging_level="WARNING")
+    yield ray
+    ray.shutdown()
+
+
+def _rows(run_dir: Path) -> list[dict]:
+    path = run_dir / "metrics.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
+
+
+def _wait_rows(run_dir: Path, n: int, timeout: float = 300) -> None:
+    deadline = time.monotonic() + timeout
+    while len(_rows(run_dir)) < n:
+        assert time.monotonic() < deadline, f"no {n} metrics rows in {run_dir} after {timeout} s"
+        time.sleep(0.2)
+
+
+def _learner_run(learner: Learner) -> tuple[threading.Thread, dict]:
+    out: dict = {}
+
+    def go() -> None:
+        try:
+            out["summary"] = learner.run(resume=False)
+        except BaseException as err:  # surfaced by the test
+            out["error"] = err
+
+    thread = threading.Thread(target=go)
+    thread.start()
+    return thread, out
+
+
+def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: Any, tmp_path: Path) -> None:
+    """Dual Destination fixed task, `small` preset, same seed: sync mode plays the single-process trainer's
+    updates to float rounding. The learner's update is compiled on its own (the trainer fuses rollout and
+    update in one program), so losses differ in the 7th digit from the first update; sampling amplifies that
+    over updates, so the curves agree exactly early and in outcome late."""
+    base = ["total_env_steps=307200", "updates_per_call=1", f"run_dir={tmp_path}"]  # 24 updates
+    train(load_config(TrainConfig, DD_QUICK, [*base, "name=single"]), progress=False)
+    for mode in ("sync", "async"):
+        cfg = load_config(TrainConfig, DD_QUICK, [*base, f"name={mode}"])
+        Learner(config_dict(cfg), {"num_actors": 2, "mode": mode, "metrics_port": -1}).run(resume=False)
+    want, sync, asyn = (_rows(tmp_path / n) for n in ("single", "sync", "async"))
+    assert [r["update"] for r in sync] == [r["update"] for r in want] == list(range(1, 25))
+    for a, b in zip(want[:2], sync[:2], strict=True):
+        assert b["normalised_return"] == pytest.approx(a["normalised_return"], rel=1e-6), a["update"]
+        assert b["total_loss"] == pytest.approx(a["total_loss"], rel=1e-4), a["update"]
+
+    def takeoff(rows: list[dict]) -> int:  # the first update with a positive normalised return
+        return next((r["update"] for r in rows if r["normalised_return"] > 0), 99)
+
+    assert abs(takeoff(sync) - takeoff(want)) <= 3, "the task is learned at the same point of the run"
+
+    def late(rows: list[dict]) -> float:
+        return float(np.mean([r["normalised_return"] for r in rows[-3:]]))
+
+    assert late(want) > 0.8, "the single-process run itself must learn for the comparison to mean much"
+    assert late(sync) == pytest.approx(late(want), abs=0.1)
+    # async: batches are one version old after the first update; measured, it learns the task some 5-8
+    # updates later than sync on this run (docs/distributed.md)
+    assert takeoff(asyn) <= takeoff(want) + 10 and late(asyn) > 0.0, "async learns the task too"
+
+
+def test_killed_actor_and_redis_restart_lose_nothing(local_ray: Any, tmp_path: Path) -> None:
+    redis = LocalRedis(tmp_path / "redis").start()
+    try:
+        cfg = load_config(
+            TrainConfig,
+            DD_QUICK,
+            ["num_envs=32", "num_steps=50", "total_env_steps=16000", "updates_per_call=1",
+             "checkpoint.every_updates=1", f"run_dir={tmp_path}", "name=faults"],
+        )  # fmt: skip
+        learner = Learner(config_dict(cfg), {"num_actors": 2, "metrics_port": -1}, _asdict(redis.config()))
+        restarts0 = M.ACTOR_RESTARTS._value.get()
+        thread, out = _learner_run(learner)
+        run_dir = tmp_path / "faults"
+        _wait_rows(run_dir, 2)
+        pid = ray.get(learner.slots[1].handle.ping.remote())
+        os.kill(pid, signal.SIGKILL)  # a crashed actor process
+        _wait_rows(run_dir, 4)
+        redis.stop(kill=True)  # Redis crashes: checkpoint events go to the outbox
+        _wait_rows(run_dir, 6)
+        redis.start()  # back: the outbox is flushed at the next heartbeat
+        thread.join(600)
+        assert "error" not in out, out.get("error")
+        assert out["summary"]["updates"] == 10
+        assert [r["update"] for r in _rows(run_dir)] == list(range(1, 11))
+        assert M.ACTOR_RESTARTS._value.get() >= restarts0 + 1
+        plane = ControlPlane.connect(redis.config())
+        ids = [e.checkpoint_id for e in plane.list_checkpoints("faults")]
+        assert ids == [f"faults/update_{u:09d}" for u in range(1, 11)], (
+            "every checkpoint event, once, in order"
+        )
+        assert plane.get_run("faults").status == "finished"
+        plane.close()
+    finally:
+        redis.stop()
+
+
+def test_level_server_outage_leaves_actors_training_on_their_buffers(local_ray: Any, tmp_path: Path) -> None:
+    port = free_port()
+    args = ["-m", "services.level_server", f"port={port}", "metrics_port=-1", "seed=1"]
+    server = ServiceProcess("level server", args, tmp_path / "ls.log", "level server ready on", 120)
+    cfg = load_config(
+        TrainConfig,
+        None,
+        ["algorithm=cec", "network=small", *MLP, "num_envs=8", "num_steps=32", "total_env_steps=4096",
+         "updates_per_call=1", "env.overcooked.max_steps=16", "ppo.num_minibatches=2",
+         "checkpoint.every_updates=0", f"run_dir={tmp_path}", "name=outage"],
+    )  # fmt: skip
+    # a buffer of two rollouts' kitchens, so that the outage drains it and the actors replay kitchens
+    dist = {
+        "num_actors": 2,
+        "metrics_port": -1,
+        "level_server": f"127.0.0.1:{port}",
+        "level_buffer_rollouts": 2,
+    }
+    learner = Learner(config_dict(cfg), dist)
+    reused0 = sum(M.ACTOR_LEVELS_REUSED.labels(str(i))._value.get() for i in range(2))
+    thread, out = _learner_run(learner)
+    run_dir = tmp_path / "outage"
+    try:
+        _wait_rows(run_dir, 3)
+        server.proc.send_signal(signal.SIGKILL)  # the level server dies
+        server.stop()
+        start = len(_rows(run_dir))
+        _wait_rows(run_dir, start + 3)  # ... and training goes on meanwhile
+        server = ServiceProcess("level server", args, tmp_path / "ls.log", "level server ready on", 120)
+        thread.join(600)
+    finally:
+        server.stop()
+    assert "error" not in out, out.get("error")
+    assert [r["update"] for r in _rows(run_dir)] == list(range(1, 17))
+    reused = sum(M.ACTOR_LEVELS_REUSED.labels(str(i))._value.get() for i in range(2))
+    reconnects = sum(M.ACTOR_LEVEL_RECONNECTS.labels(str(i))._value.get() for i in range(2))
+    assert reused > reused0, "actors replayed buffered kitchens during the outage"
+    assert reconnects > 0, "actors reconnected to the restarted server"
+
+
+def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) -> None:
+    psutil = pytest.importorskip("psutil")
+    cmd = [
+        sys.executable, "-m", "cec.cli", "up", "--config", str(REPO / "configs/up/default.yaml"),
+        "level_server_port=0", "level_server_metrics_port=-1", "evaluator=false", "ray_dashboard=false",
+        "distributed.metrics_port=-1", "distributed.ray_num_cpus=4", f"train={DD_QUICK}",
+        "train.num_envs=32", "train.num_steps=50", "train.total_env_steps=1600000",
+        "train.updates_per_call=1",
+        "train.checkpoint.every_updates=1", f"train.run_dir={tmp_path}", "train.name=up",
+    ]  # fmt: skip
+    log = open(tmp_path / "up.log", "w")  # noqa: SIM115
+    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+    run_dir = tmp_path / "up"
+    try:
+        _wait_rows(run_dir, 3)
+        learners = [
+            p for p in psutil.process_iter(["cmdline"]) if "ray::Learner" in " ".join(p.info["cmdline"] or [])
+        ]
+        assert learners, "the learner runs in its own Ray worker process"
+        killed_at = len(_rows(run_dir))
+        for p in learners:
+            p.kill()
+        _wait_rows(run_dir, killed_at + 3)  # restarted, resumed, training again
+        proc.send_signal(signal.SIGTERM)
+        code = proc.wait(300)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        log.close()
+    text = (tmp_path / "up.log").read_text()
+    assert code == 130, text[-3000:]
+    assert "resumes from its latest checkpoint" in text
+    rows = [r["update"] for r in _rows(run_dir)]
+    assert rows == list(range(1, len(rows) + 1)), "every update's row exactly once across the restart"
+    latest = sorted((run_dir / "checkpoints").iterdir())[-1]
+    assert latest.name == f"update_{rows[-1]:09d}", "SIGTERM checkpointed the last update"
+    assert "stack stopped" in text
+
+
+def test_bad_inputs_stop_start_up_with_the_fix(tmp_path: Path) -> None:
+    cfg = load_config(TrainConfig, DD_QUICK, [f"run_dir={tmp_path}", "name=bad", "updates_per_call=1"])
+    dead = StoreConfig(url=f"redis://127.0.0.1:{free_port()}/0", connect_timeout_s=0.5, retries=0)
+    with pytest.raises(ConfigError, match="redis"):
+        check_start(cfg, DistributedConfig(), dead, resume=False)
+    gen = load_config(
+        TrainConfig, None, ["algorithm=cec", "updates_per_call=1", "num_envs=8", f"run_dir={tmp_path}"]
+    )
+    with pytest.raises(ConfigError, match="level-server"):
+        check_start(gen, DistributedConfig(level_server=f"127.0.0.1:{free_port()}"), None, resume=False)
+    with pytest.raises(ConfigError, match="num_actors"):
+        check_start(cfg, DistributedConfig(num_actors=3), None, resume=False)
+    # a checkpoint written by another config is refused before anything starts
+    train(
+        load_config(TrainConfig, DD_QUICK, [f"run_dir={tmp_path}", "name=bad", "total_env_steps=12800"]),
+        progress=False,
+    )
+    with pytest.raises(ConfigError, match="different config"):
+        check_start(cfg, DistributedConfig(), None, resume=True)
+
+
+def _asdict(config: Any) -> dict:
+    import dataclasses
+
+    return dataclasses.asdict(config)
