@@ -26,7 +26,7 @@ demo: install
 
 ## Lint, type checks and the whole test suite (unit + JaxMARL parity)
 test: lint typecheck
-	$(BIN)/python -m pytest -q -n 2 --dist loadfile tests
+	$(BIN)/python -m pytest -q tests
 
 lint: install
 	$(BIN)/ruff check .

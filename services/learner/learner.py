@@ -80,6 +80,7 @@ class Learner:
             log.info("learner metrics on %s", self.endpoint.url)
         self.plane: Any = None
         self.slots: list[_Slot] = []
+        self._held: dict[int, tuple[Any, Any]] = {}  # async: a batch per actor waiting for the next update
 
     # ---- pure pieces -------------------------------------------------------------------------------------
 
@@ -309,29 +310,39 @@ class Learner:
         return k_levels, k_roll
 
     def _async_batches(self, weights: Any, version: int, key: Any, pending: dict, template: Any) -> list:
+        """One batch from every actor (its whole slice, so an update sees every env), taken as they land;
+        an actor that delivers again before the others is resubmitted at once and its batch held for the
+        next update (a newer one replaces it)."""
         import ray
 
-        base = self.config.seed + 7919  # actors' own key chain, independent of the learner's
-        root = jax.random.PRNGKey(base)
+        root = jax.random.PRNGKey(self.config.seed + 7919)  # actors' own key chain, not the learner's
         busy = set(pending.values())
         for i in range(len(self.slots)):
             if i not in busy:
                 pending[self._submit(i, weights, version, *self._async_keys(root, i))] = i
-        parts: list = []
+        parts: dict[int, Any] = {}
+        for i, (header, payload) in sorted(self._held.items()):
+            if self._accept(i, header, version):
+                parts[i] = from_bytes(template, payload)
+        self._held.clear()
         while len(parts) < len(self.slots):
             t0 = time.perf_counter()
             ready, _ = ray.wait(list(pending), num_returns=1)
             M.LEARNER_STAGE_SECONDS.labels("wait").inc(time.perf_counter() - t0)
-            ref = ready[0]
-            i = pending.pop(ref)
-            got = self._fetch(i, ref)
+            i = pending.pop(ready[0])
+            got = self._fetch(i, ready[0])
             if got is None:
                 self._revive(i, root)
             pending[self._submit(i, weights, version, *self._async_keys(root, i))] = i  # never idle
-            if got is not None and self._accept(i, got[0], version):
-                parts.append((got[0].env_start, from_bytes(template, got[1])))
-        parts.sort(key=lambda p: p[0])
-        return [p for _, p in parts]
+            if got is None:
+                continue
+            if i in parts:
+                if i in self._held:
+                    M.LEARNER_BATCHES.labels("stale").inc()  # replaced by a newer one before its turn
+                self._held[i] = got
+            elif self._accept(i, got[0], version):
+                parts[i] = from_bytes(template, got[1])
+        return [parts[i] for i in sorted(parts)]
 
     def _gather_carry(self, key: Any, pending: dict) -> RolloutCarry:
         """Every actor's carry, concatenated in env order (for the checkpoint)."""
