@@ -12,6 +12,7 @@ cec train --config configs/train/X.yaml [k=v]  train (IPPO / CEC) in one process
 cec eval --zoo zoo.yaml [--levels heldout]     cross-play a zoo of checkpoints -> results.csv (one long table)
 cec report results.csv [...] [--out DIR]       Markdown report + PNG figures from result tables
 cec zoo build SPEC.yaml --out ZOO_DIR          train a partner zoo from a spec (resumable) -> ZOO_DIR/zoo.yaml
+cec reproduce dual-destination [--quick]       the paper's Dual Destination results end to end -> report
 cec up [--config YAML] [--monitoring]         the whole stack: Redis, level server, Ray learner, evaluator
 cec evaluator [--config YAML] [k=v]            score new checkpoints from Redis vs the zoo (a service)
 cec play serve [STUDY.yaml] [--checkpoint DIR]  human-AI play in the browser (study flow, records)
@@ -357,6 +358,9 @@ def build_parser() -> argparse.ArgumentParser:
     from cec.zoo_build import add_subcommands as add_zoo_subcommands
 
     add_zoo_subcommands(sub)  # cec zoo build
+    from cec.reproduce import add_subcommands as add_reproduce_subcommands
+
+    add_reproduce_subcommands(sub)  # cec reproduce dual-destination
     from services.stack import add_subcommands as add_stack_subcommands
 
     add_stack_subcommands(sub)  # cec up

@@ -81,7 +81,8 @@ def add_subcommands(sub: Any) -> None:
         "--levels",
         default="heldout",
         help="heldout (5 classic + 100 generated), classic, generated, or level names, comma-separated; "
-        "Dual Destination: fixed, multi_task (default: heldout)",
+        "Dual Destination: fixed, multi_task, generated (100 held-out tasks), heldout (fixed + generated) "
+        "(default: heldout)",
     )
     ev.add_argument("--episodes", type=int, default=4, help="episodes per pairing, seat order and level")
     ev.add_argument("--greedy", action="store_true", help="argmax actions (default: sampled)")

@@ -56,11 +56,12 @@ class EvalConfig:
     Attributes:
         levels: level set (see `eval_levels`): Overcooked `heldout` (5 classic + 100 generated),
             `classic`, `generated`, or comma-separated level names; Dual Destination `fixed`,
-            `multi_task` or both.
+            `multi_task`, `generated` (100 held-out generated tasks), `heldout` (fixed + generated) or
+            level names.
         episodes: episodes per pairing, seat order and level.
         greedy: act with the most likely action instead of sampling.
         seed: base seed of the common random numbers.
-        max_steps: episode length; 0: the training episode length of the first policy.
+        max_steps: episode length; 0: the training episode length of the first (network) policy.
         pairs: `all` (every pair of policies, self-play included), `self` (self-play only) or
             `with:<name>` (that policy with every policy, itself included).
         games_per_call: games per jitted call (0: all games sharing a level set in one call); bounds
@@ -117,11 +118,20 @@ def eval_levels(env: str, spec: str) -> EvalLevels:
                 )
         return EvalLevels(tuple(out), stack_levels(list(out.values())))
     if env == "dual_destination":
-        known = {"fixed": dd.fixed_level(), "multi_task": dd.multi_task_level()}
+        generated = dict(dd.heldout_generated_dd_levels())
+        known = {"fixed": dd.fixed_level(), "multi_task": dd.multi_task_level(), **generated}
         for tok in tokens:
-            if tok not in known:
-                raise ConfigError(f"unknown Dual Destination level {tok!r}; choose from {sorted(known)}")
-            out[tok] = known[tok]
+            if tok in ("generated", "heldout"):
+                out.update({"fixed": known["fixed"]} if tok == "heldout" else {})
+                out.update(generated)
+            elif tok in known:
+                out[tok] = known[tok]
+            else:
+                raise ConfigError(
+                    f"unknown Dual Destination level {tok!r}; choose from fixed, multi_task, generated (the "
+                    "100 held-out generated tasks), heldout (fixed + generated) or "
+                    "generated_000..generated_099"
+                )
         return EvalLevels(tuple(out), dd.stack_dd_levels(list(out.values())))
     raise ConfigError(f"unknown env {env!r}; choose overcooked or dual_destination")
 
@@ -175,16 +185,21 @@ def _without_partner_model(network: NetworkConfig) -> NetworkConfig:
 
 
 def compatibility_problem(reference: Policy, policy: Policy, level_names: Sequence[str]) -> str | None:
-    """Why `policy` cannot join an evaluation led by `reference` on `level_names`, or None."""
+    """Why `policy` cannot join an evaluation led by `reference` on `level_names`, or None.
+
+    A scripted policy joins any evaluation of its game: it has no network, and it reads whatever the
+    evaluation's observations show (e.g. `dd_oracle` adapts to the partial view and the pink goals).
+    """
     if policy.env.name != reference.env.name:
         return f"it plays {policy.env.name}, the evaluation plays {reference.env.name}"
-    if _without_partner_model(policy.network) != _without_partner_model(reference.network):
+    networks = policy.scripted is None and reference.scripted is None
+    if networks and _without_partner_model(policy.network) != _without_partner_model(reference.network):
         return (
             f"its network {policy.network} differs from the evaluation's {reference.network} (the first "
             "policy's); cross-play batches both seats through one architecture (E3T's partner model "
             "aside): evaluate each architecture in its own run"
         )
-    if _obs_settings(policy) != _obs_settings(reference):
+    if networks and _obs_settings(policy) != _obs_settings(reference):
         return (
             f"it was trained with Dual Destination (partial_obs, multi_task) = {_obs_settings(policy)}, "
             f"the evaluation uses {_obs_settings(reference)} (its observations would differ)"
@@ -230,14 +245,21 @@ def plan_games(policies: Sequence[Policy], level_names: Sequence[str], pairs: st
 
 @functools.cache
 def play_fn(
-    task: Task, network: NetworkConfig, num_steps: int, greedy: bool
+    task: Task, network: NetworkConfig, num_steps: int, greedy: bool, scripted: tuple[str, ...] = ()
 ) -> Callable[..., EpisodeOutcome]:
-    """The compiled evaluation call (cached per game, network, episode length and action mode).
+    """The compiled evaluation call (cached per game, network, episode length, action mode and scripted
+    kinds).
 
     (pair_params: leaves [G, 2, ...], levels: [E, ...], keys: [E, 2], env_params) -> `EpisodeOutcome`
-    with [G, E] leaves: every game plays one episode of `num_steps` steps on every env.
+    with [G, E] leaves: every game plays one episode of `num_steps` steps on every env. With `scripted`
+    kinds the network is `cec.evaluation.scripted.WithScripted` (parameters from `with_scripted_params`):
+    each seat's parameter set says whether it plays the network or one of the kinds.
     """
     net = ActorCritic(network, task.num_actions)
+    if scripted:
+        from cec.evaluation.scripted import WithScripted
+
+        net = WithScripted(network, task.num_actions, scripted=scripted)
 
     def one_env(pair_params: Any, level: Any, key: jax.Array, env_params: Any) -> EpisodeOutcome:
         k_reset, k_play = jax.random.split(key)
@@ -266,6 +288,19 @@ def play_fn(
     return jax.jit(jax.vmap(per_game, in_axes=(0, None, None, None)))
 
 
+def _seat_params(policy: Policy, network: NetworkConfig, task: Task, kinds: tuple[str, ...]) -> Any:
+    """The parameter set a policy brings to a seat of the evaluation's network (see `play_fn`)."""
+    if not kinds:
+        return embed_partner_model(policy.params, policy.network, network, task.num_actions)
+    from cec.evaluation.scripted import placeholder_params, with_scripted_params
+
+    if policy.scripted is None:
+        own = embed_partner_model(policy.params, policy.network, network, task.num_actions)
+        return with_scripted_params(own, 0)
+    zeros = placeholder_params(ActorCritic(network, task.num_actions), task.obs_shape)
+    return with_scripted_params(zeros, kinds.index(policy.scripted) + 1)
+
+
 def _stack(trees: Sequence[Any]) -> Any:
     return jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *trees)
 
@@ -280,9 +315,11 @@ def crossplay(
 ) -> EpisodeTable:
     """Plays the games of `config.pairs` among `policies` on `levels`; returns the long result table.
 
-    Policies that cannot join (another game, network or observation settings than the first policy, or
-    none of their levels in the set) are added to the table's skipped entries with the reason, like the
-    `skipped` entries passed in (zoo entries that failed to load).
+    The first network policy leads (its network and env settings; a scripted one only when every policy
+    is scripted). Policies that cannot join (another game, network or observation settings, or none of
+    their levels in the set) are added to the table's skipped entries with the reason, like the `skipped`
+    entries passed in (zoo entries that failed to load). Scripted policies (`cec.evaluation.scripted`)
+    play in the same jitted calls as the networks, in both seats.
     """
     skipped_out = list(skipped)
     if not policies:
@@ -290,7 +327,8 @@ def crossplay(
         raise ConfigError(
             "no policy to evaluate" + (f"; every zoo entry was skipped: {reasons}" if reasons else "")
         )
-    reference = policies[0]
+    # the first network policy leads (its network and env settings); scripted policies adapt to it
+    reference = next((p for p in policies if p.scripted is None), policies[0])
     usable: list[Policy] = []
     for p in policies:
         problem = compatibility_problem(reference, p, levels.names)
@@ -305,10 +343,11 @@ def crossplay(
     games = plan_games(usable, levels.names, config.pairs)
     # Networks that differ only in E3T's partner model play as one architecture: the longest history,
     # the others embedded with zero weights (`embed_partner_model`: the same policies exactly).
-    k = max(p.network.partner_history for p in usable) if usable else 0
+    k = max((p.network.partner_history for p in usable if p.scripted is None), default=0)
     network = dataclasses.replace(reference.network, partner_history=k)
-    fn = play_fn(task, network, steps, config.greedy)
-    stacked = _stack([embed_partner_model(p.params, p.network, network, task.num_actions) for p in usable])
+    kinds = tuple(sorted({p.scripted for p in usable if p.scripted is not None}))
+    fn = play_fn(task, network, steps, config.greedy, kinds)
+    stacked = _stack([_seat_params(p, network, task, kinds) for p in usable])
 
     groups: dict[tuple[int, ...], list[Game]] = {}
     for g in games:

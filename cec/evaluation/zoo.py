@@ -5,6 +5,7 @@ A zoo manifest is YAML or JSON (docs/evaluation.md):
     policies:
       - {name: cec_s0, algorithm: cec, seed: 0, checkpoint: runs/cec-s0/checkpoints/update_000001000}
       - {name: ippo_cramped_s0, algorithm: ippo, seed: 0, checkpoint: runs/ippo-cr-s0, levels: [cramped_room]}
+    - {name: oracle, scripted: dd_oracle}      # a scripted policy (`cec.evaluation.scripted`), no checkpoint
 
 `checkpoint` is a checkpoint directory or a run directory (its latest checkpoint); relative paths are
 relative to the manifest's folder. `algorithm` and `seed` default to the checkpoint's metadata; `seed`
@@ -37,7 +38,7 @@ from cec.evaluation.results import SkippedEntry
 from cec.training.config import TrainConfig
 from cec.training.tasks import EnvConfig, Task
 
-_ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "levels", "sha256")
+_ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "scripted", "levels", "sha256")
 #: Descriptive keys `cec zoo build` also writes (not used to load the policy).
 _INFO_KEYS = ("env", "layout", "env_steps")
 
@@ -48,12 +49,15 @@ class ZooEntry:
 
     Attributes:
         name: unique label (used in the result table).
-        checkpoint: checkpoint or run directory (absolute, or relative to the current directory).
+        checkpoint: checkpoint or run directory (absolute, or relative to the current directory); empty
+            for a scripted entry.
         algorithm: algorithm label (`cec`, `ippo`, `fcp`, ...); None: the checkpoint's metadata.
         seed: which seed (also picks it out of a multi-seed checkpoint); None: the checkpoint's only seed.
         levels: level names this policy plays; None: every level of the evaluation.
         sha256: the checkpoint state's SHA-256 when the zoo was built; a checkpoint that no longer
             matches is skipped (it was replaced since).
+        scripted: a scripted policy kind (`cec.evaluation.scripted.SCRIPTED`, e.g. `dd_oracle`) played
+            instead of a checkpoint; `algorithm` defaults to the kind, `seed` to 0.
     """
 
     name: str
@@ -62,6 +66,7 @@ class ZooEntry:
     seed: int | None = None
     levels: tuple[str, ...] | None = None
     sha256: str | None = None
+    scripted: str | None = None
 
 
 @dataclass(frozen=True)
@@ -70,10 +75,11 @@ class Policy:
 
     Attributes:
         name, algorithm, seed: its labels in the result table.
-        params: network parameters (no seed axis).
-        network: the architecture the parameters belong to.
+        params: network parameters (no seed axis); None for a scripted policy.
+        network: the architecture the parameters belong to (a placeholder for a scripted policy).
         env: the training environment's config (game, and the settings its observations depend on).
         levels: level names it plays (None: all).
+        scripted: the scripted kind it plays instead of a network (`cec.evaluation.scripted`), or None.
     """
 
     name: str
@@ -83,6 +89,7 @@ class Policy:
     network: NetworkConfig
     env: EnvConfig
     levels: tuple[str, ...] | None = None
+    scripted: str | None = None
 
 
 def random_policy(
@@ -132,9 +139,26 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
         unknown = sorted(set(item) - set(_ENTRY_KEYS) - set(_INFO_KEYS))
         if unknown:
             raise ConfigError(f"{at}: unknown key(s) {unknown}; valid keys: {list(_ENTRY_KEYS + _INFO_KEYS)}")
-        for key in ("name", "checkpoint"):
-            if not isinstance(item.get(key), str) or not item[key]:
-                raise ConfigError(f"{at}: `{key}` is required and must be a non-empty string")
+        if not isinstance(item.get("name"), str) or not item["name"]:
+            raise ConfigError(f"{at}: `name` is required and must be a non-empty string")
+        scripted = item.get("scripted")
+        if scripted is not None:
+            from cec.evaluation.scripted import scripted_kind
+
+            if not isinstance(scripted, str):
+                raise ConfigError(f"{at}: `scripted` must be a scripted policy kind, got {scripted!r}")
+            try:
+                scripted_kind(scripted)
+            except ConfigError as err:
+                raise ConfigError(f"{at}: {err}") from err
+            if "checkpoint" in item or "sha256" in item:
+                raise ConfigError(
+                    f"{at}: a `scripted` entry has no `checkpoint` or `sha256`; give one or the other"
+                )
+        elif not isinstance(item.get("checkpoint"), str) or not item["checkpoint"]:
+            raise ConfigError(
+                f"{at}: `checkpoint` is required and must be a non-empty string (or give `scripted`)"
+            )
         algorithm = item.get("algorithm")
         if algorithm is not None and (not isinstance(algorithm, str) or not algorithm):
             raise ConfigError(f"{at}: `algorithm` must be a non-empty string, got {algorithm!r}")
@@ -149,6 +173,9 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
         sha256 = item.get("sha256")
         if sha256 is not None and (not isinstance(sha256, str) or len(sha256) != 64):
             raise ConfigError(f"{at}: `sha256` must be a 64-digit hex string, got {sha256!r}")
+        if scripted is not None:
+            entries.append(ZooEntry(item["name"], "", algorithm, seed, levels, None, scripted))
+            continue
         path = Path(item["checkpoint"])
         if not path.is_absolute():
             path = Path(base_dir) / path
@@ -205,7 +232,15 @@ def load_policy(entry: ZooEntry) -> Policy:
     """Loads one entry's parameters (checksum and shapes verified by `cec.checkpoints.load`).
 
     Raises `CheckpointError` (missing, corrupt, unknown config, seed not in the checkpoint) with the cause.
+    A scripted entry becomes its scripted policy (`cec.evaluation.scripted.scripted_policy`).
     """
+    if entry.scripted is not None:
+        from cec.evaluation.scripted import scripted_policy
+
+        seed = 0 if entry.seed is None else entry.seed
+        return scripted_policy(
+            entry.scripted, entry.name, algorithm=entry.algorithm, seed=seed, levels=entry.levels
+        )
     path = resolve_checkpoint(entry.checkpoint)
     meta = checkpoints.read_meta(path)
     if entry.sha256 is not None and meta.get("sha256") != entry.sha256:

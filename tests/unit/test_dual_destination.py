@@ -318,8 +318,11 @@ def test_exclusion_resamples_exactly_the_draws_that_would_be_excluded() -> None:
         # excluding what these keys draw forces every one of them to draw again
         again = generate(key, multi, free)
         assert not bool(jnp.any(jax.vmap(dd.same_dd_task, in_axes=(0, None))(again, free)))
-        # excluding only key 0's draw changes key 0's output and no other
-        only_first = generate(key, multi, jax.tree.map(lambda x: x[:1], free))
+        # excluding key 0's draw as well changes key 0's output and no other
+        held_and_first = jax.tree.map(
+            lambda h, f: jnp.concatenate([jnp.asarray(h), f[:1]]), dd.held_out_dd_levels(), free
+        )
+        only_first = generate(key, multi, held_and_first)
         changed = ~jax.vmap(dd.same_dd_task)(only_first, jax.tree.map(lambda x: x[:, None], free))[:, 0]
         assert np.flatnonzero(np.asarray(changed)).tolist() == [0]
 

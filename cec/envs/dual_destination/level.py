@@ -7,6 +7,7 @@ row 0 at the top; the reference code writes positions as `(x, y) = (col, row)`.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Sequence
 
 import jax
@@ -108,12 +109,70 @@ def stack_dd_levels(levels: Sequence[DDLevel]) -> DDLevel:
     return jax.tree.map(lambda *xs: jnp.stack(xs), *levels)
 
 
+HELDOUT_GENERATED_SEED = 20250601  # the seed of the held-out generated evaluation tasks
+NUM_HELDOUT_GENERATED = 100
+
+
+@functools.cache
+def _heldout_generated_cells() -> np.ndarray:
+    """int64[100, 6, 2]: agents, green goals, pink goals of each held-out generated task (NumPy's PCG64,
+    so the set does not depend on the JAX version)."""
+    rng = np.random.default_rng(HELDOUT_GENERATED_SEED)
+    with jax.ensure_compile_time_eval():  # concrete even when first called inside a trace
+        fixed = _fixed_tasks()
+    taken = {_task_key(np.asarray(lv.agent_pos), np.asarray(lv.green_goals)) for lv in fixed}
+    out: list[np.ndarray] = []
+    while len(out) < NUM_HELDOUT_GENERATED:
+        idx = rng.permutation(DD_SIZE * DD_SIZE)[:6]
+        cells = np.stack([idx // DD_SIZE, idx % DD_SIZE], axis=-1)
+        key = _task_key(cells[0:2], cells[2:4])
+        if key not in taken:  # a new task even without its pink goals (the single-task game ignores them)
+            taken.add(key)
+            out.append(cells)
+    return np.stack(out)
+
+
+def _task_key(agents: np.ndarray, green: np.ndarray) -> tuple[frozenset, frozenset]:
+    return frozenset(map(tuple, agents.tolist())), frozenset(map(tuple, green.tolist()))
+
+
+def _fixed_tasks() -> list[DDLevel]:
+    return [fixed_level(), multi_task_level()]
+
+
+def heldout_generated_dd_levels() -> list[tuple[str, DDLevel]]:
+    """The 100 held-out generated evaluation tasks, `generated_000` .. `generated_099`, in order.
+
+    Drawn like `generate_dd_level(key, multi_task=True, ...)` (six distinct uniform cells) from a fixed
+    seed; each is a different task from the others and from the two fixed tasks even with its pink goals
+    ignored, so the same 100 levels serve the single-task game (pink ignored) and the multi-task one.
+    """
+    return [
+        (f"generated_{i:03d}", DDLevel.create(c[0:2], c[2:4], c[4:6]))
+        for i, c in enumerate(_heldout_generated_cells())
+    ]
+
+
 def held_out_dd_levels() -> DDLevel:
-    """The tasks procedural training must never produce: `fixed_level()` and `multi_task_level()` (K=2).
+    """The tasks procedural training must never produce (K = 102): `fixed_level()`, `multi_task_level()`
+    and the 100 held-out generated evaluation tasks (`heldout_generated_dd_levels`).
 
     Pass this as `exclude` to `generate_dd_level`.
     """
-    return stack_dd_levels([fixed_level(), multi_task_level()])
+    return _held_out_stack()
+
+
+@functools.cache
+def _held_out_stack() -> DDLevel:
+    with jax.ensure_compile_time_eval():  # concrete even when first called inside a trace
+        generated = [lv for _, lv in heldout_generated_dd_levels()]
+        return jax.tree.map(_read_only, stack_dd_levels([*_fixed_tasks(), *generated]))
+
+
+def _read_only(x: jax.Array) -> np.ndarray:
+    out = np.array(x)
+    out.flags.writeable = False  # cached and shared: nobody may change it
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------
