@@ -1,0 +1,153 @@
+"""`cec reproduce dual-destination`: the plan, the pipeline at a tiny budget, the report beside the paper."""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from cec import reproduce as rp
+from cec.cli import main
+from cec.envs import dual_destination as dd
+from cec.evaluation.results import read_csv
+from cec.zoo_build import plan_zoo
+
+TINY_NET = (
+    "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 4, actor_features: [8], "
+    "critic_features: [8]}"
+)
+TINY = rp.Mode(
+    name="tiny",
+    presets=rp.QUICK.presets,
+    seeds={"ippo": (0, 1, 2), "fcp": (100, 101, 102), "cec": (200, 201, 202)},
+    steps={v: {a: 1_600 for a in rp.ALGORITHMS} for v in rp.VARIANTS},  # 2 updates of 8 envs x 100 steps
+    episodes={"fixed": 2, "generated": 1},
+    overrides=("num_envs=8", "ppo.num_minibatches=2", "ppo.update_epochs=1", "updates_per_call=1", TINY_NET),
+    generated_levels=2,
+)
+
+
+def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_variant(
+    tmp_path: Path,
+) -> None:
+    for mode in (rp.QUICK, rp.FULL):
+        for variant in rp.VARIANTS:
+            spec = rp.zoo_spec(mode, variant)
+            path = tmp_path / f"{mode.name}_{variant}.yaml"
+            path.write_text(yaml.safe_dump(spec))
+            plan = plan_zoo(path, tmp_path / f"zoo_{mode.name}_{variant}")  # the spec is valid as it stands
+            by_algo = {run.config.algorithm: run for run in plan}
+            assert set(by_algo) == set(rp.ALGORITHMS)
+            ippo, fcp, cec = by_algo["ippo"], by_algo["fcp"], by_algo["cec"]
+            assert ippo.seeds == mode.seeds["ippo"] and cec.seeds == mode.seeds["cec"]
+            (population,) = fcp.config.partner.population
+            assert Path(population.run) == ippo.run_dir and set(population.seeds) == set(mode.seeds["ippo"])
+            assert ippo.config.checkpoint.milestones == (0.0, 0.5, 1.0)
+            for run in plan:
+                p = run.config.env.dual_destination
+                assert bool(p.partial_obs) == (variant == "partial_obs")
+                assert bool(p.multi_task) == (variant == "multi_task")
+                assert run.config.total_env_steps == mode.steps[variant][run.config.algorithm]
+            multi = variant == "multi_task"
+            assert cec.config.env.levels == ("procedural_multi_task" if multi else "procedural")
+            assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
+    lines = rp.plan_lines(rp.FULL)
+    assert len(lines) == 9 and all(ln.estimate_s > 0 for ln in lines)
+
+
+def test_the_plan_command_prints_every_run_and_the_expected_time(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["reproduce", "dual-destination", "--plan"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("\n") >= 11 and "training total:" in out and "?" not in out.split("training total:")[1]
+    assert main(["reproduce", "dual-destination", "--variants", "nope", "--plan"]) == 2
+    assert "unknown variant" in capsys.readouterr().err
+
+
+def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_path: Path) -> None:
+    log = io.StringIO()
+    report = rp.reproduce_dual_destination(
+        TINY, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log
+    )
+    text = report.read_text()
+    # our numbers beside the paper's, with seeds and pairs
+    rows = [ln for ln in text.splitlines() if ln.startswith("| Fully observable |")]
+    cec_fixed = next(ln for ln in rows if "fixed task | CEC" in ln)
+    assert "0.931 ± 0.013" in cec_fixed and "| 3 (3) |" in cec_fixed
+    assert "0.966" in next(ln for ln in rows if "generated tasks | CEC" in ln)
+    assert "figure only" in next(ln for ln in rows if "fixed task | FCP" in ln)
+    # the orderings with their tests, and the tolerance check of CEC's fully observable scores
+    assert "Welch two-sided t-test" in text
+    orderings = [ln for ln in text.splitlines() if "| CEC > FCP |" in ln or "| FCP > IPPO |" in ln]
+    assert len(orderings) == 3
+    assert "CEC, fully observable, fixed task:" in text and "Machine:" in text
+    assert (tmp_path / "out" / "bars_full_obs.png").stat().st_size > 1000
+
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    claims = summary["claims"]
+    assert {(c["better"], c["worse"], c["level_set"]) for c in claims} == {
+        ("cec", "fcp", "fixed"), ("cec", "ippo", "fixed"), ("fcp", "ippo", "fixed"),
+        ("cec", "fcp", "generated"), ("cec", "ippo", "generated"),
+    }  # fmt: skip
+    for c in claims:  # p is NaN only where both samples are constant (untrained policies may tie)
+        assert math.isnan(c["p"]) or 0.0 <= c["p"] <= 1.0
+        assert c["significant"] == (c["holds"] and not math.isnan(c["p"]) and c["p"] < rp.ALPHA)
+
+    # the numbers come from the result table written beside the zoo
+    table = read_csv(tmp_path / "work" / "full_obs" / "results.csv")
+    sp = (table.policy_a == rp.ORACLE) & (table.policy_b == rp.ORACLE)
+    assert len(table.returns[sp]) == 2 * 1 + 2 * 1  # 2 episodes on the fixed task, 1 on each of 2 generated
+    fixed = sp & (table.level == "fixed")
+    assert np.all(table.returns[fixed] == dd.oracle_return(dd.fixed_level()))
+    xp = summary["summaries"]["full_obs"]["fixed"]["xp"]["cec"]
+    pairs = (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
+    assert xp["n"] == 3 and xp["n_seeds"] == 3
+    assert xp["mean"] == pytest.approx(table.returns[pairs & (table.level == "fixed")].mean() / 200)
+
+    # a second run resumes: nothing is trained again
+    log2 = io.StringIO()
+    rp.reproduce_dual_destination(
+        TINY, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log2
+    )
+    assert log2.getvalue().count("finished, skipping") == 3
+
+
+def _score(mean: float, n_seeds: int = 4, spread: float = 0.01) -> rp.Score:
+    samples = tuple(mean + spread * np.linspace(-1, 1, n_seeds * (n_seeds - 1) // 2))
+    err = float(np.std(samples, ddof=1) / math.sqrt(len(samples)))
+    return rp.Score(float(np.mean(samples)), err, n_seeds, len(samples), samples)
+
+
+def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings(tmp_path: Path) -> None:
+    fixed = {"cec": _score(0.94), "fcp": _score(0.60), "ippo": _score(0.70)}
+    generated = {"cec": _score(0.80), "fcp": _score(0.0), "ippo": _score(0.0)}
+    summaries = {
+        "full_obs": {
+            "fixed": {"xp": fixed, "sp": {}, "oracle": {}},
+            "generated": {"xp": generated, "sp": {}, "oracle": {}},
+        }
+    }
+    meta = {
+        "command": "cec reproduce dual-destination",
+        "date": "2026-01-01",
+        "git": "abc",
+        "machine": {"cpu": "CPU", "cpu_count": 2, "device": "cpu:cpu", "host": "h", "jax": "0"},
+        "wall_s": 60.0,
+        "train_s": 50.0,
+        "eval_s": 10.0,
+        "why": "Why: a test.",
+    }
+    text = rp.write_report(tmp_path, rp.FULL, summaries, meta).read_text()
+    assert "CEC, fully observable, fixed task: 0.940 vs the paper's 0.931: within 0.05." in text
+    assert "generated tasks: 0.800 vs the paper's 0.966: **not within** (by 0.166)" in text
+    assert "- Fully observable, held-out generated tasks, CEC: 0.800 vs 0.966 (-0.166)." in text
+    assert "Why: a test." in text
+    fcp_ippo = next(ln for ln in text.splitlines() if "fixed task | FCP > IPPO |" in ln)
+    assert "| **no** | no |" in fcp_ippo  # the paper's FCP > IPPO does not hold here
+    cec_fcp = next(ln for ln in text.splitlines() if "fixed task | CEC > FCP |" in ln)
+    assert cec_fcp.endswith("| yes | yes |")
+    assert "4 of 5 orderings hold, 4 of them significantly." in text
