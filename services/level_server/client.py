@@ -42,7 +42,16 @@ MAX_MESSAGE_BYTES = 128 * 1024 * 1024
 
 
 def _channel(address: str, root_cert: str | None) -> grpc.Channel:
-    options = [("grpc.max_receive_message_length", MAX_MESSAGE_BYTES)]
+    # Each client owns its connection state: with gRPC's process-wide subchannel pool, a new client (or a
+    # reconnecting stream) to a server that was down inherits the old connection's reconnect backoff (up to
+    # 2 minutes) and fails fast with the stale "connection refused". The backoff is capped at 5 s, like the
+    # stream buffer's own.
+    options = [
+        ("grpc.max_receive_message_length", MAX_MESSAGE_BYTES),
+        ("grpc.use_local_subchannel_pool", 1),
+        ("grpc.initial_reconnect_backoff_ms", 100),
+        ("grpc.max_reconnect_backoff_ms", 5000),
+    ]
     if root_cert is None:
         return grpc.insecure_channel(address, options=options)
     creds = grpc.ssl_channel_credentials(root_certificates=Path(root_cert).read_bytes())
