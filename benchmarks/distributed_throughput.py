@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import statistics
 import sys
 import tempfile
@@ -51,6 +50,7 @@ def main() -> int:
 
     from cec import metrics as M  # noqa: N812
     from cec.config import load_config
+    from cec.machine import machine_info
     from cec.training.config import TrainConfig
     from cec.training.trainer import Trainer, config_dict, train
     from services.learner.learner import Learner
@@ -68,7 +68,7 @@ def main() -> int:
         "num_envs": probe.num_envs,
         "num_steps": probe.num_steps,
         "updates": args.updates,
-        "machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
+        "machine": machine_info(load_average=True),
         "raw_obs_bytes_per_agent_step": obs_bytes,
         "runs": [],
     }

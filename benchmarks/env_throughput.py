@@ -17,8 +17,6 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
-import os
-import platform
 import statistics
 import subprocess
 import sys
@@ -154,21 +152,9 @@ def measure(
 
 
 def machine() -> dict[str, Any]:
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    dev = jax.devices()[0]
-    return {
-        "host": platform.node(),
-        "cpu": cpu,
-        "cpu_count": os.cpu_count(),
-        "device": f"{dev.platform}:{getattr(dev, 'device_kind', '')}",
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-    }
+    from cec.machine import machine_info
+
+    return machine_info()
 
 
 def git_rev() -> str:

@@ -30,8 +30,6 @@ import argparse
 import datetime
 import json
 import math
-import os
-import platform
 import subprocess
 import sys
 import time
@@ -44,6 +42,7 @@ import numpy as np
 import yaml
 
 from cec.config import ConfigError
+from cec.machine import machine_info as _machine_info
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = ("full_obs", "partial_obs", "multi_task")
@@ -490,28 +489,7 @@ def check_claims(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -
 
 def machine_info() -> dict[str, Any]:
     """The machine the command ran on: host, CPU model, cores, JAX device, load average."""
-    import jax
-
-    cpu = platform.processor() or ""
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), cpu)
-    except OSError:
-        pass
-    dev = jax.devices()[0]
-    try:
-        load = [round(x, 2) for x in os.getloadavg()]
-    except OSError:
-        load = []
-    return {
-        "host": platform.node(),
-        "cpu": cpu,
-        "cpu_count": os.cpu_count(),
-        "device": f"{dev.platform}:{getattr(dev, 'device_kind', '')}",
-        "load_average_1_5_15min": load,
-        "python": platform.python_version(),
-        "jax": jax.__version__,
-    }
+    return _machine_info(load_average=True)
 
 
 def git_rev() -> str:
