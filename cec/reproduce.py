@@ -1,8 +1,9 @@
-"""`cec reproduce dual-destination [--quick]`: the paper's Dual Destination results, end to end.
+"""`cec reproduce dual-destination [--quick | --paper]`: the paper's Dual Destination results, end to end.
 
     cec reproduce dual-destination --plan      # what would be trained and evaluated, and how long it takes
     cec reproduce dual-destination --quick     # a reduced version (under 30 minutes on a 2-core CPU)
-    cec reproduce dual-destination             # the full version (a GPU job; --plan states its time)
+    cec reproduce dual-destination             # the full version, sized for a CPU (--plan states its time)
+    cec reproduce dual-destination --paper     # the paper's networks and budgets (a GPU job)
 
 For each variant of the game (fully observable, partially observable 3x3 view, multi-task green + pink):
 
@@ -182,6 +183,21 @@ QUICK = Mode(
 FULL = Mode(
     name="full",
     presets={
+        "ippo": "configs/train/dd_ippo_cpu.yaml",
+        "fcp": "configs/train/dd_fcp_cpu.yaml",
+        "cec": "configs/train/dd_cec_cpu.yaml",
+    },
+    seeds={"ippo": (0, 1, 2, 3, 4, 5), "fcp": (100, 101, 102, 103), "cec": (200, 201, 202, 203)},
+    steps={v: {"ippo": 512_000, "fcp": 512_000, "cec": 2_048_000} for v in VARIANTS},
+    episodes={"fixed": 16, "generated": 2},
+    # `cec train` with each preset, one seed, on the idle machine (CEC: 4.8k env steps/s)
+    seconds_per_update={"ippo": 2.7, "fcp": 3.0, "cec": 2.7},
+    measured_on="the project's 2-core AMD EPYC CPU (no GPU), one seed, 2026-11-21",
+)
+
+PAPER_SCALE = Mode(
+    name="paper",
+    presets={
         "ippo": "configs/train/dd_ippo.yaml",
         "fcp": "configs/train/dd_fcp.yaml",
         "cec": "configs/train/dd_cec.yaml",
@@ -199,7 +215,7 @@ FULL = Mode(
     "2026-11-21",
 )
 
-MODES = {"quick": QUICK, "full": FULL}
+MODES = {"quick": QUICK, "full": FULL, "paper": PAPER_SCALE}
 
 
 def _variant_overrides(variant: str, algorithm: str) -> list[str]:
@@ -343,6 +359,39 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
                 f"{LEVEL_SET_TITLES[level_set]}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s",
             )
     return EpisodeTable.concat(tables)
+
+
+def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
+    """What a variant's results depend on: the evaluation settings and every zoo entry (its checkpoint and
+    the state's SHA-256 that `cec zoo build` pinned)."""
+    from cec.evaluation.zoo import load_zoo
+
+    entries = [[e.name, e.seed, str(e.checkpoint), e.sha256] for e in load_zoo(manifest)]
+    return {
+        "variant": variant,
+        "episodes": mode.episodes,
+        "generated_levels": mode.generated_levels,
+        "zoo": sorted(entries, key=str),
+    }
+
+
+def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> Any:
+    """`evaluate_variant`, or the table an earlier invocation wrote (`vdir/results.csv`) when nothing it
+    depends on has changed (`evaluation_key`, stored beside it); a run interrupted during evaluation
+    plays it again."""
+    from cec.evaluation.results import read_csv, write_csv
+
+    results, key_file = vdir / "results.csv", vdir / "results.key.json"
+    key = json.loads(json.dumps(evaluation_key(mode, variant, manifest)))
+    if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
+        _log(log, f"{variant}: cross-play results found ({results}); not played again")
+        return read_csv(results)
+    _log(log, f"{variant}: cross-play")
+    key_file.unlink(missing_ok=True)
+    table = evaluate_variant(mode, variant, manifest, log=log)
+    write_csv(table, results)
+    key_file.write_text(json.dumps(key, indent=1) + "\n")
+    return table
 
 
 @dataclass(frozen=True)
@@ -801,8 +850,6 @@ def reproduce_dual_destination(
     command: str = "",
 ) -> Path:
     """Trains, evaluates and reports (see the module docstring); returns the report's path."""
-    from cec.evaluation.results import write_csv
-
     t_start = time.perf_counter()
     load_start = machine_info()["load_average_1_5_15min"]
     stages: dict[str, float] = {}
@@ -818,9 +865,7 @@ def reproduce_dual_destination(
         stages[f"{variant}: train"] = time.perf_counter() - t0
         train_s += stages[f"{variant}: train"]
         t0 = time.perf_counter()
-        _log(log, f"{variant}: cross-play")
-        table = evaluate_variant(mode, variant, manifest, log=log)
-        write_csv(table, work / variant / "results.csv")
+        table = cached_evaluation(mode, variant, manifest, work / variant, log=log)
         summaries[variant] = summarise(table, variant)
         trained[variant] = {a: t.__dict__ for a, t in training_stats(manifest.parent).items()}
         stages[f"{variant}: evaluate"] = time.perf_counter() - t0
@@ -828,7 +873,7 @@ def reproduce_dual_destination(
     machine = machine_info()
     machine["load_average_start"] = load_start
     meta = {
-        "command": command or f"cec reproduce dual-destination{' --quick' if mode.name == 'quick' else ''}",
+        "command": command or command_of(mode),
         "date": datetime.date.today().isoformat(),
         "git": git_rev(),
         "machine": machine,
@@ -843,6 +888,11 @@ def reproduce_dual_destination(
     path = write_report(out, mode, summaries, meta)
     _log(log, f"wrote {path}")
     return path
+
+
+def command_of(mode: Mode) -> str:
+    """The command line that runs `mode` (the full version has no flag)."""
+    return "cec reproduce dual-destination" + ("" if mode.name == "full" else f" --{mode.name}")
 
 
 def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file: TextIO) -> None:
@@ -880,7 +930,9 @@ def _duration(s: float) -> str:
 
 
 def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
-    mode = QUICK if args.quick else FULL
+    if args.quick and args.paper:
+        raise ConfigError("--quick and --paper are two versions: give one of them, or neither (the full one)")
+    mode = QUICK if args.quick else PAPER_SCALE if args.paper else FULL
     work = Path(args.work or ROOT / "runs" / "reproduce" / f"dual_destination-{mode.name}")
     out = Path(args.out or ROOT / "benchmarks" / "results" / "dual_destination" / mode.name)
     variants = tuple(args.variants.split(",")) if args.variants else mode.variants
@@ -890,7 +942,7 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     if args.plan:
         _print_plan(mode, variants, work, out, sys.stdout)
         return 0
-    command = "cec reproduce dual-destination" + (" --quick" if args.quick else "")
+    command = command_of(mode)
     command += f" --variants {','.join(variants)}" if args.variants else ""
     command += "".join(f" --{k} {getattr(args, k)}" for k in ("work", "out") if getattr(args, k))
     path = reproduce_dual_destination(
@@ -910,6 +962,11 @@ def add_subcommands(sub: Any) -> None:
     )
     dd.add_argument(
         "--quick", action="store_true", help="the reduced version (under 30 minutes on a 2-core CPU)"
+    )
+    dd.add_argument(
+        "--paper",
+        action="store_true",
+        help="the paper's networks and budgets (1e8-3e8 steps per seed: a GPU job; see --plan)",
     )
     dd.add_argument(
         "--plan", action="store_true", help="print what would run and its expected time, then exit"

@@ -35,7 +35,7 @@ TINY = rp.Mode(
 def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_variant(
     tmp_path: Path,
 ) -> None:
-    for mode in (rp.QUICK, rp.FULL):
+    for mode in (rp.QUICK, rp.FULL, rp.PAPER_SCALE):
         for variant in rp.VARIANTS:
             spec = rp.zoo_spec(mode, variant)
             path = tmp_path / f"{mode.name}_{variant}.yaml"
@@ -56,14 +56,17 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
             multi = variant == "multi_task"
             assert cec.config.env.levels == ("procedural_multi_task" if multi else "procedural")
             assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
-    lines = rp.plan_lines(rp.FULL)
-    assert len(lines) == 9 and all(ln.estimate_s > 0 for ln in lines)
+    for mode in (rp.FULL, rp.PAPER_SCALE):
+        lines = rp.plan_lines(mode)
+        assert len(lines) == 9 and all(ln.estimate_s > 0 for ln in lines)
 
 
 def test_the_plan_command_prints_every_run_and_the_expected_time(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["reproduce", "dual-destination", "--plan"]) == 0
     out = capsys.readouterr().out
     assert out.count("\n") >= 11 and "training total:" in out and "?" not in out.split("training total:")[1]
+    assert main(["reproduce", "dual-destination", "--paper", "--plan"]) == 0
+    assert "(paper)" in capsys.readouterr().out
     assert main(["reproduce", "dual-destination", "--variants", "nope", "--plan"]) == 2
     assert "unknown variant" in capsys.readouterr().err
 
@@ -108,12 +111,26 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
     assert xp["n"] == 3 and xp["n_seeds"] == 3
     assert xp["mean"] == pytest.approx(table.returns[pairs & (table.level == "fixed")].mean() / 200)
 
-    # a second run resumes: nothing is trained again
+    # a second run resumes: nothing is trained or played again, and the report is the same
     log2 = io.StringIO()
-    rp.reproduce_dual_destination(
+    again = rp.reproduce_dual_destination(
         TINY, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log2
     )
     assert log2.getvalue().count("finished, skipping") == 3
+    assert "cross-play results found" in log2.getvalue()
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["summaries"] == summary["summaries"]
+    assert again == report
+
+    # evaluated with other settings, the variant is played again
+    log3 = io.StringIO()
+    more = rp.Mode(**{**TINY.__dict__, "episodes": {"fixed": 3, "generated": 1}})
+    rp.reproduce_dual_destination(
+        more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log3
+    )
+    assert "cross-play results found" not in log3.getvalue()
+    table = read_csv(tmp_path / "work" / "full_obs" / "results.csv")
+    sp = (table.policy_a == rp.ORACLE) & (table.policy_b == rp.ORACLE)
+    assert len(table.returns[sp]) == 3 * 1 + 1 * 2  # now 3 episodes on the fixed task
 
 
 def _score(mean: float, n_seeds: int = 4, spread: float = 0.01) -> rp.Score:
