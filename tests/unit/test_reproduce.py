@@ -145,8 +145,15 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     summaries = {
         "full_obs": {
             "fixed": {"xp": fixed, "sp": {}, "oracle": {}},
-            "generated": {"xp": generated, "sp": {}, "oracle": {}},
-        }
+            "generated": {"xp": generated, "sp": {"cec": _score(0.95)}, "oracle": {"cec": _score(0.9)}},
+        },
+        "partial_obs": {  # CEC learned (SP) but its seeds do not agree; FCP did not learn at all
+            "generated": {
+                "xp": {"cec": _score(0.5), "fcp": _score(0.2), "ippo": _score(0.0)},
+                "sp": {"cec": _score(0.9), "fcp": _score(0.25)},
+                "oracle": {},
+            },
+        },
     }
     meta = {
         "command": "cec reproduce dual-destination",
@@ -161,10 +168,17 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     text = rp.write_report(tmp_path, rp.FULL, summaries, meta).read_text()
     assert "CEC, fully observable, fixed task: 0.940 vs the paper's 0.931: within 0.05." in text
     assert "generated tasks: 0.800 vs the paper's 0.966: **not within** (by 0.166)" in text
-    assert "- Fully observable, held-out generated tasks, CEC: 0.800 vs 0.966 (-0.166)." in text
+    line = next(ln for ln in text.splitlines() if ln.startswith("- Fully observable, held-out generated"))
+    assert line.startswith("- Fully observable, held-out generated tasks, CEC: 0.800 vs 0.966 (-0.166).")
+    assert "(SP) its seeds score 0.950 and with the oracle partner 0.900" in line
+    assert "conventions that do not match across seeds" in line
+    cec_po = next(ln for ln in text.splitlines() if ln.startswith("- Partially observable") and "CEC" in ln)
+    assert "conventions that do not match" in cec_po
+    fcp_po = next(ln for ln in text.splitlines() if ln.startswith("- Partially observable") and "FCP" in ln)
+    assert "has not learned the task set" in fcp_po
     assert "Why: a test." in text
     fcp_ippo = next(ln for ln in text.splitlines() if "fixed task | FCP > IPPO |" in ln)
     assert "| **no** | no |" in fcp_ippo  # the paper's FCP > IPPO does not hold here
     cec_fcp = next(ln for ln in text.splitlines() if "fixed task | CEC > FCP |" in ln)
     assert cec_fcp.endswith("| yes | yes |")
-    assert "4 of 5 orderings hold, 4 of them significantly." in text
+    assert "7 of 8 orderings hold, 7 of them significantly." in text
