@@ -692,6 +692,11 @@ def write_report(
     held = sum(c.holds for c in claims)
     sig = sum(c.significant for c in claims)
     md.append(f"{held} of {len(claims)} orderings hold, {sig} of them significantly.\n")
+    failed = [ordering_reason(c, summaries[c.variant][c.level_set]) for c in claims if not c.holds]
+    if failed:
+        md.append("Where an ordering does not hold, what the same seeds' self-play (SP) shows:\n")
+        md.extend(failed)
+        md.append("")
     cec_full = [
         (
             ls,
@@ -848,6 +853,31 @@ def difference_reason(xp: Score, paper: float, sp: Score | None, oracle: Score |
     if xp.mean > paper:
         return said + ("ours is higher: these seeds coordinate with each other better than the paper's did.")
     return said + "the seeds play well with themselves and each other but below the paper's value."
+
+
+def ordering_reason(claim: ClaimResult, kinds: dict[str, dict[str, Score]]) -> str:
+    """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
+    as well as with itself (the coordination failure the ordering rests on did not occur) and whether
+    `better` learned the task as well as `worse` did (SP)."""
+    xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
+    b, w = claim.better, claim.worse
+    head = (
+        f"- {VARIANT_TITLES[claim.variant]}, {LEVEL_SET_TITLES[claim.level_set]}, {b.upper()} > {w.upper()}: "
+    )
+    if b not in sp or w not in sp:
+        return head + "no self-play scores to compare."
+    parts = [
+        f"{w.upper()} XP {xp[w].mean:.3f} vs SP {sp[w].mean:.3f}, {b.upper()} XP {xp[b].mean:.3f} vs SP "
+        f"{sp[b].mean:.3f}"
+    ]
+    if sp[w].mean - xp[w].mean <= CONVENTION_GAP:
+        parts.append(
+            f"{w.upper()}'s seeds coordinate with each other about as well as with themselves, so the "
+            "failure with unseen partners that the paper's ordering rests on did not occur"
+        )
+    if sp[b].mean < sp[w].mean - TOLERANCE:
+        parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
+    return head + "; ".join(parts) + "."
 
 
 def _default_why(mode: Mode) -> str:

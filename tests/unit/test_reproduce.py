@@ -144,7 +144,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     generated = {"cec": _score(0.80), "fcp": _score(0.0), "ippo": _score(0.0)}
     summaries = {
         "full_obs": {
-            "fixed": {"xp": fixed, "sp": {}, "oracle": {}},
+            "fixed": {"xp": fixed, "sp": {"fcp": _score(0.62), "ippo": _score(0.72)}, "oracle": {}},
             "generated": {"xp": generated, "sp": {"cec": _score(0.95)}, "oracle": {"cec": _score(0.9)}},
         },
         "partial_obs": {  # CEC learned (SP) but its seeds do not agree; FCP did not learn at all
@@ -179,6 +179,12 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "Why: a test." in text
     fcp_ippo = next(ln for ln in text.splitlines() if "fixed task | FCP > IPPO |" in ln)
     assert "| **no** | no |" in fcp_ippo  # the paper's FCP > IPPO does not hold here
+    assert "- Fully observable, fixed task, FCP > IPPO: IPPO XP 0.700 vs SP" in text
     cec_fcp = next(ln for ln in text.splitlines() if "fixed task | CEC > FCP |" in ln)
     assert cec_fcp.endswith("| yes | yes |")
     assert "7 of 8 orderings hold, 7 of them significantly." in text
+    reason = next(
+        ln for ln in text.splitlines() if ln.startswith("- Fully observable, fixed task, FCP > IPPO")
+    )
+    assert "IPPO's seeds coordinate with each other about as well as with themselves" in reason
+    assert "FCP also plays the task less well with itself than IPPO does" in reason
