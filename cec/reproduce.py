@@ -190,7 +190,9 @@ FULL = Mode(
     seeds={"ippo": (0, 1, 2, 3, 4, 5), "fcp": (100, 101, 102, 103), "cec": (200, 201, 202, 203)},
     steps={v: {"ippo": 512_000, "fcp": 512_000, "cec": 2_048_000} for v in VARIANTS},
     episodes={"fixed": 16, "generated": 2},
-    # `cec train` with each preset, one seed, on the idle machine (CEC: 4.8k env steps/s)
+    # CEC measured with `cec train`, one seed alone on the idle machine (4.8k env steps/s); IPPO has the same
+    # network and cost, FCP ~10% more for its partners' forward passes (estimates; in the full run, sharing
+    # the cores with a second run, IPPO and FCP ran at the same speed, 2.5k env steps/s)
     seconds_per_update={"ippo": 2.7, "fcp": 3.0, "cec": 2.7},
     measured_on="the project's 2-core AMD EPYC CPU (no GPU), one seed, 2026-11-21",
 )
@@ -382,7 +384,7 @@ def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, l
     from cec.evaluation.results import read_csv, write_csv
 
     results, key_file = vdir / "results.csv", vdir / "results.key.json"
-    key = json.loads(json.dumps(evaluation_key(mode, variant, manifest)))
+    key = json.loads(json.dumps(evaluation_key(mode, variant, manifest)))  # as stored: tuples as lists
     if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
         _log(log, f"{variant}: cross-play results found ({results}); not played again")
         return read_csv(results)
@@ -863,7 +865,7 @@ def difference_reason(
             "task set to the paper's level (see the Training section)."
         )
     if xp.mean > paper:
-        return said + ("ours is higher: these seeds coordinate with each other better than the paper's did.")
+        return said + "ours is higher: these seeds coordinate with each other better than the paper's did."
     return said + "the seeds play well with themselves and each other but below the paper's value."
 
 
