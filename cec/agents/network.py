@@ -42,6 +42,13 @@ class NetworkConfig:
         partner_history: E3T's partner-modelling module (0: none): from the core's features and the
             partner's last `partner_history` actions it predicts the partner's next action; the predicted
             distribution is appended to the actor's input, and an auxiliary loss trains the prediction.
+        egocentric: re-centre each observation on the seat's own cell before the encoder
+            (`egocentric_view`; channel 0 must mark that cell, as in Overcooked). An allocentric encoder
+            must learn every kitchen position separately; centred, what is next to the agent is the same
+            input wherever the agent stands, which is what transfers across kitchens.
+        cell_features: width of a per-cell embedding (one dense layer on each cell's channels, shared by
+            all cells, i.e. a 1x1 convolution) before the convolutions (0: none). Shrinks the flattened
+            input of the first dense layer, which dominates the cost of an MLP encoder.
     """
 
     conv_features: tuple[int, ...] = (64, 32)
@@ -50,12 +57,14 @@ class NetworkConfig:
     actor_features: tuple[int, ...] = (256, 192, 128, 64)
     critic_features: tuple[int, ...] = (512, 256, 192, 128)
     partner_history: int = 0
+    egocentric: bool = False
+    cell_features: int = 0
 
     def __post_init__(self) -> None:
         if self.partner_history < 0:
             raise ConfigError(f"partner_history must be >= 0, got {self.partner_history}")
         widths = (*self.conv_features, *self.encoder_features, *self.actor_features, *self.critic_features)
-        if any(w <= 0 for w in widths) or self.lstm_features < 0:
+        if any(w <= 0 for w in widths) or self.lstm_features < 0 or self.cell_features < 0:
             raise ConfigError(f"network widths must be positive (lstm_features may be 0), got {self}")
         if self.lstm_features == 0 and not self.encoder_features:
             raise ConfigError("a network without an LSTM needs at least one encoder layer")
@@ -150,6 +159,18 @@ class Conv2x2(nn.Module):
         return patches @ kernel.reshape((-1, self.features)) + bias
 
 
+def egocentric_view(x: jax.Array) -> jax.Array:
+    """[N, H, W, C] grids -> [N, 2H-1, 2W-1, C+1]: each grid shifted so that the cell marked in channel 0
+    is at the centre. The added last channel is 1 on the grid's own cells and 0 on the padding around it,
+    so "outside the frame" differs from an empty cell."""
+    n, h, w, c = x.shape
+    at = jnp.argmax(x[..., 0].reshape(n, h * w), axis=-1)
+    x = jnp.concatenate([x, jnp.ones((n, h, w, 1), x.dtype)], axis=-1)
+    padded = jnp.pad(x, ((0, 0), (h - 1, h - 1), (w - 1, w - 1), (0, 0)))
+    window = lambda grid, r, col: jax.lax.dynamic_slice(grid, (r, col, 0), (2 * h - 1, 2 * w - 1, c + 1))  # noqa: E731
+    return jax.vmap(window)(padded, at // w, at % w)
+
+
 class LSTMCore(nn.Module):
     """An LSTM over time with the state zeroed where `reset` is set (before that step's update).
 
@@ -198,9 +219,14 @@ class ActorCritic(nn.Module):
         """
         cfg = self.config
         t, b = obs.shape[:2]
-        x = obs.reshape((t * b, *obs.shape[2:])).astype(jnp.float32)
+        x = obs.reshape((t * b, *obs.shape[2:]))
+        if cfg.egocentric:
+            x = egocentric_view(x)  # before the cast: the gather moves 4x fewer bytes on uint8
+        x = x.astype(jnp.float32)
 
-        # ENCODER: 2x2 convolutions, flatten, fully connected.
+        # ENCODER: per-cell embedding, 2x2 convolutions, flatten, fully connected.
+        if cfg.cell_features:
+            x = nn.relu(_dense(cfg.cell_features, SQRT2, "cell")(x))
         for i, filters in enumerate(cfg.conv_features):
             x = nn.relu(Conv2x2(filters, name=f"conv{i}")(x))
         x = x.reshape((t * b, -1))

@@ -10,6 +10,8 @@ carry (zeroed at episode starts like an LSTM state), which is widened to hold it
 
     dd_oracle   Dual Destination's oracle partner (`cec.envs.dual_destination.partner`): best response to
                 what the partner has shown, the oracle's joint plan before that
+    cook        Overcooked's scripted cook (`cec.envs.overcooked.scripted.cook_step`): greedy shortest-path
+                cooking from what its observation shows, yielding to its partner, 5% random actions
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import numpy as np
 from cec.agents.network import ActorCritic, LSTMState, network_preset
 from cec.config import ConfigError
 from cec.envs.dual_destination import partner as dd_partner
+from cec.envs.overcooked import scripted as oc_scripted
 from cec.evaluation.zoo import Policy
 from cec.training.tasks import EnvConfig
 
@@ -54,6 +57,12 @@ SCRIPTED: dict[str, ScriptedKind] = {
         dd_partner.MEMORY_SIZE,
         dd_partner.oracle_partner_step,
         "Dual Destination oracle partner: best response to the partner's observed choice",
+    ),
+    "cook": ScriptedKind(
+        "overcooked",
+        oc_scripted.COOK_MEMORY,
+        oc_scripted.cook_step,
+        "Overcooked scripted cook: greedy shortest-path cooking that yields to its partner",
     ),
 }
 

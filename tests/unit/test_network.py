@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cec.agents import ActorCritic, NetworkConfig, init_params, network_preset
-from cec.agents.network import Conv2x2
+from cec.agents.network import Conv2x2, egocentric_view
 from cec.config import ConfigError
 
 
@@ -86,3 +86,41 @@ def test_network_without_lstm_or_cnn_runs():
     assert logits.shape == (4, 2, 5) and values.shape == (4, 2)
     with pytest.raises(ConfigError):
         NetworkConfig(lstm_features=0, encoder_features=())
+
+
+def test_egocentric_view_centres_the_seat_and_marks_the_frame():
+    rng = np.random.default_rng(0)
+    grids = rng.integers(0, 3, (3, 9, 9, 4)).astype(np.uint8)
+    grids[..., 0] = 0
+    cells = [(0, 0), (4, 7), (8, 8)]
+    for g, (r, c) in zip(grids, cells, strict=True):
+        g[r, c, 0] = 1
+    view = np.asarray(egocentric_view(jnp.asarray(grids)))
+    assert view.shape == (3, 17, 17, 5) and view.dtype == np.uint8
+    for g, v, (r, c) in zip(grids, view, cells, strict=True):
+        assert v[8, 8, 0] == 1 and v[..., 0].sum() == 1  # the seat's own cell is the centre
+        # cell (i, j) of the grid appears at (8 + i - r, 8 + j - c); the padding is zeros, frame channel 0
+        np.testing.assert_array_equal(v[8 - r : 17 - r, 8 - c : 17 - c, :4], g)
+        assert v[..., 4].sum() == 81 and v[8 - r : 17 - r, 8 - c : 17 - c, 4].all()
+        assert v[..., :4].sum() == g.sum()
+
+
+def test_egocentric_network_with_a_cell_embedding_runs():
+    cfg = NetworkConfig(
+        conv_features=(),
+        encoder_features=(32,),
+        lstm_features=0,
+        actor_features=(16,),
+        critic_features=(16,),
+        egocentric=True,
+        cell_features=4,
+    )
+    net = ActorCritic(cfg, 6)
+    params = init_params(net, jax.random.PRNGKey(0), (9, 9, 3))
+    assert params["params"]["cell"]["kernel"].shape == (4, 4)  # 3 channels + the frame channel
+    assert params["params"]["fc0"]["kernel"].shape == (17 * 17 * 4, 32)
+    obs = jnp.zeros((2, 3, 9, 9, 3)).at[:, :, 2, 2, 0].set(1)
+    _, logits, values = _run(net, params, obs, jnp.zeros((2, 3), bool))
+    assert logits.shape == (2, 3, 6) and values.shape == (2, 3)
+    with pytest.raises(ConfigError):
+        NetworkConfig(cell_features=-1)
