@@ -1,0 +1,90 @@
+"""Learning curves from run directories: the `metrics.csv` every training run writes, as one PNG.
+
+    plot_learning_curves({"egocentric MLP": "runs/probes/p3"}, "curves.png")
+
+Each panel is one metric against env steps (per seed): the team return and the unscaled shaped return
+per training episode, and the policy entropy. Curves are smoothed with a trailing mean over `smooth`
+updates; the raw rows stay in the run directories.
+"""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+
+import numpy as np
+
+#: (metrics.csv column, panel title)
+PANELS: tuple[tuple[str, str], ...] = (
+    ("mean_return", "team return per training episode"),
+    ("mean_shaped_return", "shaped return per training episode (unscaled)"),
+    ("entropy", "policy entropy"),
+)
+
+
+def read_curve(run_dir: str | Path, column: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """{seed: (env_steps, values)} of one metric of a run directory, in update order."""
+    path = Path(run_dir) / "metrics.csv"
+    if not path.exists():
+        raise FileNotFoundError(f"{path} does not exist: give a training run directory")
+    by_seed: dict[int, list[tuple[float, float]]] = {}
+    with open(path, newline="") as f:
+        for row in csv.DictReader(f):
+            value = row.get(column, "")
+            if value in ("", None):
+                continue
+            by_seed.setdefault(int(row["seed"]), []).append((float(row["env_steps"]), float(value)))
+    return {s: (np.array([x for x, _ in v]), np.array([y for _, y in v])) for s, v in by_seed.items()}
+
+
+def trailing_mean(values: np.ndarray, window: int) -> np.ndarray:
+    """The mean of each value and the `window - 1` before it (fewer at the start)."""
+    if window <= 1 or len(values) == 0:
+        return values
+    sums = np.cumsum(np.insert(values, 0, 0.0))
+    idx = np.arange(1, len(values) + 1)
+    lo = np.maximum(idx - window, 0)
+    return (sums[idx] - sums[lo]) / (idx - lo)
+
+
+def plot_learning_curves(
+    runs: Mapping[str, str | Path],
+    path: str | Path,
+    *,
+    smooth: int = 20,
+    title: str = "",
+    panels: Sequence[tuple[str, str]] = PANELS,
+) -> Path:
+    """One PNG with a panel per metric and a line per (run, seed), labelled by the keys of `runs`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 3.8), squeeze=False)
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, (label, run_dir) in enumerate(runs.items()):
+        color = colors[k % len(colors)]
+        for ax, (column, panel_title) in zip(axes[0], panels, strict=True):
+            for i, (_, (steps, values)) in enumerate(sorted(read_curve(run_dir, column).items())):
+                ax.plot(
+                    steps / 1e6,
+                    trailing_mean(values, smooth),
+                    color=color,
+                    lw=1.2,
+                    alpha=1.0 if i == 0 else 0.6,
+                    label=label if i == 0 else None,
+                )
+            ax.set_title(panel_title, fontsize=9)
+            ax.set_xlabel("env steps per seed (millions)")
+            ax.grid(alpha=0.3)
+    axes[0][0].legend(fontsize=7, loc="upper left")
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    out = Path(path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out
