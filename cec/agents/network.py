@@ -221,7 +221,7 @@ class ActorCritic(nn.Module):
         t, b = obs.shape[:2]
         x = obs.reshape((t * b, *obs.shape[2:]))
         if cfg.egocentric:
-            x = egocentric_view(x)  # before the cast: the gather moves 4x fewer bytes on uint8
+            x = egocentric_view(x)  # on the raw (uint8) observation: 4x fewer bytes to move than float32
         x = x.astype(jnp.float32)
 
         # ENCODER: per-cell embedding, 2x2 convolutions, flatten, fully connected.

@@ -125,6 +125,11 @@ class TrainConfig:
                 f"{sequences} training sequences per update (num_envs x trained seats) must split evenly "
                 f"into ppo.num_minibatches = {self.ppo.num_minibatches}"
             )
+        if self.network_config.egocentric and self.env.name != "overcooked":
+            raise ConfigError(
+                "network_overrides.egocentric centres the view on the cell in channel 0, which is the seat's "
+                f"own cell only in Overcooked; set it to false for {self.env.name}"
+            )
         if self.network not in NETWORK_PRESETS:
             raise ConfigError(
                 f"unknown network preset {self.network!r}; choose one of {sorted(NETWORK_PRESETS)}"

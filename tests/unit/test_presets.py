@@ -48,3 +48,11 @@ def test_every_algorithm_has_presets_on_every_classic_kitchen():
             assert f"{algorithm}_{layout}" in names
     assert {"cec_overcooked", "cec_e3t", "dd_ippo_quick", "dd_fcp_quick", "dd_e3t_quick"} <= names
     assert {load_config(TrainConfig, p).algorithm for p in PRESETS} == set(ALGORITHMS)
+
+
+def test_egocentric_networks_are_refused_outside_overcooked():
+    from cec.config import ConfigError
+
+    assert _load("cec_overcooked_cpu").network_config.egocentric
+    with pytest.raises(ConfigError, match="own cell only in Overcooked"):
+        load_config(TrainConfig, PRESETS[0].parent / "dd_cec_cpu.yaml", ["network_overrides.egocentric=true"])

@@ -190,21 +190,19 @@ def state_from_obs(obs: jax.Array) -> EnvState:
     status = jnp.where(
         o[..., 21] > 0, POT_READY, jnp.where(o[..., 20] > 0, o[..., 20], POT_EMPTY - o[..., 16])
     )
-    flat = jnp.arange(GRID_SIZE * GRID_SIZE)
-    cells = jnp.stack([jnp.argmax(o[..., 0].reshape(-1)), jnp.argmax(o[..., 1].reshape(-1))])
+    cells = jnp.stack([jnp.argmax(o[..., 0].reshape(-1)), jnp.argmax(o[..., 1].reshape(-1))])  # self, other
     pos = jnp.stack([cells // GRID_SIZE, cells % GRID_SIZE], axis=-1).astype(jnp.int32)
-    at = flat[None, :] == cells[:, None]  # (2, 81)
     facing = jnp.stack(
         [jnp.argmax(o[..., 2:6].reshape(-1, 4)[cells[0]]), jnp.argmax(o[..., 6:10].reshape(-1, 4)[cells[1]])]
     ).astype(jnp.int32)
-    held = jnp.sum(jnp.where(at, item.reshape(-1)[None, :], 0), axis=-1).astype(jnp.int32)
+    held = item.reshape(-1)[cells].astype(jnp.int32)
     level = Level(grid, pos, facing, jnp.array([GRID_SIZE, GRID_SIZE], jnp.int32))
     return EnvState(
         level=level,
         agent_pos=pos,
         agent_dir=facing,
         agent_inv=held,
-        items=jnp.where((grid == Tile.COUNTER) & ~seat_here, item, Item.NONE).astype(jnp.uint8),
+        items=jnp.where(grid == Tile.COUNTER, item, Item.NONE).astype(jnp.uint8),
         pot=jnp.where(is_pot, status, 0).astype(jnp.uint8),
         time=jnp.zeros((), jnp.int32),
         episode=jnp.zeros((), jnp.int32),
