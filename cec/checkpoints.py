@@ -104,9 +104,36 @@ def read_meta(path: str | Path) -> dict:
         raise CheckpointError(
             f"checkpoint metadata {meta_file} is corrupt ({err}); use another checkpoint"
         ) from err
+    if not isinstance(meta, dict):
+        raise CheckpointError(f"checkpoint metadata {meta_file} is not a JSON object; use another checkpoint")
     if meta.get("format") != FORMAT:
         raise CheckpointError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+    problem = _meta_problem(meta)
+    if problem:
+        raise CheckpointError(
+            f"checkpoint metadata {meta_file} is corrupt: {problem}; use another checkpoint"
+        )
     return meta
+
+
+MAX_COUNT = 10**15  # no run takes this many updates or env steps: a larger count is corruption
+
+
+def _meta_problem(meta: dict) -> str | None:
+    """What is wrong with the fields `save` writes, or None."""
+    digest = meta.get("sha256")
+    if not isinstance(digest, str) or len(digest) != 64 or any(c not in "0123456789abcdef" for c in digest):
+        return f"sha256 must be 64 lowercase hex digits, got {str(digest)[:80]!r}"
+    for key in ("update", "env_steps"):
+        value = meta.get(key)
+        if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_COUNT:
+            return f"{key} must be an integer in [0, {MAX_COUNT}], got {str(value)[:80]!r}"
+    if not isinstance(meta.get("milestone"), bool):
+        return f"milestone must be true or false, got {str(meta.get('milestone'))[:80]!r}"
+    for key in ("config", "metadata"):
+        if not isinstance(meta.get(key), dict):
+            return f"{key} must be a JSON object, got {type(meta.get(key)).__name__}"
+    return None
 
 
 def load(path: str | Path, template: T) -> tuple[T, dict]:

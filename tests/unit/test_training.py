@@ -136,6 +136,36 @@ def test_corrupt_or_mismatched_checkpoints_are_refused(tmp_path):
         checkpoints.load(corrupt, template)
 
 
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda m: [m],  # a list
+        lambda m: "update 3",  # a string
+        lambda m: {k: v for k, v in m.items() if k != "sha256"},
+        lambda m: {**m, "sha256": None},
+        lambda m: {**m, "sha256": "ab" * 20},
+        lambda m: {**m, "update": None},
+        lambda m: {**m, "update": 10**30},
+        lambda m: {**m, "update": -1},
+        lambda m: {**m, "update": True},
+        lambda m: {**m, "env_steps": 1.5},
+        lambda m: {**m, "milestone": "yes"},
+        lambda m: {k: v for k, v in m.items() if k != "config"},
+        lambda m: {**m, "metadata": None},
+    ],
+)
+def test_malformed_checkpoint_metadata_is_refused_with_its_cause(tmp_path, change):
+    state = {"w": np.arange(3, dtype=np.float32)}
+    store = checkpoints.CheckpointStore(tmp_path, keep_last=1)
+    path = checkpoints.save(store.path(3), state, update=3, env_steps=30, config={}, metadata={})
+    assert [c.update for c in store.list()] == [3]
+    meta = json.loads((path / "meta.json").read_text())
+    (path / "meta.json").write_text(json.dumps(change(meta)))
+    with pytest.raises(checkpoints.CheckpointError, match="meta.json|format"):
+        checkpoints.load(path, state)
+    assert store.list() == []  # never offered as a checkpoint to resume from
+
+
 def test_resume_refuses_a_changed_config(tmp_path):
     train(_config(tmp_path, total_env_steps=4 * 12), progress=False)
     with pytest.raises(checkpoints.CheckpointError, match="different config"):
