@@ -96,6 +96,11 @@ class TrainConfig:
     name: str = ""
 
     def __post_init__(self) -> None:
+        if self.name and (self.name in (".", "..") or any(c in self.name for c in "/\\\0")):
+            raise ConfigError(
+                f"name {self.name!r} must be a plain directory name (no path separators or '..'); "
+                "put the folder in run_dir instead"
+            )
         if self.algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm {self.algorithm!r} is unknown; choose one of {list(ALGORITHMS)}")
         kind, procedural = ALGORITHMS[self.algorithm]

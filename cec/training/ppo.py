@@ -65,6 +65,12 @@ class PPOConfig:
             raise ConfigError(f"ppo: lr must be > 0 and update_epochs, num_minibatches >= 1 (got {self})")
         if not (0 < self.gamma <= 1 and 0 <= self.gae_lambda <= 1 and self.clip_eps > 0):
             raise ConfigError("ppo: need 0 < gamma <= 1, 0 <= gae_lambda <= 1 and clip_eps > 0")
+        if self.max_grad_norm <= 0 or min(self.ent_coef, self.vf_coef, self.partner_coef, self.adam_eps) < 0:
+            raise ConfigError(
+                "ppo: need max_grad_norm > 0 and ent_coef, vf_coef, partner_coef, adam_eps >= 0 "
+                f"(got max_grad_norm={self.max_grad_norm}, ent_coef={self.ent_coef}, vf_coef={self.vf_coef}, "
+                f"partner_coef={self.partner_coef}, adam_eps={self.adam_eps})"
+            )
 
 
 class Batch(NamedTuple):

@@ -57,3 +57,37 @@ def test_bad_files(tmp_path: Path) -> None:
     (tmp_path / "broken.yaml").write_text("max_steps: [1,\n")
     with pytest.raises(ConfigError, match="not valid YAML"):
         load_config(EnvParams, tmp_path / "broken.yaml")
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        (["num_envs=["], "override 'num_envs=\\[': the value is not valid YAML"),
+        (["ppo.lr=.nan"], "ppo.lr must be a finite number"),
+        (["ppo.lr=.inf"], "ppo.lr must be a finite number"),
+        (["env.overcooked.delivery_reward=-.inf"], "delivery_reward must be a finite number"),
+        (["ppo.max_grad_norm=-1"], "need max_grad_norm > 0"),
+        (["ppo.ent_coef=-0.1"], "ent_coef, vf_coef, partner_coef, adam_eps >= 0"),
+        (["name=../../etc"], "must be a plain directory name"),
+        (["name=runs/x"], "must be a plain directory name"),
+        (["name=.."], "must be a plain directory name"),
+    ],
+)
+def test_training_values_that_would_be_silently_wrong_are_refused(overrides: list[str], message: str) -> None:
+    from cec.training.config import TrainConfig
+
+    with pytest.raises(ConfigError, match=message):
+        load_config(TrainConfig, None, ["algorithm=ippo", "env.levels=cramped_room", *overrides])
+
+
+def test_a_key_given_twice_in_a_file_is_refused(tmp_path: Path) -> None:
+    path = tmp_path / "twice.yaml"
+    path.write_text("max_steps: 100\ndelivery_reward: 20\nmax_steps: 400\n")
+    with pytest.raises(ConfigError, match="key 'max_steps' is given twice \\(line 3\\)"):
+        load_config(EnvParams, path)
+    nested = tmp_path / "nested.yaml"
+    nested.write_text("env:\n  overcooked:\n    max_steps: 100\n    max_steps: 400\n")
+    from cec.training.config import TrainConfig
+
+    with pytest.raises(ConfigError, match="given twice"):
+        load_config(TrainConfig, nested)
