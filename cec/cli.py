@@ -34,6 +34,7 @@ from cec.levels import Level, LevelError, from_ascii
 
 if TYPE_CHECKING:
     from cec.envs.overcooked import EnvParams
+    from cec.training.config import TrainConfig
 
 log = logging.getLogger("cec")
 
@@ -226,7 +227,7 @@ def _cmd_train(args: argparse.Namespace) -> int:
         config_file = Path(args.resume) / "config.yaml"
         if not config_file.is_file():
             raise CheckpointError(f"{args.resume} is not a run directory (no config.yaml)")
-        config = load_config(TrainConfig, config_file)
+        config = _at_run_directory(load_config(TrainConfig, config_file), Path(args.resume))
     else:
         if not args.config:
             raise ConfigError("give --config configs/train/<preset>.yaml (or --resume RUN_DIR)")
@@ -235,6 +236,20 @@ def _cmd_train(args: argparse.Namespace) -> int:
     state = "interrupted" if result.interrupted else "finished"
     print(f"{state} after {result.updates_done} updates; run directory: {result.run_dir}")
     return 130 if result.interrupted else 0
+
+
+def _at_run_directory(config: TrainConfig, run_dir: Path) -> TrainConfig:
+    """`config` re-pointed at `run_dir` when the run was moved or copied there (its config.yaml names the
+    place it was started in): resuming continues the run found at `run_dir`, never a run elsewhere."""
+    import dataclasses
+
+    if (Path(config.run_dir) / config.run_name).resolve() == run_dir.resolve():
+        return config
+    print(
+        f"{run_dir} was started as {Path(config.run_dir) / config.run_name}; continuing it where it is now",
+        file=sys.stderr,
+    )
+    return dataclasses.replace(config, run_dir=str(run_dir.parent), name=run_dir.name)
 
 
 def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -> int:

@@ -263,6 +263,11 @@ class RunResult(NamedTuple):
     interrupted: bool
 
 
+def _what_it_trains(config: dict) -> dict:
+    """A config dict without where the run lives (`run_dir`, `name`): a moved run is the same run."""
+    return {k: v for k, v in config.items() if k not in ("run_dir", "name")}
+
+
 def config_dict(config: TrainConfig) -> dict:
     """The config as plain data (YAML/JSON-safe; tuples become lists)."""
     return json.loads(json.dumps(dataclasses.asdict(config)))
@@ -438,7 +443,7 @@ class RunFiles:
             )
             return None, 0
         state, meta = checkpoints.load(latest.path, template)
-        if meta["config"] != config_dict(self.config):
+        if _what_it_trains(meta["config"]) != _what_it_trains(config_dict(self.config)):
             raise checkpoints.CheckpointError(
                 f"checkpoint {latest.path} was written with a different config; resume with the run's own "
                 f"config ({self.run_dir / 'config.yaml'}) and no overrides"

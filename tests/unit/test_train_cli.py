@@ -70,3 +70,23 @@ def test_a_signal_saves_a_checkpoint_and_resume_finishes(tmp_path, sig):
     assert f"resuming {run} from update {stopped_at}" in err and "finished after 400 updates" in out
     updates = [json.loads(line)["update"] for line in (run / "metrics.jsonl").read_text().splitlines()]
     assert updates == list(range(1, 401))
+
+
+def test_resume_continues_a_moved_run_where_it_lies(tmp_path):
+    cfg = tmp_path / "quick.yaml"
+    cfg.write_text(yaml.safe_dump({**QUICK, "total_env_steps": 4 * 8 * 6, "run_dir": str(tmp_path / "runs")}))
+    proc = _cec("train", "--config", str(cfg), "--max-updates", "3", "--quiet")
+    _, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    moved = tmp_path / "elsewhere" / "moved"
+    moved.parent.mkdir()
+    (tmp_path / "runs" / "cli").rename(moved)
+
+    proc = _cec("train", "--resume", str(moved), "--quiet")
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert "continuing it where it is now" in err and f"resuming {moved} from update 3" in err
+    assert "finished after 6 updates" in out
+    assert not (tmp_path / "runs" / "cli").exists()  # nothing started at the old location
+    updates = [json.loads(line)["update"] for line in (moved / "metrics.jsonl").read_text().splitlines()]
+    assert updates == list(range(1, 7))
