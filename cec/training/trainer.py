@@ -263,7 +263,7 @@ class RunResult(NamedTuple):
     interrupted: bool
 
 
-def _what_it_trains(config: dict) -> dict:
+def training_content(config: dict) -> dict:
     """A config dict without where the run lives (`run_dir`, `name`): a moved run is the same run."""
     return {k: v for k, v in config.items() if k not in ("run_dir", "name")}
 
@@ -443,7 +443,7 @@ class RunFiles:
             )
             return None, 0
         state, meta = checkpoints.load(latest.path, template)
-        if _what_it_trains(meta["config"]) != _what_it_trains(config_dict(self.config)):
+        if training_content(meta["config"]) != training_content(config_dict(self.config)):
             raise checkpoints.CheckpointError(
                 f"checkpoint {latest.path} was written with a different config; resume with the run's own "
                 f"config ({self.run_dir / 'config.yaml'}) and no overrides"
