@@ -357,7 +357,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--resume", metavar="RUN_DIR", help="continue an interrupted run from its latest checkpoint"
     )
-    tr.add_argument("--max-updates", type=int, help="stop (with a checkpoint) after this many more updates")
+    tr.add_argument(
+        "--max-updates", type=_positive_int, help="stop (with a checkpoint) after this many more updates"
+    )
     tr.add_argument("--quiet", action="store_true", help="no progress lines")
     tr.add_argument(
         "--distributed",
@@ -391,8 +393,28 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _positive_int(text: str) -> int:
+    value = int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be a positive integer, got {text}")
+    return value
+
+
+def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
+    """`parser.parse_args`, also taking KEY=VALUE overrides written after a flag (`cec train --config X
+    --quiet num_envs=8`), which argparse leaves unrecognised once the positional list has been read."""
+    args, extra = parser.parse_known_args(argv)
+    overrides = getattr(args, "overrides", None)
+    if extra and isinstance(overrides, list) and all("=" in e and not e.startswith("-") for e in extra):
+        overrides += extra
+        extra = []
+    if extra:
+        parser.error(f"unrecognized arguments: {' '.join(extra)}")
+    return args
+
+
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    args = parse_args(build_parser(), argv)
     logging.basicConfig(
         level=logging.DEBUG if args.verbose else logging.INFO,
         format="%(asctime)s %(levelname)s %(name)s: %(message)s",

@@ -75,3 +75,21 @@ def test_levels_validate_reports_solvability_and_reasons(
     bad = tmp_path / "bad.txt"
     bad.write_text("WWPWW\nO0  O\nW   W\nWBWXW\n")
     assert main(["levels", "validate", str(bad)]) == 2
+
+
+def test_overrides_may_follow_flags_and_max_updates_must_be_positive(capsys):
+    from cec.cli import build_parser, parse_args
+
+    parser = build_parser()
+    args = parse_args(parser, ["train", "--config", "x.yaml", "--quiet", "num_envs=8", "seed=2"])
+    assert args.overrides == ["num_envs=8", "seed=2"] and args.quiet
+    args = parse_args(parser, ["train", "num_envs=4", "--config", "x.yaml", "seed=3"])
+    assert args.overrides == ["num_envs=4", "seed=3"]
+    for argv, message in (
+        (["train", "--max-updates", "-1"], "must be a positive integer, got -1"),
+        (["train", "--max-updates", "0"], "must be a positive integer, got 0"),
+        (["train", "--config", "x.yaml", "--bogus", "num_envs=8"], "unrecognized arguments: --bogus"),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            parse_args(parser, argv)
+        assert exit_info.value.code == 2 and message in capsys.readouterr().err
