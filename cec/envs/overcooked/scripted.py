@@ -133,12 +133,19 @@ def _next_cell(state: EnvState, seat: int, action: jax.Array) -> jax.Array:
 
 
 def _seat_action(state: EnvState, seat: int) -> jax.Array:
-    """The seat's greedy action, yielding where its plan and the partner's (as this cook would play it)
-    collide: both heading for one cell, swapping cells, or walking into a partner that stays. The seat
-    further from its target (ties: the one further down/right; an order both seats see alike) gives way
-    by stepping onto a free neighbour cell out of the partner's way, or waits if it has none; the other
-    keeps its plan, and waits itself only when the partner stays put in its way."""
-    (mine, my_dist), (theirs, their_dist) = _plan(state, seat), _plan(state, 1 - seat)
+    """The seat's greedy action, given its plan and the partner's (as this cook would play it)."""
+    return _yielding(state, seat, _plan(state, seat), _plan(state, 1 - seat))
+
+
+def _yielding(
+    state: EnvState, seat: int, plan: tuple[jax.Array, jax.Array], partner_plan: tuple[jax.Array, jax.Array]
+) -> jax.Array:
+    """The seat's planned action, yielding where its plan and the partner's collide: both heading for one
+    cell, swapping cells, or walking into a partner that stays. The seat further from its target (ties:
+    the one further down/right; an order both seats see alike) gives way by stepping onto a free
+    neighbour cell out of the partner's way, or waits if it has none; the other keeps its plan, and waits
+    itself only when the partner stays put in its way."""
+    (mine, my_dist), (theirs, their_dist) = plan, partner_plan
     pos, partner = state.agent_pos[seat], state.agent_pos[1 - seat]
     my_next, their_next = _next_cell(state, seat, mine), _next_cell(state, 1 - seat, theirs)
     moving = jnp.any(my_next != pos)
@@ -163,7 +170,8 @@ def _seat_action(state: EnvState, seat: int) -> jax.Array:
 def scripted_actions(key: jax.Array, state: EnvState, epsilon: float | jax.Array = 0.1) -> jax.Array:
     """Both seats' actions, int32[2]: greedy, or uniform random with probability `epsilon` per seat."""
     k_coin, k_rand = jax.random.split(key)
-    greedy = jnp.stack([_seat_action(state, 0), _seat_action(state, 1)])
+    plans = (_plan(state, 0), _plan(state, 1))  # each seat's plan once, for itself and its partner
+    greedy = jnp.stack([_yielding(state, 0, plans[0], plans[1]), _yielding(state, 1, plans[1], plans[0])])
     random = jax.random.randint(k_rand, (2,), 0, NUM_ACTIONS, dtype=jnp.int32)
     return jnp.where(jax.random.uniform(k_coin, (2,)) < epsilon, random, greedy)
 
