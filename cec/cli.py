@@ -268,6 +268,8 @@ def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -
         raise ConfigError("give --config configs/train/<preset>.yaml (or --resume RUN_DIR)")
     train_overrides = [o for o in args.overrides if o not in service_overrides]
     config = load_config(TrainConfig, run_config or args.config, [] if run_config else train_overrides)
+    if run_config:
+        config = _at_run_directory(config, Path(args.resume))
     dist = load_config(DistributedConfig, None, [o.removeprefix("distributed.") for o in service_overrides
                                                   if o.startswith("distributed.")])  # fmt: skip
     store = load_config(

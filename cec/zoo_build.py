@@ -216,12 +216,11 @@ def plan_zoo(spec_path: str | Path, out_dir: str | Path) -> list[PlannedRun]:
             names = tuple(f"{stem}-s{s}" for s in group)
             plan.append(PlannedRun(i, label, config, group, names, deps))
     _check_plan(plan, spec_path)
-    from cec.training.trainer import config_dict, training_content
+    from cec.training.trainer import trains_as
 
     for run in plan:  # a finished run whose config differs from the spec: stop before any training
         latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
-        written = checkpoints.read_meta(latest.path)["config"] if latest is not None else None
-        if written is not None and training_content(written) != training_content(config_dict(run.config)):
+        if latest is not None and not trains_as(checkpoints.read_meta(latest.path)["config"], run.config):
             raise ConfigError(
                 f"zoo spec {spec_path}: {run.label}: {run.run_dir} was trained with another config (the spec "
                 "or the preset changed since); delete that run directory to retrain it, restore the spec, "

@@ -263,9 +263,14 @@ class RunResult(NamedTuple):
     interrupted: bool
 
 
-def training_content(config: dict) -> dict:
-    """A config dict without where the run lives (`run_dir`, `name`): a moved run is the same run."""
-    return {k: v for k, v in config.items() if k not in ("run_dir", "name")}
+def trains_as(written: dict, config: TrainConfig) -> bool:
+    """Whether a checkpoint's recorded config (`written`) trains what `config` trains. Where the run lives
+    (`run_dir`, `name`) is left out: a moved or copied run is the same run."""
+    where = ("run_dir", "name")
+    ours = config_dict(config)
+    return {k: v for k, v in written.items() if k not in where} == {
+        k: v for k, v in ours.items() if k not in where
+    }
 
 
 def config_dict(config: TrainConfig) -> dict:
@@ -443,7 +448,7 @@ class RunFiles:
             )
             return None, 0
         state, meta = checkpoints.load(latest.path, template)
-        if training_content(meta["config"]) != training_content(config_dict(self.config)):
+        if not trains_as(meta["config"], self.config):
             raise checkpoints.CheckpointError(
                 f"checkpoint {latest.path} was written with a different config; resume with the run's own "
                 f"config ({self.run_dir / 'config.yaml'}) and no overrides"
