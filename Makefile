@@ -31,6 +31,7 @@ test: lint typecheck
 lint: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
+	$(BIN)/lint-imports  # the layer contract in pyproject.toml: cec <- services <- apps
 
 typecheck: install
 	$(BIN)/mypy

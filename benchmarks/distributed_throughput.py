@@ -48,11 +48,11 @@ def main() -> int:
     import numpy as np
     import ray
 
-    from cec import metrics as M  # noqa: N812
+    from apps.machine import machine_info
     from cec.config import load_config
-    from cec.machine import machine_info
     from cec.training.config import TrainConfig
     from cec.training.trainer import Trainer, config_dict, train
+    from services import metrics as M  # noqa: N812
     from services.learner.learner import Learner
 
     tmp = Path(tempfile.mkdtemp(prefix="cec-dist-bench-"))

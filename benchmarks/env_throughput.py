@@ -152,7 +152,7 @@ def measure(
 
 
 def machine() -> dict[str, Any]:
-    from cec.machine import machine_info
+    from apps.machine import machine_info
 
     return machine_info()
 

@@ -4,7 +4,7 @@
 
 Start-up (each step checked before the next; a failure stops everything started so far and names the fix):
 1. Redis: `store.url` (or CEC_REDIS_URL) when given, else a local `redis-server` on a free port in the run
-   directory (`cec.store.LocalRedis`).
+   directory (`services.store.LocalRedis`).
 2. The level server (`python -m services.level_server`) unless `level_server_address` points at one.
 3. Ray (local, or `distributed.ray_address`), then the learner and its rollout actors
    (`services.learner.driver`), streaming kitchens from the level server for procedural Overcooked runs.
@@ -33,10 +33,10 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from cec.config import ConfigError, load_config
-from cec.monitoring import MonitoringConfig
-from cec.store import StoreConfig
 from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig
+from services.monitoring import MonitoringConfig
+from services.store import StoreConfig
 
 log = logging.getLogger("cec.up")
 DEFAULT_CONFIG = "configs/up/default.yaml"
@@ -59,7 +59,7 @@ class UpConfig:
             directory and metrics port.
         evaluator_metrics_port: the evaluator's Prometheus port (0: a free one, -1: off).
         monitoring: start Prometheus (and Grafana when installed) against the stack.
-        monitoring_config: their ports and settings (`cec.monitoring.MonitoringConfig`).
+        monitoring_config: their ports and settings (`services.monitoring.MonitoringConfig`).
         ray_dashboard: start Ray's dashboard with the local Ray.
         start_timeout_s: how long each service may take to report ready.
     """
@@ -190,7 +190,7 @@ class Stack:
         logs = self.run_dir / "logs"
         # 1. Redis
         if self.store.url_given:
-            from cec.store import ControlPlane, StoreError
+            from services.store import ControlPlane, StoreError
 
             try:
                 ControlPlane.connect(self.store).close()
@@ -198,7 +198,7 @@ class Stack:
                 raise ConfigError(str(err)) from err
             self.say(f"redis                  {self.store.display_url} (given)")
         else:
-            from cec.store import LocalRedis
+            from services.store import LocalRedis
 
             self.redis = LocalRedis(self.run_dir / "redis").start()
             self.store = self.redis.config()
@@ -284,7 +284,7 @@ class Stack:
             self.urls["ray dashboard"] = dash if dash.startswith("http") else f"http://{dash}"
         # 5. monitoring
         if cfg.monitoring:
-            from cec.monitoring import MonitoringError, start_monitoring
+            from services.monitoring import MonitoringError, start_monitoring
 
             targets = {
                 job: [url.split("//", 1)[1].split("/", 1)[0]]

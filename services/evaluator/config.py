@@ -12,7 +12,7 @@ import re
 from dataclasses import dataclass, field
 
 from cec.config import ConfigError
-from cec.store import StoreConfig
+from services.store import StoreConfig
 
 #: The partner group of self-play results (each seed of the checkpoint with itself).
 SELF_PLAY = "self_play"

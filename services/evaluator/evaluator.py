@@ -50,7 +50,9 @@ from cec.evaluation.results import (
 )
 from cec.evaluation.stats import sem
 from cec.evaluation.zoo import Policy, ZooEntry, load_policy, resolve_checkpoint
-from cec.metrics import (
+from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
+from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in
+from services.metrics import (
     EVALUATOR_CHECKPOINTS_SCORED,
     EVALUATOR_DURATION,
     EVALUATOR_EPISODES,
@@ -59,9 +61,7 @@ from cec.metrics import (
     EVALUATOR_SCORE,
     EVALUATOR_SCORED_UPDATE,
 )
-from cec.store import CheckpointEvent, CheckpointMessage, ControlPlane, EvalResult, StoreError
-from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
-from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in
+from services.store import CheckpointEvent, CheckpointMessage, ControlPlane, EvalResult, StoreError
 
 log = logging.getLogger("cec.evaluator")
 

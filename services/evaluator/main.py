@@ -51,9 +51,9 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as err:
         print(f"config error: {err}", file=sys.stderr)
         return 2
-    from cec.metrics import MetricsEndpoint  # the evaluator imports JAX: keep `cec --help` fast
-    from cec.store import StoreError
     from services.evaluator.evaluator import Evaluator
+    from services.metrics import MetricsEndpoint  # the evaluator imports JAX: keep `cec --help` fast
+    from services.store import StoreError
 
     try:
         evaluator = Evaluator(config)

@@ -20,8 +20,8 @@ from cec.config import ConfigError
 from cec.evaluation.results import SkippedEntry
 from cec.evaluation.zoo import Policy, ZooEntry, load_policy, load_zoo, resolve_checkpoint
 from cec.levels.classic import CLASSIC_ASCII
-from cec.store import ControlPlane, PartnerRecord
 from services.evaluator.config import EvaluatorConfig
+from services.store import ControlPlane, PartnerRecord
 
 log = logging.getLogger("cec.evaluator")
 

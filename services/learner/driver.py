@@ -22,10 +22,10 @@ from typing import Any, TextIO
 
 from cec import checkpoints
 from cec.config import ConfigError
-from cec.store import StoreConfig
 from cec.training.config import TrainConfig
 from cec.training.trainer import RunFiles, config_dict
 from services.learner.config import DistributedConfig
+from services.store import StoreConfig
 
 log = logging.getLogger("cec.driver")
 
@@ -53,7 +53,7 @@ def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig 
                 f"config ({files.run_dir / 'config.yaml'}) and no overrides, or start a new run (name=...)"
             )
     if store is not None and dist.publish_checkpoints:
-        from cec.store import ControlPlane, StoreError
+        from services.store import ControlPlane, StoreError
 
         try:
             ControlPlane.connect(store).close()

@@ -36,13 +36,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec import metrics as M  # noqa: N812 - the metric objects, read as M.NAME
 from cec.config import from_dict
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
 from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo
 from cec.training.rollout import RolloutCarry
 from cec.training.trainer import Progress, RunFiles, Trainer, TrainState, metrics_rows
+from services import metrics as M  # noqa: N812 - the metric objects, read as M.NAME
 from services.actors.actor import ActorNotReadyError, RolloutActor, decode_batch
 from services.learner.config import DistributedConfig
 
@@ -392,7 +392,7 @@ class Learner:
         M.LEARNER_STAGE_SECONDS.labels("checkpoint").inc(time.perf_counter() - t0)
         log.info("checkpoint %s", path)
         if self.plane is not None:
-            from cec.store import CheckpointEvent, StoreError
+            from services.store import CheckpointEvent, StoreError
 
             try:
                 result = self.plane.publish_checkpoint(
@@ -411,8 +411,8 @@ class Learner:
     def _connect_store(self, resume: bool) -> None:
         if not (self.dist.publish_checkpoints and self.store_dict is not None):
             return
-        from cec.store import ControlPlane, StoreConfig
         from cec.training.trainer import config_dict
+        from services.store import ControlPlane, StoreConfig
 
         self.plane = ControlPlane.connect(
             from_dict(StoreConfig, self.store_dict), outbox_dir=self.files.run_dir
@@ -426,7 +426,7 @@ class Learner:
     def _heartbeat(self) -> None:
         if self.plane is None:
             return
-        from cec.store import StoreError
+        from services.store import StoreError
 
         try:
             if self.plane.pending_outbox():
@@ -440,7 +440,7 @@ class Learner:
     def _set_status(self, status: str) -> None:
         if self.plane is None:
             return
-        from cec.store import StoreError
+        from services.store import StoreError
 
         try:
             self.plane.set_run_status(self.config.run_name, status)

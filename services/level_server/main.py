@@ -10,9 +10,9 @@ import signal
 import sys
 
 from cec.config import ConfigError, load_config
-from cec.metrics import MetricsEndpoint
 from services.level_server.config import LevelServerConfig
 from services.level_server.server import LevelServer
+from services.metrics import MetricsEndpoint
 
 log = logging.getLogger("cec.level_server")
 

@@ -26,7 +26,7 @@ from grpc_health.v1 import health_pb2, health_pb2_grpc
 from grpc_health.v1.health import aio as health_aio
 from grpc_reflection.v1alpha import reflection
 
-from cec import __version__, metrics
+from cec import __version__
 from cec.checkpoints import code_version
 from cec.config import ConfigError
 from cec.levels.level import LevelError
@@ -39,6 +39,7 @@ from cec.levels.wire import (
     encode,
     reject_unknown_fields,
 )
+from services import metrics
 from services.level_server.config import LevelServerConfig
 from services.level_server.source import InvalidRequestError, LevelSource, LimitExceededError, take_rows
 

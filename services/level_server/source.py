@@ -19,7 +19,6 @@ from functools import cached_property
 import jax
 import numpy as np
 
-from cec import metrics
 from cec.levels.ascii import from_ascii
 from cec.levels.counting import count_layouts
 from cec.levels.generator import GeneratorConfig, generate_batch_with_info
@@ -27,6 +26,7 @@ from cec.levels.heldout import content_hash, heldout_levels
 from cec.levels.level import Level, stack_levels, validate_level
 from cec.levels.membership import in_space
 from cec.levels.solvability import validate_solvable
+from services import metrics
 from services.level_server.config import LevelServerConfig
 from services.level_server.curriculum import PrioritizedLevelReplay
 

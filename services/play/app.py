@@ -39,7 +39,7 @@ from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
 from starlette.websockets import WebSocket, WebSocketDisconnect
 
-from cec.metrics import ComponentRegistry
+from services.metrics import ComponentRegistry
 from services.play import metrics
 from services.play.game import STAY, Round
 from services.play.study import InputError, Participant, Study, validate_action, validate_rt

@@ -20,8 +20,8 @@ from pathlib import Path
 from typing import Any
 
 from cec.config import ConfigError, from_dict
-from cec.store import StoreError
 from services.play.config import MODES, StudyConfig, load_study
+from services.store import StoreError
 
 log = logging.getLogger("cec.play")
 
@@ -227,6 +227,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """`python -m services.play ...`: the same as `cec play ...`."""
-    from cec.cli import main as cec_main
-
-    return cec_main(["play", *(argv if argv is not None else sys.argv[1:])])
+    parser = argparse.ArgumentParser(prog="python -m services.play")
+    add_subcommands(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["play", *(argv if argv is not None else sys.argv[1:])])
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    try:
+        return int(args.func(args))
+    except (ConfigError, ValueError) as err:
+        print(f"cec play: error: {err}", file=sys.stderr)
+        return 2

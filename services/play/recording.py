@@ -47,7 +47,7 @@ from typing import Any, Protocol
 import redis
 
 from cec.evaluation.results import EpisodeTable, make_table
-from cec.store import StoreConfig, StoreError, StoreUnavailableError
+from services.store import StoreConfig, StoreError, StoreUnavailableError
 
 log = logging.getLogger("cec.play")
 

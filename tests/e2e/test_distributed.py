@@ -19,15 +19,15 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
-from cec import metrics as M  # noqa: E402,N812
 from cec.config import ConfigError, load_config  # noqa: E402
-from cec.store import ControlPlane, LocalRedis, StoreConfig  # noqa: E402
 from cec.training.config import TrainConfig  # noqa: E402
 from cec.training.trainer import config_dict, train  # noqa: E402
+from services import metrics as M  # noqa: E402,N812
 from services.learner.config import DistributedConfig  # noqa: E402
 from services.learner.driver import check_start  # noqa: E402
 from services.learner.learner import Learner  # noqa: E402
 from services.stack import ServiceProcess, free_port  # noqa: E402
+from services.store import ControlPlane, LocalRedis, StoreConfig  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
 REPO = Path(__file__).resolve().parents[2]
@@ -185,7 +185,7 @@ def test_level_server_outage_leaves_actors_training_on_their_buffers(local_ray: 
 def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) -> None:
     psutil = pytest.importorskip("psutil")
     cmd = [
-        sys.executable, "-m", "cec.cli", "up", "--config", str(REPO / "configs/up/default.yaml"),
+        sys.executable, "-m", "apps.cli", "up", "--config", str(REPO / "configs/up/default.yaml"),
         "level_server_port=0", "level_server_metrics_port=-1", "evaluator=false", "ray_dashboard=false",
         "distributed.metrics_port=-1", "distributed.ray_num_cpus=4", f"train={DD_QUICK}",
         "train.num_envs=32", "train.num_steps=50", "train.total_env_steps=1600000",

@@ -32,8 +32,8 @@ from websockets.exceptions import InvalidStatus
 from websockets.typing import Origin
 
 from cec.evaluation.results import read_csv
-from cec.store import LocalRedis, StoreConfig
 from services.play.recording import FileStore, RedisStore, finished_rounds
+from services.store import LocalRedis, StoreConfig
 
 webdriver = pytest.importorskip("selenium.webdriver")
 from selenium.webdriver.chrome.service import Service  # noqa: E402

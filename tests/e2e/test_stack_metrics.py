@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from prometheus_client.parser import text_string_to_metric_families
 
-from cec.monitoring import dashboard_metric_names
+from services.monitoring import dashboard_metric_names
 
 pytest.importorskip("ray")
 pytestmark = pytest.mark.timeout(600)
@@ -63,7 +63,7 @@ def _rows(run_dir: Path) -> int:
 @pytest.mark.skipif(shutil.which("prometheus") is None, reason="needs Debian's prometheus package")
 def test_dashboards_read_only_live_series_and_scraped_counters_follow_the_run(tmp_path: Path) -> None:
     cmd = [
-        sys.executable, "-m", "cec.cli", "up", "--monitoring",
+        sys.executable, "-m", "apps.cli", "up", "--monitoring",
         "--config", str(REPO / "configs/up/default.yaml"),
         "level_server_port=0", "level_server_metrics_port=0", "evaluator_metrics_port=0",
         "ray_dashboard=false", "distributed.metrics_port=0", "distributed.ray_num_cpus=4",

@@ -27,16 +27,16 @@ import pytest
 from prometheus_client import REGISTRY
 from prometheus_client.parser import text_string_to_metric_families
 
+from apps.cli import main as cec_main
 from cec import checkpoints
-from cec.cli import main as cec_main
 from cec.config import ConfigError, from_dict, load_config
 from cec.evaluation.analysis import policies_of
 from cec.evaluation.results import make_table, read_csv
-from cec.store import CheckpointEvent, CheckpointMessage, ControlPlane, LocalRedis, PartnerRecord
 from cec.training.config import TrainConfig
 from cec.training.trainer import Trainer, config_dict
 from services.evaluator.config import EvaluatorConfig, LevelSetConfig, PartnerGroupConfig
 from services.evaluator.evaluator import FAILED_GROUP, Evaluator, summarize
+from services.store import CheckpointEvent, CheckpointMessage, ControlPlane, LocalRedis, PartnerRecord
 
 pytestmark = pytest.mark.skipif(
     shutil.which("redis-server") is None, reason="needs redis-server (sudo apt-get install redis-server)"

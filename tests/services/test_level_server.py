@@ -28,10 +28,10 @@ from cec.levels.generator import GeneratorConfig
 from cec.levels.heldout import heldout_levels
 from cec.levels.v1 import level_service_pb2 as pb
 from cec.levels.wire import encode
-from cec.metrics import MetricsEndpoint
 from services.level_server.client import LevelClient, LevelStreamBuffer
 from services.level_server.config import CurriculumConfig, LevelServerConfig
 from services.level_server.server import SERVICE_NAME, ThreadedLevelServer
+from services.metrics import MetricsEndpoint
 
 ROOT = Path(__file__).resolve().parents[2]
 SMALL = GeneratorConfig(structures=("cramped_room", "coord_ring"))
@@ -457,7 +457,7 @@ def test_stream_buffer_reconnects_and_resumes_the_sequence():
 
 def test_cli_server_streams_and_stops_gracefully_on_sigterm(tmp_path):
     proc = subprocess.Popen(
-        [sys.executable, "-m", "cec.cli", "level-server", "port=0", "metrics_port=-1", "seed=0"],
+        [sys.executable, "-m", "apps.cli", "level-server", "port=0", "metrics_port=-1", "seed=0"],
         cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
     )  # fmt: skip
     lines: list[str] = []
@@ -475,7 +475,7 @@ def test_cli_server_streams_and_stops_gracefully_on_sigterm(tmp_path):
         assert ready.wait(120), "".join(lines)
         address = next(line for line in lines if "ready on" in line).split("ready on ")[1].strip()
         out = subprocess.run(
-            [sys.executable, "-m", "cec.cli", "levels", "stream", "--server", address, "--n", "300",
+            [sys.executable, "-m", "apps.cli", "levels", "stream", "--server", address, "--n", "300",
              "--out", str(tmp_path / "sheet.png")],
             cwd=ROOT, capture_output=True, text=True, timeout=120,
         )  # fmt: skip

@@ -1,4 +1,4 @@
-"""Prometheus started by `cec.monitoring` scrapes a real `cec.metrics.MetricsEndpoint` over loopback.
+"""Prometheus started by `services.monitoring` scrapes a real `MetricsEndpoint` over loopback.
 
 The endpoint runs in a child interpreter that has touched every labelled metric once, so that every series
 the dashboards read exists; Prometheus (Debian's `prometheus` binary) scrapes it, and the test reads the
@@ -19,7 +19,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from cec.monitoring import (
+from services.monitoring import (
     MonitoringConfig,
     MonitoringError,
     Prometheus,
@@ -38,7 +38,7 @@ WAIT_S = 60.0  # Prometheus applies new targets within ~5 s of starting; this on
 # A child serving every metric of the stack on a free port: prints the port, serves until stdin closes.
 _EXPORTER = """
 import sys
-import cec.metrics as m
+import services.metrics as m
 from prometheus_client.metrics import MetricWrapperBase
 for metric in vars(m).values():
     if isinstance(metric, MetricWrapperBase) and metric._labelnames:
@@ -167,7 +167,7 @@ def test_python_m_cec_monitoring_serves_until_interrupted(tmp_path, exporter):
         [
             sys.executable,
             "-m",
-            "cec.monitoring",
+            "services.monitoring",
             "--target",
             f"learner={exporter}",
             "--run-dir",

@@ -14,7 +14,7 @@ import uuid
 import pytest
 
 from cec.config import ConfigError, from_dict
-from cec.store import (
+from services.store import (
     ENV_PASSWORD,
     ENV_URL,
     CheckpointEvent,

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 from PIL import Image
 
-from cec.cli import main
+from apps.cli import main
 from cec.envs import overcooked as oc
 
 
@@ -78,7 +78,7 @@ def test_levels_validate_reports_solvability_and_reasons(
 
 
 def test_overrides_may_follow_flags_and_max_updates_must_be_positive(capsys):
-    from cec.cli import build_parser, parse_args
+    from apps.cli import build_parser, parse_args
 
     parser = build_parser()
     args = parse_args(parser, ["train", "--config", "x.yaml", "--quiet", "num_envs=8", "seed=2"])

@@ -1,6 +1,6 @@
 """The shipped monitoring files: Grafana dashboards and provisioning, Prometheus configs, the metric names.
 
-Every metric a dashboard reads must be one that `cec.metrics` defines (PromQL parsed for names); the
+Every metric a dashboard reads must be one that `services.metrics` defines (PromQL parsed for names); the
 Prometheus configs and the default registry's exposition must pass `promtool` (Debian's `prometheus`).
 """
 
@@ -18,9 +18,9 @@ import pytest
 import yaml
 from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Summary
 
-import cec.metrics  # noqa: F401  (registers every metric of the stack in the default registry)
+import services.metrics  # noqa: F401  (registers every metric of the stack in the default registry)
 from cec.config import ConfigError, from_dict
-from cec.monitoring import (
+from services.monitoring import (
     CLUSTER_DIR,
     DASHBOARDS_DIR,
     DEFAULT_TARGETS,
@@ -216,7 +216,7 @@ def test_a_dashboard_reading_an_unknown_metric_is_caught(tmp_path):
 
 def test_metrics_that_no_dashboard_shows_are_listed():
     shown = dashboard_metric_names()
-    families = {f.name: f.type for f in cec.metrics.REGISTRY.collect() if f.name.startswith("cec_")}
+    families = {f.name: f.type for f in services.metrics.REGISTRY.collect() if f.name.startswith("cec_")}
     suffixes = {"counter": ("_total",), "histogram": ("_bucket", "_sum", "_count")}
     exported_by = {name: {name + s for s in suffixes.get(kind, ("",))} for name, kind in families.items()}
     unshown = sorted(name for name, samples in exported_by.items() if not samples & shown)
@@ -325,7 +325,7 @@ def test_bad_targets_and_configs_are_refused_clearly():
 
 # --- promtool on the exposition of every metric -------------------------------------------------------------
 _EXPOSE_ALL = """
-import cec.metrics as m
+import services.metrics as m
 from prometheus_client import REGISTRY, generate_latest
 from prometheus_client.metrics import MetricWrapperBase
 for metric in vars(m).values():

@@ -13,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from apps.cli import main
 from cec import checkpoints
 from cec.agents.network import ActorCritic, network_preset
-from cec.cli import main
 from cec.config import ConfigError, from_dict
 from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc

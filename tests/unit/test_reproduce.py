@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from cec import reproduce as rp
-from cec.cli import main
+from apps import reproduce as rp
+from apps.cli import main
+from apps.zoo_build import plan_zoo
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import read_csv
-from cec.zoo_build import plan_zoo
 
 TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 4, actor_features: [8], "

@@ -25,7 +25,7 @@ QUICK = {
 
 def _cec(*args, **kwargs):
     return subprocess.Popen(
-        [sys.executable, "-m", "cec.cli", *args],
+        [sys.executable, "-m", "apps.cli", *args],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,

@@ -9,11 +9,11 @@ from pathlib import Path
 import pytest
 import yaml
 
+from apps.zoo_build import build_zoo, plan_zoo
 from cec import checkpoints
 from cec.config import ConfigError
 from cec.evaluation.zoo import load_policies, load_policy, load_zoo
 from cec.training import trainer
-from cec.zoo_build import build_zoo, plan_zoo
 
 PRESETS = Path(__file__).resolve().parents[2] / "configs" / "train"
 TINY = ["num_envs=8", "num_steps=10", "total_env_steps=160", "updates_per_call=1"]  # 2 updates, one per call
@@ -158,7 +158,7 @@ def test_a_changed_spec_is_refused_before_training(zoo, tmp_path):
 
 
 def test_cli_reports_a_bad_spec_with_exit_status_2(tmp_path, capsys):
-    from cec.cli import main
+    from apps.cli import main
 
     spec = _spec(tmp_path, [{"preset": str(PRESETS / "dd_ippo_quick.yaml"), "overrides": ["run_dir=x"]}])
     assert main(["zoo", "build", str(spec), "--out", str(tmp_path / "zoo")]) == 2

@@ -3,14 +3,14 @@
 `cec up --monitoring` calls `start_monitoring`: it writes a Prometheus config for the stack's `/metrics`
 endpoints into the run directory, starts `prometheus` on it, and starts Grafana (when installed) with the
 provisioning files and dashboards of `cluster/grafana/`. Both are plain subprocesses bound to loopback,
-stopped with the returned handle. `python -m cec.monitoring` does the same against any config (e.g.
+stopped with the returned handle. `python -m services.monitoring` does the same against any config (e.g.
 `cluster/prometheus-ray.yml` on a Ray head node); docs/monitoring.md has the whole picture.
 
     with start_monitoring("runs/x/monitoring", DEFAULT_TARGETS) as mon:
         print(mon.describe())  # URLs of Prometheus and Grafana
 
 `dashboard_metric_names()` parses every PromQL expression of the shipped dashboards and returns the metric
-names they read, so tests can check them against `cec.metrics` and against a live stack's `/metrics`.
+names they read, so tests can check them against `services.metrics` and against a live stack's `/metrics`.
 """
 
 from __future__ import annotations
@@ -42,7 +42,7 @@ from prometheus_client import REGISTRY, CollectorRegistry
 
 from cec.config import ConfigError, load_config
 
-log = logging.getLogger("cec.monitoring")
+log = logging.getLogger("services.monitoring")
 
 # --- where things are ---------------------------------------------------------------------------------------
 CLUSTER_DIR = Path(__file__).resolve().parent.parent / "cluster"
@@ -91,7 +91,7 @@ class MonitoringError(RuntimeError):
 # --- configuration ------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class MonitoringConfig:
-    """Local Prometheus (and Grafana) for a stack (`cec up --monitoring`, `python -m cec.monitoring`).
+    """Local Prometheus (and Grafana) for a stack (`cec up --monitoring`, `python -m services.monitoring`).
 
     Attributes:
         host: bind address of Prometheus and Grafana. Loopback by default: neither has authentication as
@@ -316,7 +316,7 @@ def prometheus_config(
         "global": {"scrape_interval": interval, "scrape_timeout": timeout, "evaluation_interval": interval},
         "scrape_configs": jobs,
     }
-    header = "# Written by cec.monitoring for this run; cluster/prometheus.yml is the hand-run equivalent.\n"
+    header = "# Written by services.monitoring for this run; cluster/prometheus.yml is its hand-run twin.\n"
     return header + yaml.safe_dump(config, sort_keys=False)
 
 
@@ -768,7 +768,7 @@ def start_monitoring(
     return Monitoring(prometheus, grafana, tuple(notes))
 
 
-# --- python -m cec.monitoring -------------------------------------------------------------------------------
+# --- python -m services.monitoring --------------------------------------------------------------------------
 def _parse_target(text: str) -> tuple[str, str]:
     job, sep, address = text.partition("=")
     if not sep:
@@ -778,7 +778,7 @@ def _parse_target(text: str) -> tuple[str, str]:
 
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
-        prog="python -m cec.monitoring",
+        prog="python -m services.monitoring",
         description="Start Prometheus (and Grafana, when installed) for a CEC stack; Ctrl-C stops them.",
     )
     parser.add_argument(

@@ -1,4 +1,4 @@
-"""The `cec eval` and `cec report` subcommands (registered by `cec.cli.build_parser`).
+"""The `cec eval` and `cec report` subcommands (registered by `apps.cli.build_parser`).
 
 cec eval --zoo zoo.yaml [--levels heldout] [--episodes 4] [--greedy] [--out results.csv]
 cec report results.csv [more.csv ...] [--out report/]

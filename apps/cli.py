@@ -258,10 +258,10 @@ def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -
     import ray
 
     from cec.config import load_config
-    from cec.store import StoreConfig
     from cec.training.config import TrainConfig
     from services.learner.config import DistributedConfig
     from services.learner.driver import run_distributed
+    from services.store import StoreConfig
 
     run_config = Path(args.resume) / "config.yaml" if args.resume else None
     if not args.config and run_config is None:
@@ -371,13 +371,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tr.set_defaults(func=_cmd_train)
 
-    from cec.evaluation.cli import add_subcommands as add_evaluation_subcommands
+    from apps.evaluate import add_subcommands as add_evaluation_subcommands
 
     add_evaluation_subcommands(sub)  # cec eval, cec report
-    from cec.zoo_build import add_subcommands as add_zoo_subcommands
+    from apps.zoo_build import add_subcommands as add_zoo_subcommands
 
     add_zoo_subcommands(sub)  # cec zoo build
-    from cec.reproduce import add_subcommands as add_reproduce_subcommands
+    from apps.reproduce import add_subcommands as add_reproduce_subcommands
 
     add_reproduce_subcommands(sub)  # cec reproduce dual-destination
     from services.stack import add_subcommands as add_stack_subcommands

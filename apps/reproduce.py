@@ -42,8 +42,8 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
+from apps.machine import machine_info as _machine_info
 from cec.config import ConfigError
-from cec.machine import machine_info as _machine_info
 
 ROOT = Path(__file__).resolve().parents[1]
 VARIANTS = ("full_obs", "partial_obs", "multi_task")
@@ -306,7 +306,7 @@ def train_variant(
     """Writes the variant's zoo spec and builds the zoo (resuming, skipping finished runs); returns the
     manifest and the runs found finished. Raises `ConfigError` when the build was interrupted (run the
     command again)."""
-    from cec.zoo_build import build_zoo
+    from apps.zoo_build import build_zoo
 
     vdir = work / variant
     vdir.mkdir(parents=True, exist_ok=True)
