@@ -33,7 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -357,8 +357,62 @@ def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
     return path
 
 
+def export_zoo(
+    manifest: str | Path, out_dir: str | Path, *, names: Sequence[str] = (), prefix: str = ""
+) -> Path:
+    """`cec zoo export`: copies a zoo's policies (all, or those named) as one-seed parameter checkpoints
+    (`cec.evaluation.zoo.save_policy`: no optimiser state, a few MB each) into `out_dir`, with a manifest
+    `out_dir/zoo.yaml` (paths relative to it, SHA-256 pinned). Entries already in `out_dir/zoo.yaml` under
+    other names are kept, so a folder can collect policies from several zoos. `prefix` is put before each
+    exported policy's name. Nothing is written when an entry cannot be loaded."""
+    from cec import checkpoints
+    from cec.evaluation.zoo import load_policy, load_zoo, resolve_checkpoint, save_policy
+
+    entries = load_zoo(manifest)
+    unknown = sorted(set(names) - {e.name for e in entries})
+    if unknown:
+        raise ConfigError(f"{manifest}: no entries named {unknown}; its entries: {[e.name for e in entries]}")
+    chosen = [e for e in entries if e.scripted is None and (not names or e.name in names)]
+    if not chosen:
+        raise ConfigError(f"{manifest}: no checkpoint entries to export")
+    loaded = [(load_policy(e), checkpoints.read_meta(resolve_checkpoint(e.checkpoint))) for e in chosen]
+    out = Path(out_dir)
+    path = out / MANIFEST
+    new_names = {prefix + p.name for p, _ in loaded}
+    old = yaml.safe_load(path.read_text())["policies"] if path.is_file() else []
+    kept = [e for e in old if e["name"] not in new_names]
+    written = []
+    for policy, meta in loaded:
+        name = prefix + policy.name
+        saved = save_policy(
+            policy, out / name, config=meta["config"], env_steps=meta["env_steps"], update=meta["update"]
+        )
+        env = meta["config"].get("env", {})
+        written.append(
+            {
+                "name": name,
+                "algorithm": policy.algorithm,
+                "seed": policy.seed,
+                "checkpoint": name,
+                "env": policy.env.name,
+                "layout": env.get("levels", ""),
+                "env_steps": int(meta["env_steps"]),
+                "sha256": checkpoints.read_meta(saved)["sha256"],
+                **({"levels": list(policy.levels)} if policy.levels else {}),
+            }
+        )
+    text = (
+        "# Written by `cec zoo export`: one-seed parameter checkpoints (cec.evaluation.zoo.save_policy).\n"
+        + yaml.safe_dump({"policies": kept + written}, sort_keys=False)
+    )
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+    return path
+
+
 # ---------------------------------------------------------------------------------------------------------
-# CLI: cec zoo build
+# CLI: cec zoo build, cec zoo export
 # ---------------------------------------------------------------------------------------------------------
 
 
@@ -384,3 +438,18 @@ def add_subcommands(sub: Any) -> None:
     build.add_argument("--out", required=True, metavar="ZOO_DIR", help="runs go to ZOO_DIR/runs/")
     build.add_argument("--quiet", action="store_true", help="no per-update progress lines")
     build.set_defaults(func=_cmd_zoo_build)
+    export = zoo_sub.add_parser(
+        "export",
+        help="copy a zoo's policies as one-seed parameter checkpoints (a few MB) + manifest into a folder",
+    )
+    export.add_argument("manifest", help="zoo manifest (e.g. ZOO_DIR/zoo.yaml)")
+    export.add_argument("--out", required=True, metavar="DIR", help="folder for the checkpoints and zoo.yaml")
+    export.add_argument("--name", action="append", default=[], help="export only this entry (repeatable)")
+    export.add_argument("--prefix", default="", help="put this before each exported policy's name")
+    export.set_defaults(func=_cmd_zoo_export)
+
+
+def _cmd_zoo_export(args: argparse.Namespace) -> int:
+    path = export_zoo(args.manifest, args.out, names=args.name, prefix=args.prefix)
+    print(f"exported to {path}")
+    return 0

@@ -16,6 +16,11 @@ by `cec zoo build`) pins the checkpoint's state; `env`, `layout` and `env_steps`
 A malformed manifest is a `ConfigError` (nothing is evaluated). An entry whose checkpoint is missing,
 corrupt or does not fit the evaluation is *skipped with its reason recorded* (`SkippedEntry`), never
 silently dropped.
+
+The package ships trained policies (`cec/shipped/zoo.yaml`, written by `cec zoo export`): the zoo name
+`shipped` is that manifest wherever a zoo is taken (`cec eval --zoo shipped`, the evaluator, `cec play`),
+and an entry's name stands for its checkpoint wherever a checkpoint is taken (`cec play serve --checkpoint
+cec_cpu_s200`). A shipped checkpoint holds one seed's parameters only (`save_policy`), a few MB.
 """
 
 from __future__ import annotations
@@ -38,6 +43,9 @@ from cec.evaluation.results import SkippedEntry
 from cec.training.config import TrainConfig
 from cec.training.tasks import EnvConfig, Task
 
+#: The zoo name that stands for the manifest of the policies shipped with the package.
+SHIPPED = "shipped"
+SHIPPED_ZOO = Path(__file__).resolve().parents[1] / "shipped" / "zoo.yaml"
 _ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "scripted", "levels", "sha256")
 #: Descriptive keys `cec zoo build` also writes (not used to load the policy).
 _INFO_KEYS = ("env", "layout", "env_steps")
@@ -188,8 +196,9 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
 
 
 def load_zoo(path: str | Path) -> list[ZooEntry]:
-    """Reads a zoo manifest (YAML or JSON); relative checkpoint paths are relative to its folder."""
-    p = Path(path)
+    """Reads a zoo manifest (YAML or JSON); relative checkpoint paths are relative to its folder. The name
+    `shipped` (`SHIPPED`) is the manifest of the policies shipped with the package."""
+    p = SHIPPED_ZOO if str(path) == SHIPPED else Path(path)
     if not p.is_file():
         raise ConfigError(f"zoo manifest {str(p)!r} does not exist (see docs/evaluation.md for the format)")
     try:
@@ -204,13 +213,25 @@ def load_zoo(path: str | Path) -> list[ZooEntry]:
 # ---------------------------------------------------------------------------------------------------------
 
 
+def shipped_entries() -> list[ZooEntry]:
+    """The policies shipped with the package (empty when none are)."""
+    return load_zoo(SHIPPED_ZOO) if SHIPPED_ZOO.is_file() else []
+
+
 def resolve_checkpoint(path: str | Path) -> Path:
-    """A checkpoint directory, or a run directory's latest checkpoint; `CheckpointError` if neither."""
+    """A checkpoint directory, a run directory's latest checkpoint, or the name of a shipped policy;
+    `CheckpointError` if none of these."""
     p = Path(path)
     if (p / checkpoints.META_FILE).is_file():
         return p
     if not p.exists():
-        raise checkpoints.CheckpointError(f"checkpoint {str(p)!r} is missing (no such file or directory)")
+        shipped = {e.name: e.checkpoint for e in shipped_entries()}
+        if str(path) in shipped:
+            return Path(shipped[str(path)])
+        names = f"; shipped policies: {', '.join(sorted(shipped))}" if shipped else ""
+        raise checkpoints.CheckpointError(
+            f"checkpoint {str(p)!r} is missing (no such file or directory){names}"
+        )
     latest = checkpoints.CheckpointStore(p, keep_last=1).latest()
     if latest is None:
         raise checkpoints.CheckpointError(
@@ -218,6 +239,17 @@ def resolve_checkpoint(path: str | Path) -> Path:
             "checkpoints/update_*"
         )
     return latest.path
+
+
+def save_policy(policy: Policy, path: str | Path, *, config: dict, env_steps: int, update: int) -> Path:
+    """Writes one policy's parameters (no optimiser state, no seed axis) as a checkpoint `load_policy`
+    reads: `config` is the training config it came from, kept for its network and environment."""
+    if policy.params is None:
+        raise ValueError(f"policy {policy.name!r} is scripted: it has no parameters to save")
+    metadata = {"algorithm": policy.algorithm, "seeds": [policy.seed], "params_only": True}
+    return checkpoints.save(
+        path, policy.params, update=update, env_steps=env_steps, config=config, metadata=metadata
+    )
 
 
 @cache
@@ -256,8 +288,19 @@ def load_policy(entry: ZooEntry) -> Policy:
             f"checkpoint {path} holds a config this code cannot read ({err}); re-export it with this "
             "version or evaluate it with the version that wrote it"
         ) from err
-    state, _ = checkpoints.load(path, _state_template(json.dumps(meta["config"], sort_keys=True)))
     metadata = meta.get("metadata", {})
+    if metadata.get("params_only"):  # one seed's parameters (`save_policy`)
+        template = _jitted_init(Task.from_config(config.env), config.network_config)(jax.random.PRNGKey(0))
+        params, _ = checkpoints.load(path, template)
+        seed = int(metadata["seeds"][0])
+        if entry.seed is not None and entry.seed != seed:
+            raise checkpoints.CheckpointError(
+                f"checkpoint {path} holds seed {seed}, not seed {entry.seed}; fix the entry's `seed`"
+            )
+        algorithm = entry.algorithm or str(metadata.get("algorithm", config.algorithm))
+        params = jax.tree.map(np.asarray, params)
+        return Policy(entry.name, algorithm, seed, params, config.network_config, config.env, entry.levels)
+    state, _ = checkpoints.load(path, _state_template(json.dumps(meta["config"], sort_keys=True)))
     seeds = [int(s) for s in metadata.get("seeds", [config.seed + i for i in range(config.num_seeds)])]
     if entry.seed is None:
         if len(seeds) != 1:

@@ -49,7 +49,8 @@ class PartnerSpec:
         checkpoint: a checkpoint directory, or a run directory (its latest checkpoint).
         seed: with `checkpoint`, the seed to play out of a multi-seed checkpoint (null: its only seed).
         zoo: a zoo manifest (`cec zoo build` writes one); a policy is drawn from it for every round.
-        group: with `zoo`, draw only among the entries of this algorithm ('' : any entry).
+        group: with `zoo`, draw only among the entries of this algorithm, or the entry of this name
+            ('' : any entry). `zoo: shipped` is the zoo shipped with the package (`cec/shipped/`).
         random_init: a randomly initialised network (a chance-level partner for demos and tests).
         network: with `random_init`, the network preset (`small`, `reference`, `paper`).
         init_seed: with `random_init`, the initialisation seed.

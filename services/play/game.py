@@ -128,6 +128,14 @@ class PartnerPool:
         return [i for i, p in enumerate(self.policies) if p.levels is None or level_spec in p.levels]
 
 
+def _relative_to(base_dir: Path, source: str) -> Path:
+    """A study's checkpoint or zoo path (relative to the study's folder), or a shipped name as it is."""
+    path = Path(source)
+    if path.is_absolute() or (base_dir / path).exists() or source != path.name:
+        return path if path.is_absolute() else base_dir / path
+    return path  # `shipped`, or a shipped policy's name: resolved by load_zoo / resolve_checkpoint
+
+
 def load_partner(spec: PartnerSpec, base_dir: Path) -> PartnerPool:
     """Loads a partner condition's policies. `ConfigError` naming the partner and the cause on failure."""
     where = f"partner {spec.name!r}"
@@ -139,24 +147,25 @@ def load_partner(spec: PartnerSpec, base_dir: Path) -> PartnerPool:
         )
         return PartnerPool(spec, (policy,))
     if spec.checkpoint:
-        path = Path(spec.checkpoint) if Path(spec.checkpoint).is_absolute() else base_dir / spec.checkpoint
+        path = _relative_to(base_dir, spec.checkpoint)
         try:
             policy = load_policy(ZooEntry(spec.name, str(path), seed=spec.seed))
         except (checkpoints.CheckpointError, OSError, ValueError) as err:
             raise ConfigError(f"{where}: {err}") from err
         policies: tuple[Policy, ...] = (policy,)
     else:
-        path = Path(spec.zoo) if Path(spec.zoo).is_absolute() else base_dir / spec.zoo
+        path = _relative_to(base_dir, spec.zoo)
         entries = load_zoo(path)
         loaded, skipped = load_policies(entries)
         for s in skipped:
             log.warning("%s: zoo entry %s skipped: %s", where, s.name, s.reason)
-        policies = tuple(p for p in loaded if not spec.group or p.algorithm == spec.group)
+        policies = tuple(p for p in loaded if not spec.group or spec.group in (p.algorithm, p.name))
         if not policies:
             groups = sorted({p.algorithm for p in loaded})
             raise ConfigError(
                 f"{where}: zoo {str(path)!r} has no loadable entry of group {spec.group!r} "
-                f"(groups there: {groups}; skipped: {[s.name for s in skipped]})"
+                f"(groups there: {groups}; entries: {[p.name for p in loaded]}; "
+                f"skipped: {[s.name for s in skipped]})"
             )
     for p in policies:
         if p.env.name != "overcooked":

@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from cec.config import ConfigError, from_dict
+from cec.evaluation.zoo import SHIPPED
 from services.play.config import MODES, StudyConfig, load_study
 from services.store import StoreError
 
@@ -37,6 +38,12 @@ def add_subcommands(sub: Any) -> None:
     )
     serve.add_argument("set", nargs="*", metavar="KEY=VALUE", help="study overrides, e.g. mode=real_time")
     src = serve.add_argument_group("free play (no study file): one partner, one kitchen, no survey")
+    src.add_argument(
+        "--partner",
+        metavar="NAME",
+        help="a policy shipped with the package (`cec zoo`: cec/shipped/zoo.yaml), or an algorithm of them "
+        "(e.g. `cec`: one of its seeds drawn per round); no training, no download",
+    )
     src.add_argument("--checkpoint", help="checkpoint or run directory of the partner")
     src.add_argument("--seed", type=int, help="with --checkpoint: the seed of a multi-seed checkpoint")
     src.add_argument("--zoo", help="zoo manifest: a random entry per round")
@@ -78,10 +85,14 @@ def _storage_overrides(args: argparse.Namespace) -> list[str]:
 def free_play_config(args: argparse.Namespace) -> StudyConfig:
     """A one-partner study without consent, practice or survey, from `cec play serve` flags."""
     partner: dict[str, Any] = {"name": "partner"}
-    if args.checkpoint:
-        partner.update(checkpoint=str(Path(args.checkpoint).resolve()), seed=args.seed)
+    if args.partner:
+        partner.update(zoo=SHIPPED, group=args.partner)
+    if args.checkpoint:  # a path, or the name of a shipped policy
+        path = Path(args.checkpoint)
+        partner.update(checkpoint=str(path.resolve()) if path.exists() else args.checkpoint, seed=args.seed)
     if args.zoo:
-        partner.update(zoo=str(Path(args.zoo).resolve()), group=args.group)
+        path = Path(args.zoo)
+        partner.update(zoo=str(path.resolve()) if path.exists() else args.zoo, group=args.group)
     if args.random_init:
         partner.update(random_init=True)
     data = {

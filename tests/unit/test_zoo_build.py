@@ -6,10 +6,12 @@ import io
 import shutil
 from pathlib import Path
 
+import jax
+import numpy as np
 import pytest
 import yaml
 
-from apps.zoo_build import build_zoo, plan_zoo
+from apps.zoo_build import build_zoo, export_zoo, plan_zoo
 from cec import checkpoints
 from cec.config import ConfigError
 from cec.evaluation.zoo import load_policies, load_policy, load_zoo
@@ -76,6 +78,31 @@ def test_build_writes_a_manifest_of_final_checkpoints(zoo):
     policies, skipped = load_policies(entries)
     assert not skipped and [p.algorithm for p in policies] == ["ippo", "ippo", "fcp"]
     assert load_policy(entries[1]).seed == 1
+
+
+def test_export_writes_one_seed_parameter_checkpoints_that_play_as_the_originals(zoo, tmp_path):
+    _, out, _ = zoo
+    shipped = tmp_path / "shipped"
+    path = export_zoo(out / "zoo.yaml", shipped, names=["ippo-dual_destination-fixed-s1"], prefix="x_")
+    export_zoo(out / "zoo.yaml", shipped, names=["fcp-dual_destination-fixed-s0"])  # collected, not replaced
+    raw = yaml.safe_load(path.read_text())["policies"]
+    assert [(p["name"], p["algorithm"], p["seed"]) for p in raw] == [
+        ("x_ippo-dual_destination-fixed-s1", "ippo", 1),
+        ("fcp-dual_destination-fixed-s0", "fcp", 0),
+    ]
+    originals = {p.name: p for p in load_policies(load_zoo(out / "zoo.yaml"))[0]}
+    exported, skipped = load_policies(load_zoo(path))
+    assert not skipped
+    sources = ["ippo-dual_destination-fixed-s1", "fcp-dual_destination-fixed-s0"]
+    for policy, source in zip(exported, sources, strict=True):
+        original = originals[source]
+        assert (policy.seed, policy.network, policy.env) == (original.seed, original.network, original.env)
+        for a, b in zip(jax.tree.leaves(policy.params), jax.tree.leaves(original.params), strict=True):
+            np.testing.assert_array_equal(a, b)
+        size = sum(f.stat().st_size for f in (shipped / raw[exported.index(policy)]["checkpoint"]).iterdir())
+        assert size < sum(f.stat().st_size for f in Path(load_zoo(out / "zoo.yaml")[0].checkpoint).iterdir())
+    with pytest.raises(ConfigError, match=r"no entries named \['nope'\]"):
+        export_zoo(out / "zoo.yaml", shipped, names=["nope"])
 
 
 def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_path, monkeypatch):

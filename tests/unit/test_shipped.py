@@ -1,0 +1,67 @@
+"""The policies shipped with the package (cec/shipped/): loadable by name with no training and no download,
+pinned by SHA-256, and competent: each delivers soups with itself in a classic kitchen it never trained on."""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from apps.cli import build_parser, parse_args
+from cec import checkpoints
+from cec.config import ConfigError
+from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+from cec.evaluation.zoo import SHIPPED, SHIPPED_ZOO, ZooEntry, load_policy, load_zoo, resolve_checkpoint
+from services.play.main import free_play_config, prepare
+
+SHIPPED_NAMES = [e.name for e in load_zoo(SHIPPED)]
+
+
+def test_the_shipped_zoo_exists_and_names_cec_policies() -> None:
+    assert SHIPPED_ZOO.is_file() and SHIPPED_NAMES
+    assert {e.algorithm for e in load_zoo(SHIPPED)} >= {"cec"}
+    for entry in load_zoo(SHIPPED):
+        assert Path(entry.checkpoint).is_relative_to(SHIPPED_ZOO.parent)  # inside the package
+        assert sum(f.stat().st_size for f in Path(entry.checkpoint).iterdir()) < 4 * 2**20  # parameters only
+
+
+@pytest.mark.parametrize("name", SHIPPED_NAMES)
+def test_each_shipped_policy_loads_by_name_with_its_sha256_and_delivers_with_itself(name: str) -> None:
+    (entry,) = [e for e in load_zoo(SHIPPED) if e.name == name]
+    path = resolve_checkpoint(name)  # the name stands for the checkpoint
+    assert path == Path(entry.checkpoint)
+    digest = hashlib.sha256((path / checkpoints.STATE_FILE).read_bytes()).hexdigest()
+    assert digest == entry.sha256 == checkpoints.read_meta(path)["sha256"]
+    policy = load_policy(ZooEntry(name, name))
+    assert policy.algorithm == entry.algorithm and policy.env.procedural  # trained on generated kitchens
+    table = crossplay(
+        [policy],
+        eval_levels("overcooked", "cramped_room"),
+        EvalConfig(episodes=4, max_steps=400, pairs="self"),
+    )
+    assert np.mean(table.returns) >= 20, f"{name}: {table.returns} on cramped_room (one soup is 20)"
+
+
+def test_a_shipped_policy_whose_state_changed_is_refused(tmp_path: Path) -> None:
+    entry = load_zoo(SHIPPED)[0]
+    copy = tmp_path / "copy"
+    copy.mkdir()
+    for f in Path(entry.checkpoint).iterdir():
+        data = f.read_bytes()
+        (copy / f.name).write_bytes(
+            data[:-1] + bytes([data[-1] ^ 1]) if f.name == checkpoints.STATE_FILE else data
+        )
+    with pytest.raises(checkpoints.CheckpointError, match="corrupt"):
+        load_policy(ZooEntry(entry.name, str(copy)))
+
+
+def test_cec_play_serve_partner_cec_starts_with_the_shipped_agents(tmp_path: Path) -> None:
+    args = parse_args(build_parser(), ["play", "serve", "--partner", "cec", "--level", "coord_ring"])
+    pools = prepare(free_play_config(args), tmp_path)
+    (pool,) = pools.values()
+    assert pool.policies and {p.algorithm for p in pool.policies} == {"cec"}
+    args = parse_args(build_parser(), ["play", "serve", "--partner", "no_such_agent"])
+    with pytest.raises(ConfigError, match="no loadable entry of group 'no_such_agent'"):
+        prepare(free_play_config(args), tmp_path)
