@@ -40,16 +40,20 @@ log = logging.getLogger("cec")
 
 
 def _load_level(spec: str) -> Level:
-    """A classic layout name, or a path to an ASCII kitchen file."""
+    """A classic layout name, a held-out kitchen's name (`generated_007`), or an ASCII kitchen file."""
     from cec.envs.overcooked import CLASSIC_ASCII, classic_level
+    from cec.levels.heldout import heldout_levels
 
     if spec in CLASSIC_ASCII:
         return classic_level(spec)
+    heldout = dict(heldout_levels())
+    if spec in heldout:
+        return heldout[spec]
     path = Path(spec)
     if not path.is_file():
         raise LevelError(
-            f"{spec!r} is neither a classic layout ({', '.join(sorted(CLASSIC_ASCII))}) nor an ASCII "
-            "kitchen file"
+            f"{spec!r} is neither a classic layout ({', '.join(sorted(CLASSIC_ASCII))}), a held-out kitchen "
+            "(generated_000 .. generated_099) nor an ASCII kitchen file"
         )
     return from_ascii(path.read_text())
 
@@ -105,7 +109,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
     params = _env_params(args)
     if args.png:
         print(f"wrote {save_png(render_level(level, args.tile_size), args.png)}")
-    if args.gif:
+    if args.gif and args.partners:
+        path, team_return = _render_partners(level, args)
+        print(f"wrote {path} (team return {team_return:g})")
+    elif args.gif:
         path = render_episode_gif(
             level,
             args.gif,
@@ -118,6 +125,20 @@ def _cmd_render(args: argparse.Namespace) -> int:
         )
         print(f"wrote {path}")
     return 0
+
+
+def _render_partners(level: Level, args: argparse.Namespace) -> tuple[Path, float]:
+    """`cec render --partners A B`: an episode of two trained policies (checkpoints, run directories or
+    shipped policies' names) as a GIF."""
+    from cec.envs.overcooked.render import rollout_frames, save_gif
+    from cec.evaluation.crossplay import episode_states
+    from cec.evaluation.zoo import ZooEntry, load_policy
+
+    a, b = (load_policy(ZooEntry(spec, spec)) for spec in args.partners)
+    states, team_return = episode_states(
+        a, b, level, args.layout, seed=args.seed, max_steps=args.steps or 400, greedy=False
+    )
+    return save_gif(rollout_frames(states, args.tile_size), args.gif, fps=args.fps), team_return
 
 
 def _cmd_layouts(args: argparse.Namespace) -> int:
@@ -304,6 +325,13 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--gif", help="write an episode to this GIF")
     _add_env_options(render)
     render.add_argument("--policy", choices=POLICIES, default="scripted")
+    render.add_argument(
+        "--partners",
+        nargs=2,
+        metavar=("SEAT0", "SEAT1"),
+        help="two trained policies instead (checkpoint or run directories, or shipped policies' names, "
+        "e.g. cec_cpu_s0); episode length --steps (default 400)",
+    )
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--tile-size", type=int, default=32)
     render.add_argument("--fps", type=int, default=8)

@@ -243,6 +243,36 @@ def plan_games(policies: Sequence[Policy], level_names: Sequence[str], pairs: st
 # ---------------------------------------------------------------------------------------------------------
 
 
+def _module(network: NetworkConfig, task: Task, scripted: tuple[str, ...]) -> Any:
+    """The network both seats run: the policies' own, or with scripted kinds `WithScripted` around it."""
+    if not scripted:
+        return ActorCritic(network, task.num_actions)
+    from cec.evaluation.scripted import WithScripted
+
+    return WithScripted(network, task.num_actions, scripted=scripted)
+
+
+def _one_episode(
+    pair_params: Any, level: Any, key: jax.Array, env_params: Any, *, task: Task, net: Any, **rollout_kw: Any
+) -> Any:
+    """The `Trajectory` of one episode of the two seats' parameters (`per_seat`) on one level."""
+    k_reset, k_play = jax.random.split(key)
+    buffer = jax.tree.map(lambda x: x[None, None], level)  # E = 1 env, K = 1 level
+    carry = init_carry(task, net, env_params, buffer, k_reset)
+    _, traj = rollout(
+        pair_params,
+        carry,
+        buffer,
+        k_play,
+        task=task,
+        network=net,
+        env_params=env_params,
+        per_seat=True,
+        **rollout_kw,
+    )
+    return traj
+
+
 @functools.cache
 def play_fn(
     task: Task, network: NetworkConfig, num_steps: int, greedy: bool, scripted: tuple[str, ...] = ()
@@ -255,27 +285,11 @@ def play_fn(
     kinds the network is `cec.evaluation.scripted.WithScripted` (parameters from `with_scripted_params`):
     each seat's parameter set says whether it plays the network or one of the kinds.
     """
-    net = ActorCritic(network, task.num_actions)
-    if scripted:
-        from cec.evaluation.scripted import WithScripted
-
-        net = WithScripted(network, task.num_actions, scripted=scripted)
+    net = _module(network, task, scripted)
 
     def one_env(pair_params: Any, level: Any, key: jax.Array, env_params: Any) -> EpisodeOutcome:
-        k_reset, k_play = jax.random.split(key)
-        buffer = jax.tree.map(lambda x: x[None, None], level)  # E = 1 env, K = 1 level
-        carry = init_carry(task, net, env_params, buffer, k_reset)
-        _, traj = rollout(
-            pair_params,
-            carry,
-            buffer,
-            k_play,
-            task=task,
-            network=net,
-            env_params=env_params,
-            num_steps=num_steps,
-            per_seat=True,
-            greedy=greedy,
+        traj = _one_episode(
+            pair_params, level, key, env_params, task=task, net=net, num_steps=num_steps, greedy=greedy
         )
         return EpisodeOutcome(
             traj.reward.sum(),
@@ -286,6 +300,69 @@ def play_fn(
 
     per_game = jax.vmap(one_env, in_axes=(None, 0, 0, None))
     return jax.jit(jax.vmap(per_game, in_axes=(0, None, None, None)))
+
+
+@functools.cache
+def _states_fn(
+    task: Task, network: NetworkConfig, num_steps: int, greedy: bool, scripted: tuple[str, ...]
+) -> Callable[..., Any]:
+    net = _module(network, task, scripted)
+
+    def run(pair_params: Any, level: Any, key: jax.Array, env_params: Any) -> tuple[Any, jax.Array]:
+        traj = _one_episode(
+            pair_params,
+            level,
+            key,
+            env_params,
+            task=task,
+            net=net,
+            num_steps=num_steps,
+            greedy=greedy,
+            record="state",
+        )
+        return jax.tree.map(lambda x: x[:, 0], traj.state), traj.reward[:, 0].sum()
+
+    return jax.jit(run)
+
+
+def _lineup(policies: Sequence[Policy], reference: Policy) -> tuple[Task, NetworkConfig, tuple[str, ...]]:
+    """The game, the one network architecture and the scripted kinds an evaluation of `policies` runs.
+
+    Networks that differ only in E3T's partner model play as one architecture: the longest history, the
+    others embedded with zero weights (`embed_partner_model`: the same policies exactly)."""
+    k = max((p.network.partner_history for p in policies if p.scripted is None), default=0)
+    network = dataclasses.replace(reference.network, partner_history=k)
+    kinds = tuple(sorted({p.scripted for p in policies if p.scripted is not None}))
+    return Task.from_config(reference.env), network, kinds
+
+
+def episode_states(
+    seat0: Policy,
+    seat1: Policy,
+    level: Any,
+    level_name: str,
+    *,
+    seed: int = 0,
+    max_steps: int = 0,
+    greedy: bool = False,
+) -> tuple[Any, float]:
+    """One episode of `seat0` and `seat1` on `level`, as `crossplay` plays episode 0 of that pairing and
+    seat order (the same keys): the env states the actions were taken in (leading axis T, each with its
+    level, ready for `cec.envs.overcooked.render.rollout_frames`) and the team return."""
+    reference = next((p for p in (seat0, seat1) if p.scripted is None), seat0)
+    for p in (seat0, seat1):
+        problem = compatibility_problem(reference, p, [level_name])
+        if problem is not None:
+            raise ConfigError(f"{p.name} cannot play with {reference.name} on {level_name}: {problem}")
+    task, network, kinds = _lineup([seat0, seat1], reference)
+    steps = max_steps or int(reference.env.params.max_steps)
+    env_params = reference.env.params.replace(max_steps=steps)
+    pair = _stack([_seat_params(p, network, task, kinds) for p in (seat0, seat1)])
+    fn = _states_fn(task, network, steps, greedy, kinds)
+    states, team_return = jax.device_get(fn(pair, level, episode_key(seed, level_name, 0), env_params))
+    n = int(np.shape(states.agent_pos)[0])
+    levels = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n, *np.shape(x))), level)
+    return states.replace(level=levels), float(team_return)
 
 
 def _seat_params(policy: Policy, network: NetworkConfig, task: Task, kinds: tuple[str, ...]) -> Any:
@@ -336,16 +413,11 @@ def crossplay(
             usable.append(p)
         else:
             skipped_out.append(SkippedEntry(p.name, p.algorithm, p.seed, problem))
-    task = Task.from_config(reference.env)
+    task, network, kinds = _lineup(usable, reference)
     env_params = reference.env.params
     steps = config.max_steps or int(env_params.max_steps)
     env_params = env_params.replace(max_steps=steps)
     games = plan_games(usable, levels.names, config.pairs)
-    # Networks that differ only in E3T's partner model play as one architecture: the longest history,
-    # the others embedded with zero weights (`embed_partner_model`: the same policies exactly).
-    k = max((p.network.partner_history for p in usable if p.scripted is None), default=0)
-    network = dataclasses.replace(reference.network, partner_history=k)
-    kinds = tuple(sorted({p.scripted for p in usable if p.scripted is not None}))
     fn = play_fn(task, network, steps, config.greedy, kinds)
     stacked = _stack([_seat_params(p, network, task, kinds) for p in usable])
 

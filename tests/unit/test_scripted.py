@@ -78,3 +78,20 @@ def test_the_cook_is_a_zoo_partner_that_delivers_in_cross_play() -> None:
     table = crossplay([cook], eval_levels("overcooked", "classic"), EvalConfig(episodes=1, max_steps=400))
     assert len(table) == 5 and set(table.level) == set(oc.CLASSIC_ASCII)
     assert table.returns.min() >= 5 * 20.0, dict(zip(table.level, table.returns, strict=True))
+
+
+def test_an_episode_for_a_gif_is_crossplays_episode_and_renders() -> None:
+    """`episode_states` (`cec render --partners`) replays exactly the episode `crossplay` scores."""
+    from cec.envs.overcooked.render import rollout_frames
+    from cec.evaluation.crossplay import episode_states
+
+    env = EnvConfig(name="overcooked", levels="generator", overcooked=PARAMS)
+    cook = scripted_policy("cook", env=env)
+    table = crossplay([cook], eval_levels("overcooked", "coord_ring"), EvalConfig(episodes=1, max_steps=120))
+    states, team_return = episode_states(
+        cook, cook, oc.classic_level("coord_ring"), "coord_ring", max_steps=120
+    )
+    assert team_return == table.returns[0] > 0
+    assert np.shape(states.agent_pos) == (120, 2, 2)
+    frames = rollout_frames(jax.tree.map(lambda x: x[:3], states), tile_size=8)
+    assert len(frames) == 3 and frames[0].shape[2] == 3
