@@ -407,7 +407,7 @@ def build_parser() -> argparse.ArgumentParser:
     add_zoo_subcommands(sub)  # cec zoo build
     from apps.reproduce import add_subcommands as add_reproduce_subcommands
 
-    add_reproduce_subcommands(sub)  # cec reproduce dual-destination
+    add_reproduce_subcommands(sub)  # cec reproduce dual-destination, cec reproduce overcooked
     from services.stack import add_subcommands as add_stack_subcommands
 
     add_stack_subcommands(sub)  # cec up

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 import yaml
 
-from apps import reproduce as rp
 from apps.cli import main
+from apps.reproduce import dual_destination as rp
 from apps.zoo_build import plan_zoo
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import read_csv

@@ -45,7 +45,7 @@ import yaml
 from apps.machine import machine_info as _machine_info
 from cec.config import ConfigError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VARIANTS = ("full_obs", "partial_obs", "multi_task")
 VARIANT_TITLES = {
     "full_obs": "Fully observable",
@@ -1036,10 +1036,8 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_subcommands(sub: Any) -> None:
-    """Registers `cec reproduce dual-destination` on the `cec` command's subparsers."""
-    rep = sub.add_parser("reproduce", help="reproduce the paper's results end to end (docs/reproduce.md)")
-    rep_sub = rep.add_subparsers(dest="reproduce_command", required=True)
+def add_subcommand(rep_sub: Any) -> None:
+    """Registers `dual-destination` on the `cec reproduce` subparsers."""
     dd = rep_sub.add_parser(
         "dual-destination",
         help="train IPPO, FCP and CEC on the Dual Destination variants, cross-play, report beside the paper",

@@ -1,0 +1,541 @@
+"""`cec reproduce overcooked [--quick | --cpu | --paper]`: CEC on Overcooked against the paper's baselines.
+
+    cec reproduce overcooked --plan      # every training run, its size and the time it takes here
+    cec reproduce overcooked --quick     # the pipeline end to end at a small budget (minutes)
+    cec reproduce overcooked             # the CPU version (--cpu): the recipe of docs/reproduce_overcooked.md
+    cec reproduce overcooked --paper     # the paper's networks and budgets (a GPU job)
+
+1. **Train** (`cec zoo build`: finished runs are skipped, interrupted ones resumed, so the same command
+   continues after any interruption) CEC seeds on the procedural generator (the 100 held-out kitchens and
+   the five classic ones excluded), and on each classic kitchen IPPO seeds, FCP seeds (population: the
+   IPPO seeds of that kitchen at their first, middle and last checkpoints), E3T seeds, and CEC-Finetune
+   from each CEC seed. Every algorithm has the CEC recipe's network, so that only the training differs.
+2. **Evaluate** (`cec.evaluation.crossplay`, common random numbers, both seat orders, 400-step episodes)
+   each algorithm's seeds with each other (cross-play: partners they never met), with themselves
+   (self-play), and with the scripted cook (`cook`, a partner none of them trained with), on the five
+   classic kitchens and on the 100 held-out kitchens. A single-kitchen agent meets others on its own
+   kitchen among the classic ones, and plays every held-out kitchen.
+3. **Report** `report.md` + `summary.json`: per level set and algorithm the mean team return over seeds
+   (each seed's mean over its partners first: seeds are the independent units), SP beside XP beside the
+   cook, the paper's values (`paper_overcooked.yaml`, read off its figures) beside ours, Welch tests of CEC
+   against each baseline on per-seed XP, learning curves (PNG) and a GIF of two CEC seeds in a held-out
+   kitchen.
+
+The work directory (`--work`, default `runs/reproduce/overcooked-<mode>`) holds the zoo (`zoo/`), its spec
+and the result tables; the report goes to `--out` (default `benchmarks/results/overcooked/<mode>`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+import yaml
+
+from cec.config import ConfigError
+from cec.levels.classic import CLASSIC_ASCII
+
+ROOT = Path(__file__).resolve().parents[2]
+PAPER_FILE = Path(__file__).with_name("paper_overcooked.yaml")
+KITCHENS = tuple(CLASSIC_ASCII)
+ALGORITHMS = ("cec", "cec_finetune", "e3t", "fcp", "ippo")
+TITLES = {"cec": "CEC", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP", "ippo": "IPPO"}
+COOK = "cook"
+LEVEL_SETS = ("classic", "heldout")
+LEVEL_SET_TITLES = {"classic": "the 5 classic kitchens", "heldout": "the 100 held-out kitchens"}
+EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
+ALPHA = 0.05
+MEASURED_ON = "the CEC CPU preset, one seed, 2-core AMD EPYC, both cores busy (2.4k steps/s), 2026-11-22"
+TABLE_HEAD = "| algorithm | self-play | cross-play (unseen partners) | XP / SP | with the cook | paper (XP) |"
+
+
+@dataclass(frozen=True)
+class Mode:
+    """One version of the reproduction.
+
+    Attributes:
+        name: `quick`, `cpu` or `paper`.
+        preset: the CEC preset; every algorithm trains this network (the baselines with overrides).
+        seeds: per algorithm; CEC-Finetune fine-tunes each CEC seed (its seeds are the CEC seeds + 100).
+        steps: env steps per seed and algorithm (per kitchen for the single-kitchen ones).
+        kitchens: the classic kitchens the single-kitchen baselines train on.
+        episodes: evaluation episodes per pairing, seat order and level, per level set.
+        finetune: overrides of CEC-Finetune (on top of the CEC preset).
+        seconds_per_update: measured seconds of one update of one seed (the basis of `--plan`).
+        measured_on: where and how they were measured.
+        overrides: applied to every run (a tiny network in tests).
+        generated_levels: held-out generated kitchens played (fewer only in tests).
+    """
+
+    name: str
+    preset: str
+    seeds: dict[str, tuple[int, ...]]
+    steps: dict[str, int]
+    kitchens: tuple[str, ...] = KITCHENS
+    episodes: dict[str, int] = field(default_factory=lambda: {"classic": 4, "heldout": 1})
+    finetune: tuple[str, ...] = ("ppo.lr=0.001",)
+    seconds_per_update: float = math.nan
+    measured_on: str = ""
+    overrides: tuple[str, ...] = ()
+    generated_levels: int = 100
+
+
+QUICK = Mode(
+    name="quick",
+    preset="configs/train/cec_overcooked_cpu.yaml",
+    seeds={"cec": (200, 201), "ippo": (0, 1), "fcp": (100,), "e3t": (150,), "cec_finetune": (300, 301)},
+    steps={"cec": 327_680, "ippo": 163_840, "fcp": 163_840, "e3t": 163_840, "cec_finetune": 81_920},
+    kitchens=("cramped_room",),
+    episodes={"classic": 2, "heldout": 1},
+    seconds_per_update=6.8,
+    measured_on=MEASURED_ON,
+    generated_levels=20,
+)
+
+CPU = Mode(
+    name="cpu",
+    preset="configs/train/cec_overcooked_cpu.yaml",
+    seeds={
+        "cec": (200, 201, 202, 203),
+        "ippo": (0, 1, 2, 3),
+        "fcp": (100, 101, 102, 103),
+        "e3t": (150, 151, 152, 153),
+        "cec_finetune": (300, 301, 302, 303),
+    },
+    # CEC: the recipe's 916 updates; IPPO reached 56 per 128-step episode on Cramped Room at 2M steps
+    steps={"cec": 15_007_744, "ippo": 1_966_080, "fcp": 1_966_080, "e3t": 1_966_080, "cec_finetune": 983_040},
+    episodes={"classic": 4, "heldout": 1},
+    seconds_per_update=6.8,
+    measured_on=MEASURED_ON,
+)
+
+PAPER = Mode(
+    name="paper",
+    preset="configs/train/cec_overcooked.yaml",
+    seeds=CPU.seeds,
+    steps={
+        "cec": 3_000_000_000,
+        "ippo": 100_000_000,
+        "fcp": 100_000_000,
+        "e3t": 100_000_000,
+        "cec_finetune": 100_000_000,
+    },  # fmt: skip
+    finetune=("ppo.lr=0.00003",),
+)
+
+MODES = {"quick": QUICK, "cpu": CPU, "paper": PAPER}
+
+
+# ---------------------------------------------------------------------------------------------------------
+# THE PLAN: one `cec zoo build` spec
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _run_name(algorithm: str, kitchen: str = "") -> str:
+    return f"{algorithm}_{kitchen}" if kitchen else algorithm
+
+
+def zoo_spec(mode: Mode) -> dict[str, Any]:
+    """CEC first (the runs CEC-Finetune starts from), then per kitchen IPPO, FCP (its population: that
+    kitchen's IPPO run), E3T and CEC-Finetune (one run per CEC seed)."""
+    preset = str(ROOT / mode.preset)  # absolute: the spec works from any directory
+    common = list(mode.overrides)
+    cec_seeds = list(mode.seeds["cec"])
+
+    def entry(algo: str, seeds: Sequence[int], overrides: list[str], kitchen: str = "") -> dict[str, Any]:
+        return {
+            "preset": preset,
+            "seeds": list(seeds),
+            "name": _run_name(algo, kitchen),
+            "overrides": [f"total_env_steps={mode.steps[algo]}", *overrides, *common],
+        }
+
+    entries = [entry("cec", cec_seeds, [])]
+    for k in mode.kitchens:
+        single = [f"env.levels={k}"]
+        ippo = mode.seeds["ippo"]
+        population = (
+            f"[{{run: runs/{_run_name('ippo', k)}-s{ippo[0]}, seeds: {list(ippo)}, "
+            "checkpoints: [first, middle, last]}]"
+        )
+        entries += [
+            entry("ippo", ippo, ["algorithm=ippo", *single, "checkpoint.milestones=[0.0,0.5,1.0]"], k),
+            entry("fcp", mode.seeds["fcp"], ["algorithm=fcp", *single, "partner.kind=fcp",
+                                             f"partner.population={population}"], k),
+            entry("e3t", mode.seeds["e3t"], ["algorithm=e3t", *single, "partner.kind=e3t",
+                                             "partner.epsilon=0.55", "partner.predict_partner=10"], k),
+        ]  # fmt: skip
+        for cec_seed, ft_seed in zip(cec_seeds, mode.seeds["cec_finetune"], strict=True):
+            start = [f"init_from=runs/cec-s{cec_seeds[0]}", f"init_from_seed={cec_seed}"]
+            finetune = ["algorithm=cec_finetune", *start, *single, *mode.finetune]
+            entries.append(entry("cec_finetune", [ft_seed], finetune, k))
+    return {"entries": entries}
+
+
+@dataclass(frozen=True)
+class PlanLine:
+    """One training run with its size and estimated time."""
+
+    run: str
+    seeds: int
+    env_steps: int
+    updates: int
+    estimate_s: float
+
+
+def plan_lines(mode: Mode, work: Path) -> list[PlanLine]:
+    """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds)."""
+    from apps.zoo_build import plan_zoo
+
+    spec = _write_spec(mode, work)
+    return [
+        PlanLine(
+            r.config.run_name, len(r.seeds), r.config.total_env_steps, r.config.num_updates,
+            mode.seconds_per_update * r.config.num_updates * len(r.seeds),
+        )
+        for r in plan_zoo(spec, work / "zoo")
+    ]  # fmt: skip
+
+
+def _write_spec(mode: Mode, work: Path) -> Path:
+    work.mkdir(parents=True, exist_ok=True)
+    spec = work / "spec.yaml"
+    text = yaml.safe_dump(zoo_spec(mode), sort_keys=False)
+    spec.write_text(f"# Written by `cec reproduce overcooked` ({mode.name}).\n" + text)
+    return spec
+
+
+# ---------------------------------------------------------------------------------------------------------
+# EVALUATE
+# ---------------------------------------------------------------------------------------------------------
+
+
+def _log(log: TextIO, msg: str) -> None:
+    print(f"[reproduce {time.strftime('%H:%M:%S')}] {msg}", file=log, flush=True)
+
+
+def level_spec(mode: Mode, level_set: str) -> str:
+    if level_set == "classic":
+        return ",".join(mode.kitchens)
+    return ",".join(f"generated_{i:03d}" for i in range(mode.generated_levels))
+
+
+def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
+    """Per level set and algorithm: its seeds and the scripted cook, every pair (XP, SP, with the cook),
+    both seat orders -> one `EpisodeTable`. On the held-out kitchens single-kitchen agents play every
+    kitchen (the paper's baselines there)."""
+    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.results import EpisodeTable
+    from cec.evaluation.scripted import scripted_policy
+    from cec.evaluation.zoo import load_policies, load_zoo
+
+    policies, skipped = load_policies(load_zoo(manifest))
+    if skipped:
+        raise ConfigError(
+            "zoo entries could not be loaded: " + "; ".join(f"{s.name}: {s.reason}" for s in skipped)
+        )
+    cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
+    tables = []
+    for level_set in LEVEL_SETS:
+        spec = level_spec(mode, level_set)
+        levels = eval_levels("overcooked", spec)
+        config = EvalConfig(
+            levels=spec, episodes=mode.episodes[level_set], seed=seed, max_steps=EVAL_STEPS, games_per_call=8
+        )
+        for k, algo in enumerate(a for a in ALGORITHMS if any(p.algorithm == a for p in policies)):
+            group = [p for p in policies if p.algorithm == algo]
+            if level_set == "heldout":  # one entry per seed, free of its kitchen
+                firsts = {p.seed: p for p in reversed(group)}
+                group = [dataclasses.replace(p, levels=None) for p in firsts.values()]
+            t0 = time.perf_counter()
+            table = crossplay([*group, cook], levels, config)
+            if k:  # the cook's self-play once per level set
+                table = table.select((table.policy_a != COOK) | (table.policy_b != COOK))
+            tables.append(table)
+            _log(log, f"{algo}: {len(group)} entries + the cook on {LEVEL_SET_TITLES[level_set]}: "
+                      f"{len(table)} episodes in {time.perf_counter() - t0:.0f}s")  # fmt: skip
+    return EpisodeTable.concat(tables)
+
+
+def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) -> Any:
+    """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
+    SHA-256) nor the settings changed."""
+    from cec.evaluation.results import read_csv, write_csv
+    from cec.evaluation.zoo import load_zoo
+
+    results, key_file = work / "results.csv", work / "results.key.json"
+    zoo = sorted([e.name, e.seed, e.checkpoint, e.sha256] for e in load_zoo(manifest))
+    settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
+    key = json.loads(json.dumps({**settings, "steps": EVAL_STEPS, "zoo": zoo}))  # tuples as lists
+    if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
+        _log(log, f"cross-play results found ({results}); not played again")
+        return read_csv(results)
+    key_file.unlink(missing_ok=True)
+    table = evaluate(mode, manifest, log=log)
+    write_csv(table, results)
+    key_file.write_text(json.dumps(key, indent=1) + "\n")
+    return table
+
+
+# ---------------------------------------------------------------------------------------------------------
+# SUMMARY: seeds are the units
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SeedScores:
+    """One algorithm on one level set: per seed, its mean team return per episode with the other seeds of
+    its algorithm (`xp`), with itself (`sp`) and with the scripted cook (`cook`)."""
+
+    seeds: tuple[int, ...]
+    xp: tuple[float, ...]
+    sp: tuple[float, ...]
+    cook: tuple[float, ...]
+
+
+def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]:
+    """{algorithm: SeedScores} on `level_names` (the cook's own self-play under `cook`)."""
+    from cec.evaluation import analysis as an
+
+    pl = an.pair_level_scores(table, level_names)
+    m = an.pair_scores(pl)
+    cook = [i for i, p in enumerate(pl.policies) if p.algorithm == COOK]
+    out = {}
+    for algo in sorted({p.algorithm for p in pl.policies}):
+        idx = [i for i, p in enumerate(pl.policies) if p.algorithm == algo]
+
+        def mean(values: list[float]) -> float:
+            vals = [v for v in values if not math.isnan(v)]
+            return float(np.mean(vals)) if vals else math.nan
+
+        out[algo] = SeedScores(
+            tuple(pl.policies[i].seed for i in idx),
+            tuple(mean([m[i, j] for j in idx if j != i]) for i in idx),
+            tuple(float(m[i, i]) for i in idx),
+            tuple(mean([m[i, c] for c in cook]) for i in idx),
+        )
+    return out
+
+
+def _finite(values: Sequence[float]) -> np.ndarray:
+    arr = np.asarray(values, np.float64)
+    return arr[~np.isnan(arr)]
+
+
+def _cell(values: Sequence[float]) -> str:
+    from cec.evaluation.stats import sem
+
+    arr = _finite(values)
+    if not arr.size:
+        return "—"
+    err = sem(arr)
+    return f"{arr.mean():.1f}" + ("" if math.isnan(err) else f" ± {err:.1f}") + f" (n={arr.size})"
+
+
+def paper_values() -> dict[str, dict[str, float]]:
+    data = yaml.safe_load(PAPER_FILE.read_text())
+    return {s: dict(data.get(s, {})) for s in LEVEL_SETS}
+
+
+def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any]]:
+    """CEC against each baseline on per-seed XP (Welch t-test, bootstrap interval), per level set."""
+    from cec.evaluation.stats import compare
+
+    out = []
+    for level_set, scores in summary.items():
+        if "cec" not in scores:
+            continue
+        for other in ALGORITHMS[1:]:
+            a, b = _finite(scores["cec"].xp), _finite(scores.get(other, SeedScores((), (), (), ())).xp)
+            if a.size < 2 or b.size < 2:
+                continue
+            c = compare(a, b)
+            out.append({"level_set": level_set, "better": "cec", "worse": other, "diff": c.diff,
+                        "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
+                        "significant": bool(c.diff > 0 and c.p < ALPHA)})  # fmt: skip
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------
+# REPORT
+# ---------------------------------------------------------------------------------------------------------
+
+
+def write_report(
+    mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
+    plan: list[PlanLine], command: str,
+) -> Path:  # fmt: skip
+    """`out/report.md` and `out/summary.json`."""
+    from apps.reproduce.dual_destination import git_rev, machine_info
+
+    paper = paper_values()
+    tests = comparisons(summary)
+    out.mkdir(parents=True, exist_ok=True)
+    machine = machine_info()
+    lines = [
+        f"# CEC on Overcooked: `{command}`",
+        "",
+        f"Machine: {machine.get('cpu', '?')} ({machine.get('cores', '?')} cores), JAX on "
+        f"{machine.get('jax_device', '?')}; commit {git_rev()}; written {time.strftime('%Y-%m-%d %H:%M')}.",
+        "",
+        f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
+        "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
+        "its algorithm; SP: with itself; cook: with the scripted cook), ± the standard error over seeds, n = "
+        "seeds. The paper's values are read off its figures (approximate; "
+        "`apps/reproduce/paper_overcooked.yaml`).",
+        "",
+    ]
+    for level_set, scores in summary.items():
+        lines += [f"## {LEVEL_SET_TITLES[level_set]}", "", TABLE_HEAD, "|---|---|---|---|---|---|"]
+        for algo in [*ALGORITHMS, COOK]:
+            if algo not in scores:
+                continue
+            s = scores[algo]
+            sp, xp = _finite(s.sp), _finite(s.xp)
+            ratio = f"{xp.mean() / sp.mean():.2f}" if xp.size and sp.size and sp.mean() > 0 else "—"
+            ref = paper.get(level_set, {}).get(algo)
+            lines.append(
+                f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_cell(s.xp)} | {ratio} | "
+                f"{_cell(s.cook) if algo != COOK else '—'} | {'≈' + str(ref) if ref is not None else '—'} |"
+            )
+        lines.append("")
+    if tests:
+        lines += ["## CEC against the baselines (per-seed XP, Welch t-test)", "",
+                  "| level set | CEC − | difference | 95% bootstrap CI | p | CEC ahead (p < 0.05) |",
+                  "|---|---|---|---|---|---|"]  # fmt: skip
+        for t in tests:
+            lines.append(
+                f"| {t['level_set']} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
+                f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | "
+                f"{'yes' if t['significant'] else 'no'} |"
+            )
+        lines.append("")
+    lines += ["## Training", "", "| run | seeds | env steps per seed | updates |", "|---|---|---|---|"]
+    lines += [f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} |" for p in plan]
+    lines.append("")
+    for title, rel in figures.items():
+        lines += [f"![{title}]({rel})", ""]
+    report = out / "report.md"
+    report.write_text("\n".join(lines))
+    data = {
+        "mode": mode.name, "command": command, "machine": machine, "commit": git_rev(),
+        "eval_steps": EVAL_STEPS, "paper": paper, "tests": tests,
+        "summary": {ls: {a: dataclasses.asdict(s) for a, s in sc.items()} for ls, sc in summary.items()},
+    }  # fmt: skip
+    (out / "summary.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
+    return report
+
+
+def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO) -> dict[str, str]:
+    """Learning curves of every run (PNG) and a GIF of two CEC seeds in the held-out kitchen where they
+    scored best together (said so in its caption)."""
+    import jax
+
+    from cec.envs.overcooked.render import rollout_frames, save_gif
+    from cec.evaluation.crossplay import episode_states, eval_levels
+    from cec.evaluation.curves import plot_learning_curves
+    from cec.evaluation.zoo import load_policies, load_zoo
+
+    figures = {}
+    runs = {d.name: d for d in sorted((work / "zoo" / "runs").glob("*")) if (d / "metrics.csv").exists()}
+    cec_runs = {k: v for k, v in runs.items() if k.startswith("cec-")}
+    if cec_runs:
+        plot_learning_curves(cec_runs, out / "curves_cec.png", title="CEC on the generator's kitchens")
+        figures["CEC learning curves"] = "curves_cec.png"
+    others = {k: v for k, v in runs.items() if not k.startswith("cec-")}
+    if others:
+        plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
+        figures["Single-kitchen learning curves"] = "curves_baselines.png"
+    policies, _ = load_policies(load_zoo(work / "zoo" / "zoo.yaml"))
+    cec = [p for p in policies if p.algorithm == "cec"]
+    if len(cec) >= 2:
+        a, b = cec[0], cec[1]
+        rows = table.select(
+            (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
+            & np.char.startswith(table.level.astype(str), "generated_")
+        )  # fmt: skip
+        best = str(rows.level[int(np.argmax(rows.returns))]) if len(rows) else "generated_000"
+        level = jax.tree.map(lambda x: x[0], eval_levels("overcooked", best).levels)
+        states, ret = episode_states(a, b, level, best, max_steps=EVAL_STEPS)
+        save_gif(rollout_frames(states, 24), out / "cec_xp_heldout.gif", fps=10)
+        figures[f"CEC seeds {a.seed} and {b.seed} (never trained together) in {best}, the held-out kitchen "
+                f"where CEC pairs scored best; team return {ret:g}"] = "cec_xp_heldout.gif"  # fmt: skip
+    _log(log, f"figures: {', '.join(figures.values())}")
+    return figures
+
+
+# ---------------------------------------------------------------------------------------------------------
+# THE COMMAND
+# ---------------------------------------------------------------------------------------------------------
+
+
+def reproduce_overcooked(
+    mode: Mode, work: Path, out: Path, *, progress: bool = True, log: TextIO = sys.stdout, command: str = ""
+) -> Path | None:
+    """Train (resumable), evaluate (cached), report. Returns the report, or None when interrupted."""
+    from apps.zoo_build import build_zoo
+
+    spec = _write_spec(mode, work)
+    plan = plan_lines(mode, work)
+    result = build_zoo(spec, work / "zoo", progress=progress, log=log)
+    if result.interrupted or result.manifest is None:
+        _log(log, "training interrupted; run the same command again to continue")
+        return None
+    table = cached_evaluation(mode, result.manifest, work, log=log)
+    summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
+    figures = _figures(mode, work, out, table, log=log)
+    report = write_report(mode, summary, out, figures=figures, plan=plan, command=command)
+    _log(log, f"report: {report}")
+    return report
+
+
+def _duration(s: float) -> str:
+    if math.isnan(s):
+        return "not measured"
+    return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min"
+
+
+def _cmd(args: argparse.Namespace) -> int:
+    name = "quick" if args.quick else "paper" if args.paper else "cpu"
+    mode = MODES[name]
+    work = Path(args.work or f"runs/reproduce/overcooked-{name}")
+    out = Path(args.out or f"benchmarks/results/overcooked/{name}")
+    command = "cec reproduce overcooked" + ("" if name == "cpu" else f" --{name}")
+    if args.plan:
+        lines = plan_lines(mode, work)
+        total = sum(p.estimate_s for p in lines)
+        print(f"{command}: {len(lines)} training runs into {work}/zoo, report to {out}")
+        for p in lines:
+            print(f"  {p.run:<36} {p.seeds} seed(s) x {p.env_steps:>13,} steps ({p.updates} updates)"
+                  f"  ~{_duration(p.estimate_s)}")  # fmt: skip
+        print(f"training: ~{_duration(total)} on one core ({mode.seconds_per_update} s per update, seed; "
+              f"measured on {mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
+        return 0
+    report = reproduce_overcooked(mode, work, out, progress=not args.quiet, command=command)
+    return 0 if report is not None else 130
+
+
+def add_subcommand(rep_sub: Any) -> None:
+    """Registers `overcooked` on the `cec reproduce` subparsers."""
+    oc = rep_sub.add_parser(
+        "overcooked",
+        help="train CEC and the baselines on Overcooked, cross-play on classic and held-out kitchens, report",
+    )
+    size = oc.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="the pipeline at a small budget (minutes)")
+    size.add_argument("--cpu", action="store_true", help="the CPU version (the default; see --plan)")
+    size.add_argument("--paper", action="store_true", help="the paper's networks and budgets (a GPU job)")
+    oc.add_argument("--plan", action="store_true", help="print the runs and their expected time, then exit")
+    oc.add_argument("--work", help="runs and result tables (default runs/reproduce/overcooked-MODE)")
+    oc.add_argument("--out", help="report folder (default benchmarks/results/overcooked/MODE)")
+    oc.add_argument("--quiet", action="store_true", help="no per-update progress lines")
+    oc.set_defaults(func=_cmd)

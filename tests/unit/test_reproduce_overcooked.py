@@ -1,0 +1,109 @@
+"""`cec reproduce overcooked`: the plan, the whole pipeline at a tiny budget, the seed-level summary."""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from apps.cli import main
+from apps.reproduce import overcooked as ro
+from cec.evaluation.results import make_table
+
+TINY_NET = (
+    "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 0, actor_features: [8], "
+    "critic_features: [8], egocentric: true, cell_features: 2}"
+)
+TINY = ro.Mode(
+    name="tiny",
+    preset=ro.QUICK.preset,
+    seeds={
+        "cec": (200, 201),
+        "ippo": (0, 1),
+        "fcp": (100, 101),
+        "e3t": (150, 151),
+        "cec_finetune": (300, 301),
+    },
+    steps={a: 256 for a in ro.ALGORITHMS},  # 2 updates of 8 envs x 16 steps
+    kitchens=("cramped_room",),
+    episodes={"classic": 1, "heldout": 1},
+    overrides=(
+        "num_envs=8",
+        "num_steps=16",
+        "ppo.num_minibatches=2",
+        "ppo.update_epochs=1",
+        "updates_per_call=1",
+        TINY_NET,
+    ),  # fmt: skip
+    generated_levels=2,
+)
+
+
+def test_the_plan_trains_every_baseline_per_kitchen_with_the_cec_network(tmp_path: Path) -> None:
+    for mode in (ro.QUICK, ro.CPU, ro.PAPER):
+        lines = ro.plan_lines(mode, tmp_path / mode.name)
+        names = [p.run for p in lines]
+        assert names[0] == f"cec-s{mode.seeds['cec'][0]}"
+        for k in mode.kitchens:
+            for algo in ("ippo", "fcp", "e3t"):
+                assert f"{algo}_{k}-s{mode.seeds[algo][0]}" in names
+            finetunes = [n for n in names if n.startswith(f"cec_finetune_{k}-")]
+            assert len(finetunes) == len(mode.seeds["cec"])  # one per CEC seed
+        assert all(p.estimate_s > 0 for p in lines) or mode is ro.PAPER  # not measured on a CPU
+    spec = yaml.safe_load((tmp_path / "cpu" / "spec.yaml").read_text())["entries"]
+    fcp = next(e for e in spec if e["name"] == "fcp_cramped_room")
+    assert "runs/ippo_cramped_room-s0, seeds: [0, 1, 2, 3]" in next(
+        o for o in fcp["overrides"] if o.startswith("partner.population")
+    )
+    assert {e["preset"] for e in spec} == {str(ro.ROOT / ro.CPU.preset)}
+
+
+def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
+    """Seeds are the units: seed 0 paired with two partners is one number, not two samples."""
+    pairs = [(0, 1, 40.0), (0, 2, 20.0), (1, 2, 60.0), (0, 0, 80.0), (1, 1, 80.0), (2, 2, 100.0)]
+    rows = [("cec", a, "cec", b, seat, r) for a, b, r in pairs for seat in (0, 1)]
+    rows.append(("cec", 0, "cook", 0, 0, 20.0))
+    n = len(rows)
+    columns = {
+        "policy_a": [f"{r[0]}{r[1]}" for r in rows], "algorithm_a": [r[0] for r in rows],
+        "seed_a": [r[1] for r in rows], "policy_b": [f"{r[2]}{r[3]}" for r in rows],
+        "algorithm_b": [r[2] for r in rows], "seed_b": [r[3] for r in rows], "level": ["generated_000"] * n,
+        "seat": [r[4] for r in rows], "episode": [0] * n, "returns": [r[5] for r in rows],
+        "deliveries": [r[5] / 20 for r in rows], "collisions": [0] * n, "shaped_return": [0.0] * n,
+        "env": ["overcooked"] * n, "episode_steps": [400] * n, "actions": [6] * n,
+    }  # fmt: skip
+    table = make_table(columns)
+    scores = ro.seed_scores(table, ["generated_000"])["cec"]
+    assert scores.seeds == (0, 1, 2)
+    assert scores.xp == (30.0, 50.0, 40.0) and scores.sp == (80.0, 80.0, 100.0)
+    assert scores.cook[0] == 20.0 and np.isnan(scores.cook[1])
+
+
+@pytest.mark.timeout(900)
+def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results(tmp_path: Path) -> None:
+    work, out, log = tmp_path / "work", tmp_path / "out", io.StringIO()
+    report = ro.reproduce_overcooked(TINY, work, out, progress=False, log=log, command="tiny")
+    assert report is not None and report.exists()
+    text = report.read_text()
+    for needle in ("## the 5 classic kitchens", "## the 100 held-out kitchens", "| CEC |", "| IPPO |",
+                   "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "per-seed XP"):  # fmt: skip
+        assert needle in text, needle
+    summary = json.loads((out / "summary.json").read_text())
+    cec = summary["summary"]["heldout"]["cec"]
+    assert cec["seeds"] == [200, 201] and len(cec["xp"]) == 2 and len(cec["cook"]) == 2
+    assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
+    assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
+    # a second invocation trains nothing and plays nothing again
+    log = io.StringIO()
+    ro.reproduce_overcooked(TINY, work, out, progress=False, log=log, command="tiny")
+    assert "not played again" in log.getvalue() and "finished, skipping" in log.getvalue()
+
+
+def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    assert main(["reproduce", "overcooked", "--quick", "--plan", "--work", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "cec-s200" in printed and "ippo_cramped_room-s0" in printed and "training: ~" in printed
