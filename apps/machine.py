@@ -1,9 +1,11 @@
-"""The machine a command ran on, for results that name it (benchmarks, `cec reproduce` reports)."""
+"""The machine and commit a command ran on, for results that name them (benchmarks, `cec reproduce`)."""
 
 from __future__ import annotations
 
 import os
 import platform
+import subprocess
+from pathlib import Path
 from typing import Any
 
 
@@ -31,3 +33,36 @@ def machine_info(load_average: bool = False) -> dict[str, Any]:
             info["load_average_1_5_15min"] = []
     info.update(python=platform.python_version(), jax=jax.__version__)
     return info
+
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def git_rev(root: Path = REPO) -> str:
+    """The checkout's short commit, marked when the working tree has uncommitted changes."""
+    try:
+        out = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=root
+        )
+        dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=root)
+        return (out.stdout.strip() or "unknown") + (" (uncommitted changes)" if dirty.stdout.strip() else "")
+    except OSError:
+        return "unknown"
+
+
+def log_line(log: Any, who: str, msg: str) -> None:
+    """One timestamped progress line of a long command (`[who HH:MM:SS] msg`), flushed."""
+    import time
+
+    print(f"[{who} {time.strftime('%H:%M:%S')}] {msg}", file=log, flush=True)
+
+
+def duration(s: float) -> str:
+    """Seconds as minutes, hours or days; `?` when not known (NaN)."""
+    if s != s:
+        return "?"
+    if s < 3600:
+        return f"{s / 60:.0f} min"
+    if s < 2 * 86400:
+        return f"{s / 3600:.1f} h"
+    return f"{s / 86400:.1f} days"

@@ -18,7 +18,6 @@ import argparse
 import datetime
 import json
 import statistics
-import subprocess
 import sys
 import time
 import warnings
@@ -158,11 +157,9 @@ def machine() -> dict[str, Any]:
 
 
 def git_rev() -> str:
-    try:
-        out = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-        return out.stdout.strip() or "unknown"
-    except OSError:
-        return "unknown"
+    from apps.machine import git_rev as rev
+
+    return rev()
 
 
 def main(argv: list[str] | None = None) -> int:

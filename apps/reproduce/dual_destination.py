@@ -31,7 +31,6 @@ import argparse
 import datetime
 import json
 import math
-import subprocess
 import sys
 import time
 from collections.abc import Sequence
@@ -42,6 +41,7 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
+from apps.machine import duration, git_rev, log_line
 from apps.machine import machine_info as _machine_info
 from cec.config import ConfigError
 
@@ -297,7 +297,7 @@ def plan_lines(mode: Mode, variants: Sequence[str] = VARIANTS) -> list[PlanLine]
 
 
 def _log(log: TextIO, msg: str) -> None:
-    print(f"[reproduce {time.strftime('%H:%M:%S')}] {msg}", file=log, flush=True)
+    log_line(log, "reproduce", msg)
 
 
 def train_variant(
@@ -541,17 +541,6 @@ def check_claims(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -
 def machine_info() -> dict[str, Any]:
     """The machine the command ran on: host, CPU model, cores, JAX device, load average."""
     return _machine_info(load_average=True)
-
-
-def git_rev() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=ROOT
-        )
-        dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=ROOT)
-        return (out.stdout.strip() or "unknown") + (" (uncommitted changes)" if dirty.stdout.strip() else "")
-    except OSError:
-        return "unknown"
 
 
 def _pm(s: Score | None) -> str:
@@ -988,7 +977,7 @@ def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file
         file=file,
     )
     for ln in lines:
-        est = "?" if math.isnan(ln.estimate_s) else _duration(ln.estimate_s)
+        est = "?" if math.isnan(ln.estimate_s) else duration(ln.estimate_s)
         print(
             f"{ln.variant:12s} {ln.algorithm:9s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
             f"{est:>10s}",
@@ -996,21 +985,13 @@ def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file
         )
     total = sum(ln.estimate_s for ln in lines)
     basis = f" (from seconds per update measured on {mode.measured_on})" if mode.measured_on else ""
-    print(f"training total: {'?' if math.isnan(total) else _duration(total)}{basis}", file=file)
+    print(f"training total: {'?' if math.isnan(total) else duration(total)}{basis}", file=file)
     print(
         "evaluation: XP within each algorithm and everyone with the oracle partner, "
         f"{mode.episodes['fixed']} episodes on the fixed task and {mode.episodes['generated']} on each of "
         "100 generated tasks",
         file=file,
     )
-
-
-def _duration(s: float) -> str:
-    if s < 3600:
-        return f"{s / 60:.0f} min"
-    if s < 2 * 86400:
-        return f"{s / 3600:.1f} h"
-    return f"{s / 86400:.1f} days"
 
 
 def _cmd_reproduce_dd(args: argparse.Namespace) -> int:

@@ -41,6 +41,7 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
+from apps.machine import duration, git_rev, log_line, machine_info
 from cec.config import ConfigError
 from cec.levels.classic import CLASSIC_ASCII
 
@@ -51,7 +52,6 @@ ALGORITHMS = ("cec", "cec_finetune", "e3t", "fcp", "ippo")
 TITLES = {"cec": "CEC", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP", "ippo": "IPPO"}
 COOK = "cook"
 LEVEL_SETS = ("classic", "heldout")
-LEVEL_SET_TITLES = {"classic": "the 5 classic kitchens", "heldout": "the 100 held-out kitchens"}
 EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
 ALPHA = 0.05
 MEASURED_ON = "the CEC CPU preset, one seed, 2-core AMD EPYC, both cores busy (2.4k steps/s), 2026-11-22"
@@ -220,7 +220,7 @@ def _write_spec(mode: Mode, work: Path) -> Path:
 
 
 def _log(log: TextIO, msg: str) -> None:
-    print(f"[reproduce {time.strftime('%H:%M:%S')}] {msg}", file=log, flush=True)
+    log_line(log, "reproduce", msg)
 
 
 def level_spec(mode: Mode, level_set: str) -> str:
@@ -261,7 +261,7 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
             if k:  # the cook's self-play once per level set
                 table = table.select((table.policy_a != COOK) | (table.policy_b != COOK))
             tables.append(table)
-            _log(log, f"{algo}: {len(group)} entries + the cook on {LEVEL_SET_TITLES[level_set]}: "
+            _log(log, f"{algo}: {len(group)} entries + the cook on {len(levels.names)} {level_set} kitchens: "
                       f"{len(table)} episodes in {time.perf_counter() - t0:.0f}s")  # fmt: skip
     return EpisodeTable.concat(tables)
 
@@ -375,17 +375,17 @@ def write_report(
     plan: list[PlanLine], command: str,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`."""
-    from apps.reproduce.dual_destination import git_rev, machine_info
 
     paper = paper_values()
     tests = comparisons(summary)
     out.mkdir(parents=True, exist_ok=True)
-    machine = machine_info()
+    machine = machine_info(load_average=True)
     lines = [
         f"# CEC on Overcooked: `{command}`",
         "",
-        f"Machine: {machine.get('cpu', '?')} ({machine.get('cores', '?')} cores), JAX on "
-        f"{machine.get('jax_device', '?')}; commit {git_rev()}; written {time.strftime('%Y-%m-%d %H:%M')}.",
+        f"Machine: {machine['cpu']} ({machine['cpu_count']} cores, JAX on {machine['device']}), host "
+        f"{machine['host']}, load average {machine.get('load_average_1_5_15min')}; commit {git_rev()}; "
+        f"written {time.strftime('%Y-%m-%d %H:%M')}.",
         "",
         f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
         "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
@@ -395,7 +395,10 @@ def write_report(
         "",
     ]
     for level_set, scores in summary.items():
-        lines += [f"## {LEVEL_SET_TITLES[level_set]}", "", TABLE_HEAD, "|---|---|---|---|---|---|"]
+        title = (
+            f"{len(mode.kitchens)} classic" if level_set == "classic" else f"{mode.generated_levels} held-out"
+        )
+        lines += [f"## The {title} kitchens", "", TABLE_HEAD, "|---|---|---|---|---|---|"]
         for algo in [*ALGORITHMS, COOK]:
             if algo not in scores:
                 continue
@@ -498,12 +501,6 @@ def reproduce_overcooked(
     return report
 
 
-def _duration(s: float) -> str:
-    if math.isnan(s):
-        return "not measured"
-    return f"{s / 3600:.1f} h" if s >= 3600 else f"{s / 60:.0f} min"
-
-
 def _cmd(args: argparse.Namespace) -> int:
     name = "quick" if args.quick else "paper" if args.paper else "cpu"
     mode = MODES[name]
@@ -516,8 +513,8 @@ def _cmd(args: argparse.Namespace) -> int:
         print(f"{command}: {len(lines)} training runs into {work}/zoo, report to {out}")
         for p in lines:
             print(f"  {p.run:<36} {p.seeds} seed(s) x {p.env_steps:>13,} steps ({p.updates} updates)"
-                  f"  ~{_duration(p.estimate_s)}")  # fmt: skip
-        print(f"training: ~{_duration(total)} on one core ({mode.seconds_per_update} s per update, seed; "
+                  f"  ~{duration(p.estimate_s)}")  # fmt: skip
+        print(f"training: ~{duration(total)} on one core ({mode.seconds_per_update} s per update, seed; "
               f"measured on {mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
         return 0
     report = reproduce_overcooked(mode, work, out, progress=not args.quiet, command=command)
