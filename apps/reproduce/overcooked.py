@@ -439,8 +439,8 @@ def write_report(
 
 
 def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO) -> dict[str, str]:
-    """Learning curves of every run (PNG) and a GIF of two CEC seeds in the held-out kitchen where they
-    scored best together (said so in its caption)."""
+    """Learning curves of every run (PNG) and a GIF of the two CEC seeds and the held-out kitchen of the
+    best cross-play episode (said so in its caption)."""
     import jax
 
     from cec.envs.overcooked.render import rollout_frames, save_gif
@@ -460,18 +460,22 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO) -> d
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
     policies, _ = load_policies(load_zoo(work / "zoo" / "zoo.yaml"))
     cec = [p for p in policies if p.algorithm == "cec"]
-    if len(cec) >= 2:
-        a, b = cec[0], cec[1]
-        rows = table.select(
-            (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
-            & np.char.startswith(table.level.astype(str), "generated_")
-        )  # fmt: skip
-        best = str(rows.level[int(np.argmax(rows.returns))]) if len(rows) else "generated_000"
+    rows = table.select(
+        (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
+        & np.char.startswith(table.level.astype(str), "generated_")
+    )  # fmt: skip
+    if len(cec) >= 2 and len(rows):
+        i = int(np.argmax(rows.returns))  # the pair and kitchen of the best cross-play episode
+        best, by_seed = str(rows.level[i]), {p.seed: p for p in cec}
+        a, b = by_seed[int(rows.seed_a[i])], by_seed[int(rows.seed_b[i])]
         level = jax.tree.map(lambda x: x[0], eval_levels("overcooked", best).levels)
         states, ret = episode_states(a, b, level, best, max_steps=EVAL_STEPS)
         save_gif(rollout_frames(states, 24), out / "cec_xp_heldout.gif", fps=10)
-        figures[f"CEC seeds {a.seed} and {b.seed} (never trained together) in {best}, the held-out kitchen "
-                f"where CEC pairs scored best; team return {ret:g}"] = "cec_xp_heldout.gif"  # fmt: skip
+        caption = (
+            f"CEC seeds {a.seed} and {b.seed} (never trained together) in {best}: the pair and held-out "
+            f"kitchen of the best cross-play episode; this episode's team return {ret:g}"
+        )
+        figures[caption] = "cec_xp_heldout.gif"
     _log(log, f"figures: {', '.join(figures.values())}")
     return figures
 
