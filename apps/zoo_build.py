@@ -347,12 +347,14 @@ def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[s
 def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
     """Writes `out_dir/zoo.yaml` (atomically) and returns its path."""
     path = Path(out_dir) / MANIFEST
-    text = (
-        "# Written by `cec zoo build`: one policy per (run, seed) at the run's final checkpoint.\n"
-        + yaml.safe_dump({"policies": manifest_entries(plan, out_dir)}, sort_keys=False)
-    )
+    header = "Written by `cec zoo build`: one policy per (run, seed) at the run's final checkpoint."
+    return _write_manifest(path, header, manifest_entries(plan, out_dir))
+
+
+def _write_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> Path:
+    """Writes a zoo manifest atomically (a reader never sees half of it)."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
+    tmp.write_text(f"# {header}\n" + yaml.safe_dump({"policies": policies}, sort_keys=False))
     tmp.replace(path)
     return path
 
@@ -401,14 +403,8 @@ def export_zoo(
                 **({"levels": list(policy.levels)} if policy.levels else {}),
             }
         )
-    text = (
-        "# Written by `cec zoo export`: one-seed parameter checkpoints (cec.evaluation.zoo.save_policy).\n"
-        + yaml.safe_dump({"policies": kept + written}, sort_keys=False)
-    )
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
-    return path
+    header = "Written by `cec zoo export`: one-seed parameter checkpoints (cec.evaluation.zoo.save_policy)."
+    return _write_manifest(path, header, kept + written)
 
 
 # ---------------------------------------------------------------------------------------------------------

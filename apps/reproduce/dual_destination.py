@@ -379,21 +379,12 @@ def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
 
 def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> Any:
     """`evaluate_variant`, or the table an earlier invocation wrote (`vdir/results.csv`) when nothing it
-    depends on has changed (`evaluation_key`, stored beside it); a run interrupted during evaluation
-    plays it again."""
-    from cec.evaluation.results import read_csv, write_csv
+    depends on has changed (`evaluation_key`); see `apps.reproduce.cached_table`."""
+    from apps.reproduce import cached_table
 
-    results, key_file = vdir / "results.csv", vdir / "results.key.json"
-    key = json.loads(json.dumps(evaluation_key(mode, variant, manifest)))  # as stored: tuples as lists
-    if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
-        _log(log, f"{variant}: cross-play results found ({results}); not played again")
-        return read_csv(results)
-    _log(log, f"{variant}: cross-play")
-    key_file.unlink(missing_ok=True)
-    table = evaluate_variant(mode, variant, manifest, log=log)
-    write_csv(table, results)
-    key_file.write_text(json.dumps(key, indent=1) + "\n")
-    return table
+    key = evaluation_key(mode, variant, manifest)
+    play = lambda: evaluate_variant(mode, variant, manifest, log=log)  # noqa: E731
+    return cached_table(vdir, key, play, label=f"{variant}: ", log=log)
 
 
 @dataclass(frozen=True)

@@ -268,22 +268,14 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
 
 def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) -> Any:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
-    SHA-256) nor the settings changed."""
-    from cec.evaluation.results import read_csv, write_csv
+    SHA-256) nor the settings changed (`apps.reproduce.cached_table`)."""
+    from apps.reproduce import cached_table
     from cec.evaluation.zoo import load_zoo
 
-    results, key_file = work / "results.csv", work / "results.key.json"
     zoo = sorted([e.name, e.seed, e.checkpoint, e.sha256] for e in load_zoo(manifest))
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
-    key = json.loads(json.dumps({**settings, "steps": EVAL_STEPS, "zoo": zoo}))  # tuples as lists
-    if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
-        _log(log, f"cross-play results found ({results}); not played again")
-        return read_csv(results)
-    key_file.unlink(missing_ok=True)
-    table = evaluate(mode, manifest, log=log)
-    write_csv(table, results)
-    key_file.write_text(json.dumps(key, indent=1) + "\n")
-    return table
+    key = {**settings, "steps": EVAL_STEPS, "zoo": zoo}
+    return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
 
 
 # ---------------------------------------------------------------------------------------------------------
