@@ -33,6 +33,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import sys
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -273,42 +274,84 @@ def _check_plan(plan: list[PlannedRun], spec_path: Path) -> None:
 
 
 def build_zoo(
-    spec_path: str | Path, out_dir: str | Path, *, progress: bool = True, log: TextIO = sys.stderr
+    spec_path: str | Path,
+    out_dir: str | Path,
+    *,
+    progress: bool = True,
+    log: TextIO = sys.stderr,
+    poll_s: float = 30.0,
 ) -> BuildResult:
     """Trains every run of the spec that has not finished (resuming interrupted ones), in spec order,
-    then writes `out_dir/zoo.yaml`. Stops early (no manifest) when a run is interrupted (SIGINT/SIGTERM)."""
+    then writes `out_dir/zoo.yaml`. Stops early (no manifest) when a run is interrupted (SIGINT/SIGTERM).
+
+    Several processes may build the same zoo at once (one per core, or per machine on a shared disk): a
+    run another process trains (it holds the run's lock) is passed over, as is a run whose population or
+    `init_from` run is not finished yet, and both are come back to; with nothing left to start, the
+    process waits (`poll_s`) for the others. Each process writes the manifest once every run is done."""
     from cec import checkpoints
-    from cec.training.trainer import MetricsWriter, train
+    from cec.training.trainer import train
 
     plan = plan_zoo(spec_path, out_dir)
     trained: list[str] = []
     skipped: list[str] = []
-    for k, run in enumerate(plan, 1):
-        cfg = run.config
-        latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
-        head = f"[{k}/{len(plan)}] {cfg.run_name} ({run.label}, {cfg.algorithm}, seeds {_seeds(run.seeds)})"
-        if latest is not None and latest.update >= cfg.num_updates:
-            print(f"{head}: finished, skipping", file=log, flush=True)
-            skipped.append(cfg.run_name)
-            continue
-        if latest is None:
-            if run.run_dir.exists():  # killed before its first checkpoint: drop the stale metrics rows
-                MetricsWriter(run.run_dir).truncate_after(0)
-            print(f"{head}: training {cfg.num_updates} updates", file=log, flush=True)
-        else:
-            print(f"{head}: resuming at update {latest.update}/{cfg.num_updates}", file=log, flush=True)
-        result = train(cfg, resume=latest is not None, progress=progress, log=log)
-        trained.append(cfg.run_name)
-        if result.interrupted:
-            print(
-                f"zoo build interrupted in {cfg.run_name}; run the same command again to continue",
-                file=log,
-                flush=True,
-            )
-            return BuildResult(None, tuple(trained), tuple(skipped), True)
+    said: set[tuple[int, str]] = set()
+
+    def say(k: int, msg: str) -> None:
+        if (k, msg) not in said:
+            said.add((k, msg))
+            print(f"[{k + 1}/{len(plan)}] {plan[k].config.run_name} {msg}", file=log, flush=True)
+
+    pending = list(range(len(plan)))
+    while pending:
+        deferred = []
+        for k in pending:
+            run, cfg = plan[k], plan[k].config
+            if _finished(run):
+                say(k, "finished, skipping")
+                skipped.append(cfg.run_name)
+                continue
+            blocker = next((p for p in plan if _reads(run, p) and not _finished(p)), None)
+            if blocker is not None:
+                say(k, f"waits for {blocker.config.run_name} (not finished)")
+                deferred.append(k)
+                continue
+            latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
+            what = f"training {cfg.num_updates} updates"
+            if latest is not None:
+                what = f"resuming at update {latest.update}/{cfg.num_updates}"
+            say(k, f"({run.label}, {cfg.algorithm}, seeds {_seeds(run.seeds)}): {what}")
+            try:
+                result = train(cfg, resume=latest is not None, progress=progress, log=log)
+            except checkpoints.RunBusyError as err:
+                say(k, f"is trained elsewhere ({err}); going on with the others")
+                deferred.append(k)
+                continue
+            trained.append(cfg.run_name)
+            if result.interrupted:
+                print(
+                    f"zoo build interrupted in {cfg.run_name}; run the same command again to continue",
+                    file=log,
+                    flush=True,
+                )
+                return BuildResult(None, tuple(trained), tuple(skipped), True)
+        if deferred and deferred == pending:  # nothing startable: the others are training what is left
+            time.sleep(poll_s)
+        pending = deferred
     manifest = write_manifest(plan, out_dir)
     print(f"wrote {manifest} ({sum(len(r.seeds) for r in plan)} policies)", file=log, flush=True)
     return BuildResult(manifest, tuple(trained), tuple(skipped), False)
+
+
+def _finished(run: PlannedRun) -> bool:
+    from cec import checkpoints
+
+    latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
+    return latest is not None and latest.update >= run.config.num_updates
+
+
+def _reads(run: PlannedRun, other: PlannedRun) -> bool:
+    """Whether `run` starts from `other`'s checkpoints (an FCP population, an `init_from`)."""
+    return any(dep == other.run_dir for _, dep, _ in run.depends_on)
 
 
 def _seeds(seeds: tuple[int, ...]) -> str:

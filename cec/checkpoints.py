@@ -13,6 +13,8 @@ dtype against the caller's template (a checkpoint of another network or batch si
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import json
 import os
@@ -35,6 +37,53 @@ T = TypeVar("T")
 
 class CheckpointError(RuntimeError):
     """A checkpoint is missing, corrupt or does not match what the caller expects."""
+
+
+class RunBusyError(CheckpointError):
+    """Another process is training the run (it holds the run directory's lock)."""
+
+
+LOCK_FILE = ".lock"
+
+
+class RunLock:
+    """An exclusive, non-blocking lock on a run directory (`<run>/.lock`, flock), so two processes never
+    train the same run at once. The kernel drops it when the holder exits, however it exits, so a killed
+    trainer leaves no stale lock. The file holds the holder's pid, for messages."""
+
+    def __init__(self, run_dir: str | Path) -> None:
+        self.path = Path(run_dir) / LOCK_FILE
+        self._fd: int | None = None
+
+    def acquire(self) -> RunLock:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "?"
+            os.close(fd)
+            raise RunBusyError(
+                f"{self.path.parent} is being trained by another process (pid {holder}); wait for it to "
+                f"finish, or stop it (it saves a checkpoint) and resume"
+            ) from None
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        self._fd = fd
+        return self
+
+    def release(self) -> None:
+        if self._fd is not None:
+            with contextlib.suppress(OSError):
+                os.ftruncate(self._fd, 0)
+            os.close(self._fd)  # closing drops the flock
+            self._fd = None
+
+    def __enter__(self) -> RunLock:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
 
 
 def code_version() -> str:

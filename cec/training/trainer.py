@@ -412,9 +412,11 @@ class _StopFlag:
 class RunFiles:
     """A run directory's files: config, metrics rows, checkpoints (shared by the trainer and the learner).
 
-    `open` checks the directory (a run with checkpoints continues only with `resume`), loads the latest
-    checkpoint into the trainer's state template (refusing one written with another config), trims metrics
-    rows written after it, and returns the state and update count to continue from (None, 0: a new run).
+    `open` takes the run directory's lock (`checkpoints.RunBusyError` when another process trains it),
+    checks the directory (a run with checkpoints continues only with `resume`), loads the latest checkpoint
+    into the trainer's state template (refusing one written with another config), trims metrics rows
+    written after it, and returns the state and update count to continue from (None, 0: a new run).
+    `close` drops the lock.
     """
 
     def __init__(self, config: TrainConfig) -> None:
@@ -422,6 +424,7 @@ class RunFiles:
         self.run_dir = Path(config.run_dir) / config.run_name
         self.store = checkpoints.CheckpointStore(self.run_dir, config.checkpoint.keep_last)
         self.writer = MetricsWriter(self.run_dir)
+        self.lock = checkpoints.RunLock(self.run_dir)
         total = config.num_updates
         self.milestones = sorted({min(total, max(0, round(f * total))) for f in config.checkpoint.milestones})
         self.metadata = {
@@ -435,14 +438,25 @@ class RunFiles:
         }
 
     def open(self, template: TrainState, resume: bool, log: TextIO) -> tuple[TrainState | None, int]:
+        self.lock.acquire()
+        try:
+            return self._open(template, resume, log)
+        except BaseException:
+            self.lock.release()
+            raise
+
+    def close(self) -> None:
+        self.lock.release()
+
+    def _open(self, template: TrainState, resume: bool, log: TextIO) -> tuple[TrainState | None, int]:
         latest = self.store.latest()
         if latest is not None and not resume:
             raise checkpoints.CheckpointError(
                 f"{self.run_dir} already has checkpoints; resume it with --resume {self.run_dir} "
                 "or choose another name or run_dir"
             )
-        self.run_dir.mkdir(parents=True, exist_ok=True)
         if latest is None:
+            self.writer.truncate_after(0)  # rows of an attempt killed before its first checkpoint
             (self.run_dir / "config.yaml").write_text(
                 yaml.safe_dump(config_dict(self.config), sort_keys=False)
             )
@@ -491,8 +505,24 @@ def train(
     trainer = Trainer(config)
     trainer.load_partners()  # a bad population stops the run here, before any work
     files = RunFiles(config)
-    run_dir, writer = files.run_dir, files.writer
     loaded, done = files.open(trainer.state_template(), resume, log)
+    try:
+        return _train_loop(trainer, files, loaded, done, max_updates, progress, log)
+    finally:
+        files.close()
+
+
+def _train_loop(
+    trainer: Trainer,
+    files: RunFiles,
+    loaded: TrainState | None,
+    done: int,
+    max_updates: int | None,
+    progress: bool,
+    log: TextIO,
+) -> RunResult:
+    config = files.config
+    run_dir, writer = files.run_dir, files.writer
     state = trainer.init() if loaded is None else loaded
     total = config.num_updates
     stop_at = total if max_updates is None else min(total, done + max_updates)

@@ -134,8 +134,12 @@ class Learner:
         M.LEARNER_RESTARTS.set(restarts)
         state = self.trainer.init() if loaded is None else loaded
         one = jax.tree.map(lambda x: x[0], state)  # the run's one seed
-        self._connect_store(resume=loaded is not None)
-        self._start_actors(one.carry)
+        try:
+            self._connect_store(resume=loaded is not None)
+            self._start_actors(one.carry)
+        except BaseException:
+            self.files.close()
+            raise
         total = cfg.num_updates
         stop_at = total if max_updates is None else min(total, done + max_updates)
         if done == 0 and 0 in self.files.milestones:
@@ -190,6 +194,7 @@ class Learner:
             partial = status == "finished" and done < total  # max_updates reached
             self._set_status("interrupted" if partial else status)
             self._close_actors()
+            self.files.close()
         return {"updates": done, "status": status, "run_dir": str(self.files.run_dir)}
 
     # ---- actors -----------------------------------------------------------------------------------------

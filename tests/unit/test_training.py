@@ -2,6 +2,8 @@
 
 import json
 import shutil
+import subprocess
+import sys
 
 import jax
 import jax.numpy as jnp
@@ -170,6 +172,28 @@ def test_resume_refuses_a_changed_config(tmp_path):
     train(_config(tmp_path, total_env_steps=4 * 12), progress=False)
     with pytest.raises(checkpoints.CheckpointError, match="different config"):
         train(_config(tmp_path, total_env_steps=4 * 12, ppo={"lr": 1e-3}), resume=True, progress=False)
+
+
+def test_a_run_trained_by_another_process_is_refused_until_that_process_ends(tmp_path):
+    """Two trainers never write the same run directory; a killed holder leaves no stale lock."""
+    cfg = _config(tmp_path, total_env_steps=4 * 12)
+    run_dir = tmp_path / cfg.run_name
+    hold = f"from cec import checkpoints; checkpoints.RunLock({str(run_dir)!r}).acquire(); print('held')"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", hold + "; import sys, time; sys.stdout.flush(); time.sleep(600)"],
+        stdout=subprocess.PIPE,
+        text=True,
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(checkpoints.RunBusyError, match=rf"another process \(pid {holder.pid}\)"):
+            train(cfg, progress=False)
+        assert not (run_dir / "checkpoints").exists()  # refused before any work
+    finally:
+        holder.kill()
+        holder.wait()
+    train(cfg, progress=False)  # the kernel dropped the killed holder's lock
+    train(cfg, resume=True, progress=False)  # and train released its own when it returned
 
 
 @pytest.mark.parametrize(

@@ -105,6 +105,50 @@ def test_export_writes_one_seed_parameter_checkpoints_that_play_as_the_originals
         export_zoo(out / "zoo.yaml", shipped, names=["nope"])
 
 
+def test_builds_side_by_side_share_the_runs(zoo, tmp_path, monkeypatch):
+    """A run another process holds is passed over, a run reading it waits, and the build goes on once the
+    other process is done (here: the IPPO run is held; its holder finishes it while this build waits)."""
+    from apps import zoo_build
+
+    spec, built, _ = zoo
+    out = tmp_path / "zoo"
+    shutil.copytree(built, out)
+    (out / "zoo.yaml").unlink()
+    ippo, fcp = out / "runs/ippo-dual_destination-fixed-s0", out / "runs/fcp-dual_destination-fixed-s0"
+    finals = {run: run / "checkpoints/update_000000002" for run in (ippo, fcp)}
+    for final in finals.values():
+        shutil.rmtree(final)
+    holder = checkpoints.RunLock(ippo).acquire()  # "another process" trains the IPPO run
+
+    # the real trainer refuses a held run, naming the holder
+    cfg = next(r.config for r in plan_zoo(spec, out) if r.run_dir == ippo)
+    with pytest.raises(checkpoints.RunBusyError, match=r"being trained by another process \(pid \d+\)"):
+        trainer.train(cfg, resume=True, log=io.StringIO())
+
+    trained, waits = [], []
+
+    def fake_train(config, *, resume, progress, log):  # locks the run as the real one does
+        with checkpoints.RunLock(Path(config.run_dir) / config.run_name):
+            trained.append(config.run_name)
+            shutil.copytree(built / "runs" / fcp.name / finals[fcp].relative_to(fcp), finals[fcp])
+        return trainer.RunResult(None, fcp, 2, interrupted=False)
+
+    def other_process_finishes(seconds):
+        waits.append(seconds)
+        shutil.copytree(built / "runs" / ippo.name / finals[ippo].relative_to(ippo), finals[ippo])
+        holder.release()
+
+    monkeypatch.setattr(trainer, "train", fake_train)
+    monkeypatch.setattr(zoo_build.time, "sleep", other_process_finishes)
+    log = io.StringIO()
+    result = build_zoo(spec, out, log=log, poll_s=7)
+    text = log.getvalue()
+    assert "ippo-dual_destination-fixed-s0 is trained elsewhere" in text
+    assert "fcp-dual_destination-fixed-s0 waits for ippo-dual_destination-fixed-s0" in text
+    assert waits == [7] and trained == [fcp.name]
+    assert result.manifest == out / "zoo.yaml" and result.skipped == (ippo.name,)
+
+
 def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_path, monkeypatch):
     spec, out, _ = zoo
     log = io.StringIO()
