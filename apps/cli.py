@@ -405,6 +405,9 @@ def build_parser() -> argparse.ArgumentParser:
     from apps.zoo_build import add_subcommands as add_zoo_subcommands
 
     add_zoo_subcommands(sub)  # cec zoo build
+    from apps.humans import add_subcommands as add_humans_subcommands
+
+    add_humans_subcommands(sub)  # cec humans import, replay, bc
     from apps.reproduce import add_subcommands as add_reproduce_subcommands
 
     add_reproduce_subcommands(sub)  # cec reproduce dual-destination, cec reproduce overcooked

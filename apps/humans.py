@@ -1,0 +1,176 @@
+"""`cec humans ...`: the recorded human-human Overcooked games, imported, replayed, cloned into proxies.
+
+    cec humans import [--out data/humans]          read overcooked-ai's games once, write the safe format
+    cec humans replay [--data data/humans]         replay every recorded step through our dynamics
+
+`import` is the only place the games' pickles are read: they are pandas pickles inside the trusted
+`overcooked-ai` package (the `peers` extra: `pip install -e '.[peers]'`), and they are opened only after
+their SHA-256 matches the one pinned here (that of `overcooked-ai` 1.1.0). Everything downstream reads the
+safe format (`cec.humans.data`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import hashlib
+import importlib.util
+import sys
+from pathlib import Path
+from typing import Any, TextIO
+
+from apps.machine import log_line
+from cec.config import ConfigError
+from cec.humans.data import (
+    DATA_KITCHENS,
+    FORMAT,
+    KITCHENS,
+    SPLITS,
+    HumanDataError,
+    Steps,
+    convert_action,
+    convert_state,
+    load_steps,
+    save_steps,
+    stack_steps,
+)
+
+PACKAGE = "overcooked_ai_py"
+PACKAGE_VERSION = "1.1.0"
+#: The pickles of `overcooked-ai` 1.1.0 (`overcooked_ai_py/data/human_data/`) by split, with their SHA-256.
+PICKLES = {
+    "train": (
+        "clean_train_trials.pickle",
+        "28659cfd09ee033d82b56bed905b239f078877e1b09d1f1b916e4bc0480ca4fa",
+    ),
+    "test": ("clean_test_trials.pickle", "59979552a053f1efe762de976f37dd83e269d70d19b67613c61e856c86705666"),
+}
+DEFAULT_DATA = "data/humans"
+
+
+def package_data_dir() -> Path:
+    """`overcooked_ai_py/data/human_data` of the installed package (found without importing it)."""
+    spec = importlib.util.find_spec(PACKAGE)
+    if spec is None or not spec.submodule_search_locations:
+        raise ConfigError(
+            f"the {PACKAGE} package (PyPI: overcooked-ai=={PACKAGE_VERSION}) is not installed; install the "
+            "peers extra: pip install -e '.[peers]' (make install does)"
+        )
+    return Path(next(iter(spec.submodule_search_locations))) / "data" / "human_data"
+
+
+def read_split(split: str, *, games_per_kitchen: int | None = None, log: TextIO = sys.stderr) -> Steps:
+    """One split of the package's games as `Steps` (the pickle's SHA-256 checked before it is opened).
+
+    `games_per_kitchen` keeps only the first games of each kitchen (tests)."""
+    import pandas as pd  # the peers extra; only here
+
+    name, pinned = PICKLES[split]
+    path = package_data_dir() / name
+    if not path.is_file():
+        raise ConfigError(f"{path} does not exist; reinstall overcooked-ai=={PACKAGE_VERSION}")
+    digest = hashlib.sha256(path.read_bytes()).hexdigest()
+    if digest != pinned:
+        raise ConfigError(
+            f"{path} has SHA-256 {digest[:12]}..., not that of overcooked-ai {PACKAGE_VERSION}'s file "
+            f"({pinned[:12]}...): refusing to unpickle it; reinstall overcooked-ai=={PACKAGE_VERSION}"
+        )
+    frame = pd.read_pickle(path)
+    rows: list[dict[str, Any]] = []
+    games = list(dict.fromkeys(zip(frame["layout_name"], frame["workerid_num"], strict=True)))
+    kept: dict[str, int] = {}
+    for trial, (layout, worker) in enumerate(games):
+        if layout not in DATA_KITCHENS:
+            raise HumanDataError(f"{path}: unknown kitchen {layout!r}; expected one of {list(DATA_KITCHENS)}")
+        kitchen = DATA_KITCHENS[layout]
+        kept[kitchen] = kept.get(kitchen, 0) + 1
+        if games_per_kitchen is not None and kept[kitchen] > games_per_kitchen:
+            continue
+        game = frame[(frame["layout_name"] == layout) & (frame["workerid_num"] == worker)]
+        game = game.sort_values("cur_gameloop")
+        for rec in game.itertuples(index=False):
+            try:
+                row = _convert_row(rec, kitchen)
+            except (HumanDataError, KeyError, TypeError, ValueError, SyntaxError) as err:
+                raise HumanDataError(
+                    f"{path}: game {layout}/{worker}, step {rec.cur_gameloop}: {err}; the pickle is not "
+                    f"overcooked-ai {PACKAGE_VERSION}'s"
+                ) from err
+            rows.append({**row, "trial": trial, "participant": int(worker)})
+        log_line(
+            log,
+            "humans",
+            f"{split}: game {trial + 1}/{len(games)} ({layout}, worker {worker}): {len(game)} steps",
+        )
+    return stack_steps(rows)
+
+
+def _convert_row(rec: Any, kitchen: str) -> dict[str, Any]:
+    state = convert_state(ast.literal_eval(rec.state), kitchen)
+    nxt = convert_state(ast.literal_eval(rec.next_state), kitchen)
+    joint = ast.literal_eval(rec.joint_action)
+    return {
+        **state,
+        **{f"next_{k}": v for k, v in nxt.items()},
+        "kitchen": KITCHENS.index(kitchen),
+        "time": int(rec.cur_gameloop),
+        "actions": [convert_action(a) for a in joint],
+        "reward": float(rec.reward),
+    }
+
+
+def import_games(out: str | Path, *, games_per_kitchen: int | None = None, log: TextIO = sys.stderr) -> Path:
+    """Reads both splits from the package and writes them in the safe format; returns `meta.json`."""
+    splits = {split: read_split(split, games_per_kitchen=games_per_kitchen, log=log) for split in SPLITS}
+    source = {
+        "package": f"overcooked-ai=={PACKAGE_VERSION}",
+        "files": {split: {"name": name, "sha256": sha} for split, (name, sha) in PICKLES.items()},
+        "games_per_kitchen": games_per_kitchen,
+    }
+    return save_steps(splits, out, source=source)
+
+
+def _cmd_import(args: argparse.Namespace) -> int:
+    meta = import_games(args.out, games_per_kitchen=args.games_per_kitchen)
+    print(f"wrote {meta.parent} ({FORMAT})")
+    for split in SPLITS:
+        counts = load_steps(meta.parent, split).counts()
+        print(f"{split}:")
+        for kitchen, c in counts.items():
+            print(
+                f"  {kitchen:<18} {c['games']:>2} games {c['steps']:>6} steps {c['deliveries']:>4} deliveries"
+            )
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from cec.humans.replay import COMPARED, replay_steps
+
+    worst = 1.0
+    for split in SPLITS:
+        steps = load_steps(args.data, split)
+        for kitchen, r in replay_steps(steps).items():
+            worst = min(worst, r.share)
+            print(f"{split:<5} {kitchen:<18} {r.exact:>6}/{r.steps:<6} exact ({100 * r.share:.2f}%)")
+            for label, n in r.classes.most_common():
+                rows = ", ".join(str(steps.trial[i]) + ":" + str(steps.time[i]) for i in r.examples[label])
+                print(f"      differs in {label}: {n} step(s), e.g. game:step {rows}")
+    print(f"compared: {', '.join(COMPARED)}; lowest share {100 * worst:.2f}%")
+    return 0
+
+
+def add_subcommands(sub: Any) -> None:
+    """Registers `cec humans import|replay` on the `cec` command's subparsers."""
+    humans = sub.add_parser("humans", help="recorded human-human games: import, replay, human proxies")
+    humans_sub = humans.add_subparsers(dest="humans_command", required=True)
+    imp = humans_sub.add_parser(
+        "import", help=f"read overcooked-ai {PACKAGE_VERSION}'s human-human games once, write the safe format"
+    )
+    imp.add_argument("--out", default=DEFAULT_DATA, help=f"folder to write (default {DEFAULT_DATA})")
+    imp.add_argument("--games-per-kitchen", type=int, help="keep only the first N games of each kitchen")
+    imp.set_defaults(func=_cmd_import)
+    rep = humans_sub.add_parser(
+        "replay", help="replay every recorded step through our dynamics, report matches"
+    )
+    rep.add_argument("--data", default=DEFAULT_DATA, help=f"imported folder (default {DEFAULT_DATA})")
+    rep.set_defaults(func=_cmd_replay)
