@@ -2,6 +2,7 @@
 
     cec humans import [--out data/humans]          read overcooked-ai's games once, write the safe format
     cec humans replay [--data data/humans]         replay every recorded step through our dynamics
+    cec humans bc [--data data/humans] [--out DIR]  behaviour-cloned human proxies -> DIR/zoo.yaml
 
 `import` is the only place the games' pickles are read: they are pandas pickles inside the trusted
 `overcooked-ai` package (the `peers` extra: `pip install -e '.[peers]'`), and they are opened only after
@@ -13,14 +14,21 @@ from __future__ import annotations
 
 import argparse
 import ast
+import dataclasses
 import hashlib
 import importlib.util
+import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
 
+import numpy as np
+
 from apps.machine import log_line
 from cec.config import ConfigError
+from cec.envs.overcooked.state import Action
+from cec.humans.bc import BCConfig
 from cec.humans.data import (
     DATA_KITCHENS,
     FORMAT,
@@ -159,6 +167,116 @@ def _cmd_replay(args: argparse.Namespace) -> int:
     return 0
 
 
+# ---------------------------------------------------------------------------------------------------------
+# HUMAN PROXIES
+# ---------------------------------------------------------------------------------------------------------
+
+DEFAULT_PROXIES = "runs/humans/proxies"
+#: Proxies per split, as in Carroll et al. (2019): `bc` learns from the train games (early-stopped on the
+#: test games), `hp` from the test games (early-stopped on the train games) -- two disjoint sets of players.
+PROXY_SPLITS = {"bc": ("train", "test"), "hp": ("test", "train")}
+
+
+def train_proxies(
+    data: str | Path,
+    out: str | Path,
+    *,
+    kitchens: Sequence[str] = ("all", *KITCHENS),
+    config: BCConfig | None = None,
+    log: TextIO = sys.stderr,
+) -> Path:
+    """Trains a `bc` and an `hp` proxy per kitchen (`all`: one across the five), saves each as a one-seed
+    parameter checkpoint, writes `out/zoo.yaml` (algorithm `human_proxy`; per-kitchen proxies restricted
+    to their kitchen) and `out/bc.json` (figures per proxy). Returns the manifest."""
+    from apps.zoo_build import MANIFEST, merge_manifest
+    from cec import checkpoints
+    from cec.evaluation.zoo import Policy, save_policy
+    from cec.humans.bc import PROXY_NETWORK, samples, train_bc
+    from cec.training.config import TrainConfig
+    from cec.training.tasks import EnvConfig
+    from cec.training.trainer import config_dict
+
+    config = config or BCConfig()
+    unknown = sorted(set(kitchens) - {"all", *KITCHENS})
+    if unknown:
+        raise ConfigError(f"unknown kitchen(s) {unknown}; choose from {['all', *KITCHENS]}")
+    out = Path(out)
+    split_samples = {split: samples(load_steps(data, split)) for split in SPLITS}
+    entries, figures = [], {}
+    for kitchen in kitchens:
+        for prefix, (fit_on, stop_on) in PROXY_SPLITS.items():
+            name = f"{prefix}_{kitchen}"
+            fit, stop = split_samples[fit_on], split_samples[stop_on]
+            if kitchen != "all":
+                code = KITCHENS.index(kitchen)
+                fit, stop = fit.select(fit.kitchen == code), stop.select(stop.kitchen == code)
+            result = train_bc(fit, stop, config, log=log, label=name)
+            carrier = TrainConfig(
+                algorithm="ippo",
+                env=EnvConfig(levels=KITCHENS[0] if kitchen == "all" else kitchen),
+                network_overrides=PROXY_NETWORK,
+                seed=config.seed,
+            )  # the network and game the parameters belong to
+            policy = Policy(name, "human_proxy", config.seed, result.params, PROXY_NETWORK, carrier.env)
+            saved = save_policy(
+                policy, out / name, config=config_dict(carrier), env_steps=0, update=result.best_epoch
+            )
+            entry: dict[str, Any] = {
+                "name": name,
+                "algorithm": "human_proxy",
+                "seed": config.seed,
+                "checkpoint": name,
+                "sha256": checkpoints.read_meta(saved)["sha256"],
+            }
+            if kitchen != "all":
+                entry["levels"] = [kitchen]
+            entries.append(entry)
+            figures[name] = {
+                "kitchen": kitchen,
+                "trained_on": fit_on,
+                "early_stopped_on": stop_on,
+                "samples": len(fit),
+                "best_epoch": result.best_epoch,
+                "cross_entropy": round(result.test_cross_entropy, 4),
+                "accuracy": round(result.test_accuracy, 4),
+                **_frequency_baseline(fit, stop),
+                "history": result.history,
+            }
+            acc, ce = result.test_accuracy, result.test_cross_entropy
+            log_line(
+                log, "humans", f"{name}: on the {stop_on} games accuracy {acc:.3f}, cross-entropy {ce:.3f}"
+            )
+    figures_file = out / "bc.json"
+    if figures_file.is_file():  # proxies of other kitchens trained earlier stay
+        figures = {**json.loads(figures_file.read_text())["proxies"], **figures}
+    doc = {"config": dataclasses.asdict(config), "proxies": figures}
+    figures_file.write_text(json.dumps(doc, indent=1) + "\n")
+    return merge_manifest(
+        out / MANIFEST, "Written by `cec humans bc`: behaviour-cloned human proxies.", entries
+    )
+
+
+def _frequency_baseline(fit: Any, stop: Any) -> dict[str, float]:
+    """Accuracy and cross-entropy on `stop` of predicting `fit`'s action frequencies (no observation)."""
+    freq = np.bincount(fit.actions, minlength=len(Action)) / len(fit)
+    return {
+        "frequency_accuracy": round(float(np.mean(stop.actions == freq.argmax())), 4),
+        "frequency_cross_entropy": round(float(-np.mean(np.log(freq[stop.actions]))), 4),
+    }
+
+
+def _cmd_bc(args: argparse.Namespace) -> int:
+    config = BCConfig(epochs=args.epochs, seed=args.seed)
+    manifest = train_proxies(args.data, args.out, kitchens=args.kitchens or ("all", *KITCHENS), config=config)
+    figures = json.loads((manifest.parent / "bc.json").read_text())["proxies"]
+    print(f"wrote {manifest}")
+    print(f"{'proxy':<22} {'held-out games':<15} {'accuracy':>8} {'CE':>6}   frequency-only: accuracy, CE")
+    for name, f in figures.items():
+        print(f"{name:<22} {f['early_stopped_on']:<15} {f['accuracy']:>8.3f} {f['cross_entropy']:>6.3f}"
+              f"   {f['frequency_accuracy']:.3f}, {f['frequency_cross_entropy']:.3f}")  # fmt: skip
+    return 0
+
+
 def add_subcommands(sub: Any) -> None:
     """Registers `cec humans import|replay` on the `cec` command's subparsers."""
     humans = sub.add_parser("humans", help="recorded human-human games: import, replay, human proxies")
@@ -174,3 +292,12 @@ def add_subcommands(sub: Any) -> None:
     )
     rep.add_argument("--data", default=DEFAULT_DATA, help=f"imported folder (default {DEFAULT_DATA})")
     rep.set_defaults(func=_cmd_replay)
+    bc = humans_sub.add_parser("bc", help="behaviour-clone human proxies (bc: train games, hp: test games)")
+    bc.add_argument("--data", default=DEFAULT_DATA, help=f"imported folder (default {DEFAULT_DATA})")
+    bc.add_argument(
+        "--out", default=DEFAULT_PROXIES, help=f"proxies and zoo.yaml (default {DEFAULT_PROXIES})"
+    )
+    bc.add_argument("--kitchens", nargs="+", help="all and/or classic kitchen names (default: all + each)")
+    bc.add_argument("--epochs", type=int, default=BCConfig.epochs, help="passes over the games (best kept)")
+    bc.add_argument("--seed", type=int, default=0, help="initialisation and sample order")
+    bc.set_defaults(func=_cmd_bc)

@@ -394,6 +394,13 @@ def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
     return _write_manifest(path, header, manifest_entries(plan, out_dir))
 
 
+def merge_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> Path:
+    """Adds `policies` to the manifest at `path` (replacing entries of the same names; others are kept)."""
+    names = {p["name"] for p in policies}
+    old = yaml.safe_load(path.read_text())["policies"] if path.is_file() else []
+    return _write_manifest(path, header, [e for e in old if e["name"] not in names] + policies)
+
+
 def _write_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> Path:
     """Writes a zoo manifest atomically (a reader never sees half of it)."""
     tmp = path.with_name(path.name + ".tmp")
@@ -422,10 +429,6 @@ def export_zoo(
         raise ConfigError(f"{manifest}: no checkpoint entries to export")
     loaded = [(load_policy(e), checkpoints.read_meta(resolve_checkpoint(e.checkpoint))) for e in chosen]
     out = Path(out_dir)
-    path = out / MANIFEST
-    new_names = {prefix + p.name for p, _ in loaded}
-    old = yaml.safe_load(path.read_text())["policies"] if path.is_file() else []
-    kept = [e for e in old if e["name"] not in new_names]
     written = []
     for policy, meta in loaded:
         name = prefix + policy.name
@@ -447,7 +450,7 @@ def export_zoo(
             }
         )
     header = "Written by `cec zoo export`: one-seed parameter checkpoints (cec.evaluation.zoo.save_policy)."
-    return _write_manifest(path, header, kept + written)
+    return merge_manifest(out / MANIFEST, header, written)
 
 
 # ---------------------------------------------------------------------------------------------------------

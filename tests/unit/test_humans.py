@@ -77,3 +77,33 @@ def test_values_out_of_range_are_refused(imported, tmp_path):
     bad = replace(steps, pot=np.full_like(steps.pot, 99))
     with pytest.raises(HumanDataError, match=r"array pot has values outside \[0, 23\]"):
         save_steps({"train": bad}, tmp_path, source={})
+
+
+def test_proxies_are_zoo_entries_that_play(imported, tmp_path):
+    """`cec humans bc` on one kitchen: bc and hp proxies, their figures, a manifest that loads and plays."""
+    import yaml
+
+    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.zoo import load_policies, load_zoo
+    from cec.humans.bc import BCConfig
+
+    out = tmp_path / "proxies"
+    manifest = humans.train_proxies(
+        imported, out, kitchens=["cramped_room"], config=BCConfig(epochs=2), log=io.StringIO()
+    )
+    raw = yaml.safe_load(manifest.read_text())["policies"]
+    assert [(p["name"], p["algorithm"], p["levels"]) for p in raw] == [
+        ("bc_cramped_room", "human_proxy", ["cramped_room"]),
+        ("hp_cramped_room", "human_proxy", ["cramped_room"]),
+    ]
+    figures = json.loads((out / "bc.json").read_text())["proxies"]
+    assert [figures[n]["trained_on"] for n in ("bc_cramped_room", "hp_cramped_room")] == ["train", "test"]
+    for f in figures.values():
+        assert 1 <= f["best_epoch"] <= 2 and 0 < f["cross_entropy"] < 1.8 and len(f["history"]) == 2
+    policies, skipped = load_policies(load_zoo(manifest))
+    assert not skipped and {p.algorithm for p in policies} == {"human_proxy"}
+    config = EvalConfig(levels="cramped_room", episodes=1, max_steps=20)
+    table = crossplay(policies, eval_levels("overcooked", "cramped_room"), config)
+    assert not table.skipped and set(table.policy_a) == {"bc_cramped_room", "hp_cramped_room"}
+    with pytest.raises(ConfigError, match=r"unknown kitchen\(s\) \['kitchen_9'\]"):
+        humans.train_proxies(imported, out, kitchens=["kitchen_9"])
