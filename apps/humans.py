@@ -141,13 +141,12 @@ def import_games(out: str | Path, *, games_per_kitchen: int | None = None, log: 
 def _cmd_import(args: argparse.Namespace) -> int:
     meta = import_games(args.out, games_per_kitchen=args.games_per_kitchen)
     print(f"wrote {meta.parent} ({FORMAT})")
+    written = json.loads(meta.read_text())["splits"]  # the counts `save_steps` recorded
     for split in SPLITS:
-        counts = load_steps(meta.parent, split).counts()
         print(f"{split}:")
-        for kitchen, c in counts.items():
-            print(
-                f"  {kitchen:<18} {c['games']:>2} games {c['steps']:>6} steps {c['deliveries']:>4} deliveries"
-            )
+        for kitchen, c in written[split]["counts"].items():
+            games, n, soups = c["games"], c["steps"], c["deliveries"]
+            print(f"  {kitchen:<18} {games:>2} games {n:>6} steps {soups:>4} deliveries")
     return 0
 
 

@@ -84,21 +84,9 @@ def samples(steps: Steps, *, batch: int = 4096) -> Samples:
     obs = []
     for start in range(0, len(steps), batch):
         s = slice(start, start + batch)
-        obs.append(
-            np.asarray(
-                _observe(
-                    _levels(),
-                    jnp.asarray(steps.kitchen[s], jnp.int32),
-                    jnp.asarray(steps.agent_pos[s], jnp.int32),
-                    jnp.asarray(steps.agent_dir[s], jnp.int32),
-                    jnp.asarray(steps.agent_inv[s], jnp.int32),
-                    jnp.asarray(steps.items[s]),
-                    jnp.asarray(steps.pot[s]),
-                    jnp.asarray(steps.time[s]),
-                    jnp.asarray(length[s]),
-                )
-            )
-        )
+        part = steps.select(s)
+        kitchen = part.kitchen.astype(np.int32)
+        obs.append(np.asarray(_observe(_levels(), kitchen, length[s], *part.state_fields())))
     both = np.concatenate(obs)  # [N, 2, 9, 9, 26]
     return Samples(
         obs=both.reshape((-1, *both.shape[2:])),
@@ -115,13 +103,12 @@ def _levels() -> Any:
 
 
 @jax.jit
-def _observe(levels, kitchen, pos, facing, inv, items, pot, time, length):  # type: ignore[no-untyped-def]
-    def one(k, pos, facing, inv, items, pot, time, length):  # type: ignore[no-untyped-def]
+def _observe(levels, kitchen, length, *state):  # type: ignore[no-untyped-def]
+    def one(k, length, *state):  # type: ignore[no-untyped-def]
         level = jax.tree.map(lambda x: x[k], levels)
-        state = EnvState(level, pos, facing, inv, items, pot, time, jnp.int32(0))
-        return get_obs(state, EnvParams(max_steps=length))
+        return get_obs(EnvState(level, *state), EnvParams(max_steps=length))
 
-    return jax.vmap(one)(kitchen, pos, facing, inv, items, pot, time, length)
+    return jax.vmap(one)(kitchen, length, *state)
 
 
 @dataclass(frozen=True)

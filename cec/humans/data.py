@@ -97,9 +97,21 @@ class Steps:
     def __len__(self) -> int:
         return int(self.kitchen.shape[0])
 
-    def select(self, mask: np.ndarray) -> Steps:
-        """The rows where `mask` (bool[N]) is true, or those at the given indices."""
+    def select(self, mask: np.ndarray | slice) -> Steps:
+        """The rows where `mask` (bool[N]) is true, those at the given indices, or a slice of them."""
         return Steps(**{f.name: getattr(self, f.name)[mask] for f in fields(self)})
+
+    def state_fields(self) -> tuple[np.ndarray, ...]:
+        """The state before each step as `EnvState(level, *fields)` takes it: agent_pos, agent_dir,
+        agent_inv (int32), items, pot, time, episode (0)."""
+        ints = (self.agent_pos, self.agent_dir, self.agent_inv)
+        return (
+            *(a.astype(np.int32) for a in ints),
+            self.items,
+            self.pot,
+            self.time,
+            np.zeros(len(self), np.int32),
+        )
 
     def counts(self) -> dict[str, dict[str, int]]:
         """Per kitchen: steps, games and deliveries."""

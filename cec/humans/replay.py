@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 from functools import cache
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from cec.envs.overcooked.dynamics import step
@@ -86,15 +85,7 @@ def mismatches(steps: Steps, kitchen: str) -> np.ndarray:
 
 def predicted_next(steps: Steps, kitchen: str) -> dict[str, np.ndarray]:
     """Our next state (the compared fields) of every recorded step of `kitchen`."""
-    out = _step_batch(kitchen)(
-        jnp.asarray(steps.agent_pos, jnp.int32),
-        jnp.asarray(steps.agent_dir, jnp.int32),
-        jnp.asarray(steps.agent_inv, jnp.int32),
-        jnp.asarray(steps.items),
-        jnp.asarray(steps.pot),
-        jnp.asarray(steps.time),
-        jnp.asarray(steps.actions, jnp.int32),
-    )
+    out = _step_batch(kitchen)(steps.actions.astype(np.int32), *steps.state_fields())
     return jax.tree.map(np.asarray, out)
 
 
@@ -103,9 +94,8 @@ def _step_batch(kitchen: str):  # type: ignore[no-untyped-def]
     level = classic_level(kitchen)
     params = EnvParams(max_steps=2**30)  # the recorded games are longer than any episode of ours
 
-    def one(pos, facing, inv, items, pot, time, actions):  # type: ignore[no-untyped-def]
-        state = EnvState(level, pos, facing, inv, items, pot, time, jnp.int32(0))
-        nxt = step(jax.random.PRNGKey(0), state, actions, params)
+    def one(actions, *state):  # type: ignore[no-untyped-def]
+        nxt = step(jax.random.PRNGKey(0), EnvState(level, *state), actions, params)
         s = nxt.state
         return {
             "agent_pos": s.agent_pos,
