@@ -22,9 +22,12 @@ cec play export STUDY.yaml --out DIR           a study's records -> results.csv 
 from __future__ import annotations
 
 import argparse
+import functools
+import importlib
 import logging
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -373,11 +376,14 @@ def build_parser() -> argparse.ArgumentParser:
     stream.add_argument("--tile-size", type=int, default=24)
     stream.set_defaults(func=_cmd_levels_stream)
 
-    from services.level_server.main import add_arguments as add_level_server_arguments
+    def add_level_server(sub: argparse._SubParsersAction) -> None:
+        from services.level_server.main import add_arguments
 
-    server = sub.add_parser("level-server", help="serve generated kitchens over gRPC until SIGTERM/Ctrl-C")
-    add_level_server_arguments(server)
-    server.set_defaults(func=_cmd_level_server)
+        server = sub.add_parser("level-server", help="serve generated kitchens over gRPC until SIGTERM/Ctrl-C")
+        add_arguments(server)
+        server.set_defaults(func=_cmd_level_server)
+
+    _add_optional(sub, add_level_server, "level-server")
 
     tr = sub.add_parser("train", help="train agents in one process (rollout + PPO update jitted together)")
     tr.add_argument(
@@ -411,19 +417,42 @@ def build_parser() -> argparse.ArgumentParser:
     from apps.reproduce import add_subcommands as add_reproduce_subcommands
 
     add_reproduce_subcommands(sub)  # cec reproduce dual-destination, cec reproduce overcooked
-    from services.stack import add_subcommands as add_stack_subcommands
-
-    add_stack_subcommands(sub)  # cec up
-    from services.cluster import add_subcommands as add_cluster_subcommands
-
-    add_cluster_subcommands(sub)  # cec cluster check
-    from services.evaluator.main import add_subcommands as add_evaluator_subcommands
-
-    add_evaluator_subcommands(sub)  # cec evaluator
-    from services.play.main import add_subcommands as add_play_subcommands
-
-    add_play_subcommands(sub)  # cec play serve, cec play export
+    for module, names in SERVICE_COMMANDS:
+        _add_optional(sub, lambda sub, module=module: importlib.import_module(module).add_subcommands(sub), *names)
     return parser
+
+
+# The services' subcommands, registered only where their packages (Ray, Redis, gRPC's health and reflection
+# services, the web stack) are installed: training, evaluation and the reports run on the `cec` core alone.
+SERVICE_COMMANDS = (
+    ("services.stack", ("up",)),
+    ("services.cluster", ("cluster",)),
+    ("services.evaluator.main", ("evaluator",)),
+    ("services.play.main", ("play",)),
+)
+
+
+def _add_optional(
+    sub: argparse._SubParsersAction, add: Callable[[argparse._SubParsersAction], None], *names: str
+) -> None:
+    """`add(sub)`; where it needs a package that is not installed, each of `names` still parses and exits 2
+    with the package's name and the install command instead of the whole CLI failing to start."""
+    try:
+        add(sub)
+    except ModuleNotFoundError as err:
+        for name in names:
+            stub = sub.add_parser(name, help=f"(needs {err.name}, not installed)", add_help=False)
+            stub.add_argument("rest", nargs=argparse.REMAINDER)
+            stub.set_defaults(func=functools.partial(_missing_package, err.name))
+
+
+def _missing_package(package: str, args: argparse.Namespace) -> int:
+    print(
+        f"cec {args.command}: error: needs the package {package!r}, which is not installed here "
+        "(the `cec` core trains, evaluates and reports without it); install the services: pip install -e .",
+        file=sys.stderr,
+    )
+    return 2
 
 
 def _positive_int(text: str) -> int:

@@ -39,15 +39,19 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def git_rev(root: Path = REPO) -> str:
-    """The checkout's short commit, marked when the working tree has uncommitted changes."""
+    """The checkout's short commit, marked when the working tree has uncommitted changes; in a copy without
+    its `.git` (a lent GPU machine gets the tree alone), `$CEC_GIT_REV` as the sender set it, else unknown."""
+    copied = os.environ.get("CEC_GIT_REV") or "unknown"
     try:
         out = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=root
         )
+        if out.returncode != 0:
+            return copied
         dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=root)
         return (out.stdout.strip() or "unknown") + (" (uncommitted changes)" if dirty.stdout.strip() else "")
     except OSError:
-        return "unknown"
+        return copied
 
 
 def log_line(log: Any, who: str, msg: str) -> None:

@@ -1,0 +1,95 @@
+#!/usr/bin/env bash
+# The work of a lent GPU machine (issue 19's GPU figures, issue 18's runs) in steps that each fit one call of
+# the device tool (10 minutes; the machine stays warm 30 s between calls, so the training steps run in the
+# background and later calls watch them). Run from the repository root of the copy on the GPU machine, with
+# the wheels of the peers JAX's image lacks in .whl/ (jaxmarl 0.2.0, gymnax, gymnasium, farama-notifications):
+#
+#   benchmarks/gpu_session.sh bench        # versions, a smoke test, env and training throughput
+#   benchmarks/gpu_session.sh train K      # `cec reproduce overcooked` (the CPU recipe) + K-1 more zoo builders
+#   benchmarks/gpu_session.sh paper        # the paper preset's CEC seed 0, beside it
+#   benchmarks/gpu_session.sh wait S       # progress until the reproduction ends or S seconds pass
+#   benchmarks/gpu_session.sh crossplay    # cross-play throughput (paper preset)
+#   benchmarks/gpu_session.sh pack         # stop the paper run (checkpoint), pack results, policies, curves
+#
+# Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
+# checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
+set -uo pipefail
+OUT=${OUT:-/tmp/gpu-out}
+WORK=runs/reproduce/overcooked-cpu
+REPORT=benchmarks/results/overcooked/cpu
+PAPER_RUN=runs/paper/cec-paper-s0
+export PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
+mkdir -p "$OUT" runs
+
+if [ ! -d /tmp/site ]; then
+    python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
+fi
+export PYTHONPATH=/tmp/site:$PWD
+cec() { python3 -m apps.cli "$@"; }
+
+case "${1:-}" in
+bench)
+    nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
+    python3 -c "import jax, flax, optax, numpy; print('jax', jax.__version__, 'flax', flax.__version__, \
+'optax', optax.__version__, 'numpy', numpy.__version__, jax.devices())"
+    cec train --config configs/train/quick_cpu.yaml --quiet run_dir=/tmp/smoke total_env_steps=8192 || exit 1
+    echo "== env throughput (ours vs JaxMARL 0.2.0)"
+    timeout 170 python3 benchmarks/env_throughput.py --n 4096 65536 --repeats 3 --out "$OUT/env_throughput_gpu.json"
+    echo "== training throughput, paper preset in CEC mode"
+    timeout 170 python3 benchmarks/train_throughput.py --presets paper --batches 512x256 --updates 2 --repeats 3 \
+        --out "$OUT/train_throughput_gpu.json"
+    ;;
+train)
+    k=${2:-6}
+    export XLA_PYTHON_CLIENT_MEM_FRACTION=0.08
+    setsid nohup python3 -m apps.cli reproduce overcooked > runs/repro-main.log 2>&1 < /dev/null &
+    for _ in $(seq 1 60); do [ -f $WORK/spec.yaml ] && break; sleep 1; done
+    for i in $(seq 2 "$k"); do
+        sleep 2
+        setsid nohup python3 -m apps.cli zoo build $WORK/spec.yaml --out $WORK/zoo > "runs/repro-$i.log" 2>&1 < /dev/null &
+    done
+    sleep 60
+    tail -n 3 runs/repro-*.log
+    ;;
+paper)
+    export XLA_PYTHON_CLIENT_MEM_FRACTION=0.3
+    setsid nohup python3 -m apps.cli train --config configs/train/cec_overcooked.yaml run_dir=$PAPER_RUN seed=0 \
+        > runs/paper.log 2>&1 < /dev/null &
+    sleep 45
+    tail -n 5 runs/paper.log
+    ;;
+wait)
+    end=$((SECONDS + ${2:-540}))
+    while [ $SECONDS -lt $end ]; do
+        pgrep -f "apps.cli reproduce" > /dev/null || { echo "reproduction ended"; break; }
+        sleep 30
+        echo "--- $(date +%T): $(grep -h 'update' runs/repro-*.log | tail -n 1)"
+        ls $WORK/zoo/runs 2>/dev/null | wc -l
+    done
+    tail -n 25 runs/repro-main.log
+    [ -f runs/paper.log ] && tail -n 3 runs/paper.log
+    ;;
+pack)
+    if pkill -TERM -f "apps.cli train --config configs/train/cec_overcooked.yaml"; then
+        for _ in $(seq 1 120); do pgrep -f "configs/train/cec_overcooked.yaml" > /dev/null || break; sleep 1; done
+    fi
+    if [ -f $WORK/zoo/zoo.yaml ]; then
+        names=$(python3 -c "import yaml; print(' '.join('--name ' + e['name'] for e in \
+yaml.safe_load(open('$WORK/zoo/zoo.yaml'))['policies'] if e['algorithm'] == 'cec'))")
+        # shellcheck disable=SC2086
+        cec zoo export $WORK/zoo/zoo.yaml --out runs/shipped $names
+    fi
+    tar czf "$OUT/overcooked-cpu.tgz" --exclude='checkpoints' $REPORT $WORK runs/*.log runs/shipped 2>/dev/null
+    if [ -d $PAPER_RUN ]; then
+        tar cf - --exclude='.lock' $PAPER_RUN | split -b 15M - "$OUT/paper-run.tar.part-"
+    fi
+    ls -la "$OUT"
+    ;;
+crossplay)
+    python3 benchmarks/crossplay_throughput.py --preset paper --out "$OUT/crossplay_throughput_gpu.json"
+    ;;
+*)
+    sed -n 2,14p "$0"
+    exit 2
+    ;;
+esac
