@@ -379,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
     def add_level_server(sub: argparse._SubParsersAction) -> None:
         from services.level_server.main import add_arguments
 
-        server = sub.add_parser("level-server", help="serve generated kitchens over gRPC until SIGTERM/Ctrl-C")
+        server = sub.add_parser("level-server", help="serve kitchens over gRPC until SIGTERM/Ctrl-C")
         add_arguments(server)
         server.set_defaults(func=_cmd_level_server)
 
@@ -418,7 +418,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     add_reproduce_subcommands(sub)  # cec reproduce dual-destination, cec reproduce overcooked
     for module, names in SERVICE_COMMANDS:
-        _add_optional(sub, lambda sub, module=module: importlib.import_module(module).add_subcommands(sub), *names)
+        _add_optional(sub, functools.partial(_add_module_subcommands, module), *names)
     return parser
 
 
@@ -430,6 +430,10 @@ SERVICE_COMMANDS = (
     ("services.evaluator.main", ("evaluator",)),
     ("services.play.main", ("play",)),
 )
+
+
+def _add_module_subcommands(module: str, sub: argparse._SubParsersAction) -> None:
+    importlib.import_module(module).add_subcommands(sub)
 
 
 def _add_optional(
