@@ -55,6 +55,7 @@ LEVEL_SETS = ("classic", "heldout")
 EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
 ALPHA = 0.05
 MEASURED_ON = "the CEC CPU preset, one seed, 2-core AMD EPYC, both cores busy (2.4k steps/s), 2026-11-22"
+MACHINE_FILE = "machine.json"  # the machine and commit that trained and played, in the work folder
 TABLE_HEAD = "| algorithm | self-play | cross-play (unseen partners) | XP / SP | with the cook | paper (XP) |"
 
 
@@ -364,20 +365,21 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
 
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
-    plan: list[PlanLine], command: str,
+    plan: list[PlanLine], command: str, ran_on: dict[str, Any],
 ) -> Path:  # fmt: skip
-    """`out/report.md` and `out/summary.json`."""
+    """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played."""
 
     paper = paper_values()
     tests = comparisons(summary)
     out.mkdir(parents=True, exist_ok=True)
-    machine = machine_info(load_average=True)
+    machine, ran = machine_info(), ran_on["machine"]
     lines = [
         f"# CEC on Overcooked: `{command}`",
         "",
-        f"Machine: {machine['cpu']} ({machine['cpu_count']} cores, JAX on {machine['device']}), host "
-        f"{machine['host']}, load average {machine.get('load_average_1_5_15min')}; commit {git_rev()}; "
-        f"written {time.strftime('%Y-%m-%d %H:%M')}.",
+        f"Trained and played on: {_machine_text(ran)}; commit {ran_on['commit']}.",
+        "",
+        f"Report written on: {_machine_text(machine)}; commit {git_rev()}; "
+        f"{time.strftime('%Y-%m-%d %H:%M')}.",
         "",
         f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
         "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
@@ -422,7 +424,7 @@ def write_report(
     report = out / "report.md"
     report.write_text("\n".join(lines))
     data = {
-        "mode": mode.name, "command": command, "machine": machine, "commit": git_rev(),
+        "mode": mode.name, "command": command, "ran_on": ran_on, "machine": machine, "commit": git_rev(),
         "eval_steps": EVAL_STEPS, "paper": paper, "tests": tests,
         "summary": {ls: {a: dataclasses.asdict(s) for a, s in sc.items()} for ls, sc in summary.items()},
     }  # fmt: skip
@@ -430,7 +432,11 @@ def write_report(
     return report
 
 
-def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO) -> dict[str, str]:
+def _machine_text(m: dict[str, Any]) -> str:
+    return f"{m['device']} (JAX {m['jax']}), {m['cpu']} ({m['cpu_count']} cores), host {m['host']}"
+
+
+def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, policies: Path) -> dict[str, str]:
     """Learning curves of every run (PNG) and a GIF of the two CEC seeds and the held-out kitchen of the
     best cross-play episode (said so in its caption)."""
     import jax
@@ -450,8 +456,7 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO) -> d
     if others:
         plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
-    policies, _ = load_policies(load_zoo(work / "zoo" / "zoo.yaml"))
-    cec = [p for p in policies if p.algorithm == "cec"]
+    cec = [p for p in load_policies(load_zoo(policies))[0] if p.algorithm == "cec"]
     rows = table.select(
         (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
         & np.char.startswith(table.level.astype(str), "generated_")
@@ -478,23 +483,48 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO) -> d
 
 
 def reproduce_overcooked(
-    mode: Mode, work: Path, out: Path, *, progress: bool = True, log: TextIO = sys.stdout, command: str = ""
-) -> Path | None:
-    """Train (resumable), evaluate (cached), report. Returns the report, or None when interrupted."""
+    mode: Mode, work: Path, out: Path, *, progress: bool = True, log: TextIO = sys.stdout, command: str = "",
+    report_only: bool = False, policies: Path | None = None,
+) -> Path | None:  # fmt: skip
+    """Train (resumable), evaluate (cached), report. Returns the report, or None when interrupted.
+
+    `report_only`: neither train nor play; the report from the work folder's cross-play table, curves and
+    `machine.json` as the machine that trained and played wrote them (a work folder brought back from a
+    GPU machine without its checkpoints). `policies`: a manifest whose CEC entries draw the GIF instead of
+    the zoo's (the exported CEC seeds)."""
     from apps.zoo_build import build_zoo
 
     spec = _write_spec(mode, work)
     plan = plan_lines(mode, work)
-    result = build_zoo(spec, work / "zoo", progress=progress, log=log)
-    if result.interrupted or result.manifest is None:
-        _log(log, "training interrupted; run the same command again to continue")
-        return None
-    table = cached_evaluation(mode, result.manifest, work, log=log)
+    if report_only:
+        table, ran_on = _played_table(work)
+    else:
+        result = build_zoo(spec, work / "zoo", progress=progress, log=log)
+        if result.interrupted or result.manifest is None:
+            _log(log, "training interrupted; run the same command again to continue")
+            return None
+        table = cached_evaluation(mode, result.manifest, work, log=log)
+        ran_on = {"machine": machine_info(), "commit": git_rev()}
+        (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
     summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
-    figures = _figures(mode, work, out, table, log=log)
-    report = write_report(mode, summary, out, figures=figures, plan=plan, command=command)
+    figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
+    report = write_report(mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on)
     _log(log, f"report: {report}")
     return report
+
+
+def _played_table(work: Path) -> tuple[Any, dict[str, Any]]:
+    """The cross-play table and the `machine.json` that an earlier, complete invocation left in `work`."""
+    from cec.evaluation.results import read_csv
+
+    need = [work / "results.csv", work / "results.key.json", work / MACHINE_FILE]
+    missing = [str(p) for p in need if not p.is_file()]
+    if missing:
+        raise ConfigError(
+            f"--report-only needs a work folder that a complete `cec reproduce overcooked` left behind; "
+            f"missing: {', '.join(missing)} (run the command without --report-only, or pass --work)"
+        )
+    return read_csv(need[0]), json.loads(need[2].read_text())
 
 
 def _cmd(args: argparse.Namespace) -> int:
@@ -513,7 +543,12 @@ def _cmd(args: argparse.Namespace) -> int:
         print(f"training: ~{duration(total)} on one core ({mode.seconds_per_update} s per update, seed; "
               f"measured on {mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
         return 0
-    report = reproduce_overcooked(mode, work, out, progress=not args.quiet, command=command)
+    if args.policies and not args.report_only:
+        raise ConfigError("--policies draws the GIF of --report-only; add --report-only or drop it")
+    report = reproduce_overcooked(
+        mode, work, out, progress=not args.quiet, command=command, report_only=args.report_only,
+        policies=Path(args.policies) if args.policies else None,
+    )  # fmt: skip
     return 0 if report is not None else 130
 
 
@@ -531,4 +566,10 @@ def add_subcommand(rep_sub: Any) -> None:
     oc.add_argument("--work", help="runs and result tables (default runs/reproduce/overcooked-MODE)")
     oc.add_argument("--out", help="report folder (default benchmarks/results/overcooked/MODE)")
     oc.add_argument("--quiet", action="store_true", help="no per-update progress lines")
+    oc.add_argument(
+        "--report-only",
+        action="store_true",
+        help="neither train nor play: the report from the work folder's cross-play table and curves",
+    )
+    oc.add_argument("--policies", metavar="MANIFEST", help="with --report-only: CEC policies for the GIF")
     oc.set_defaults(func=_cmd)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import io
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -12,6 +13,8 @@ import yaml
 
 from apps.cli import main
 from apps.reproduce import overcooked as ro
+from apps.zoo_build import export_zoo
+from cec.config import ConfigError
 from cec.evaluation.results import make_table
 
 TINY_NET = (
@@ -101,6 +104,22 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     log = io.StringIO()
     ro.reproduce_overcooked(TINY, work, out, progress=False, log=log, command="tiny")
     assert "not played again" in log.getvalue() and "finished, skipping" in log.getvalue()
+    # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
+    # the GIF from the exported CEC seeds, the machine that trained and played named
+    export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
+    for ckpt in (work / "zoo" / "runs").glob("*/checkpoints"):
+        shutil.rmtree(ckpt)
+    (out / "cec_xp_heldout.gif").unlink()
+    ran_on = json.loads((work / ro.MACHINE_FILE).read_text())
+    again = ro.reproduce_overcooked(
+        TINY, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
+        policies=tmp_path / "shipped" / "zoo.yaml",
+    )  # fmt: skip
+    assert again is not None and again.read_text().count("| CEC |") == 2
+    assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
+    assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
+    with pytest.raises(ConfigError, match="results.csv"):
+        ro.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
 
 
 def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
