@@ -365,9 +365,10 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
 
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
-    plan: list[PlanLine], command: str, ran_on: dict[str, Any],
+    plan: list[PlanLine], command: str, ran_on: dict[str, Any], commit: str,
 ) -> Path:  # fmt: skip
-    """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played."""
+    """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
+    `commit`: the checkout's as the command started."""
 
     paper = paper_values()
     tests = comparisons(summary)
@@ -378,8 +379,7 @@ def write_report(
         "",
         f"Trained and played on: {_machine_text(ran)}; commit {ran_on['commit']}.",
         "",
-        f"Report written on: {_machine_text(machine)}; commit {git_rev()}; "
-        f"{time.strftime('%Y-%m-%d %H:%M')}.",
+        f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
         "",
         f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
         "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
@@ -424,7 +424,7 @@ def write_report(
     report = out / "report.md"
     report.write_text("\n".join(lines))
     data = {
-        "mode": mode.name, "command": command, "ran_on": ran_on, "machine": machine, "commit": git_rev(),
+        "mode": mode.name, "command": command, "ran_on": ran_on, "machine": machine, "commit": commit,
         "eval_steps": EVAL_STEPS, "paper": paper, "tests": tests,
         "summary": {ls: {a: dataclasses.asdict(s) for a, s in sc.items()} for ls, sc in summary.items()},
     }  # fmt: skip
@@ -494,6 +494,7 @@ def reproduce_overcooked(
     the zoo's (the exported CEC seeds)."""
     from apps.zoo_build import build_zoo
 
+    commit = git_rev()  # before this command writes anything into the checkout
     spec = _write_spec(mode, work)
     plan = plan_lines(mode, work)
     if report_only:
@@ -504,11 +505,13 @@ def reproduce_overcooked(
             _log(log, "training interrupted; run the same command again to continue")
             return None
         table = cached_evaluation(mode, result.manifest, work, log=log)
-        ran_on = {"machine": machine_info(), "commit": git_rev()}
+        ran_on = {"machine": machine_info(), "commit": commit}
         (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
     summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
-    report = write_report(mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on)
+    report = write_report(
+        mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit
+    )
     _log(log, f"report: {report}")
     return report
 
