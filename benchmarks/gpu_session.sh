@@ -27,6 +27,18 @@ fi
 export PYTHONPATH=/tmp/site:$PWD
 cec() { python3 -m apps.cli "$@"; }
 
+# The report is in the tracked tree, which the next call's sync resets: it must come back in the call that
+# sees the reproduction end (`wait` does this).
+pack_overcooked() {
+    if [ -f $WORK/zoo/zoo.yaml ]; then
+        names=$(python3 -c "import yaml; print(' '.join('--name ' + e['name'] for e in \
+yaml.safe_load(open('$WORK/zoo/zoo.yaml'))['policies'] if e['algorithm'] == 'cec'))")
+        # shellcheck disable=SC2086
+        cec zoo export $WORK/zoo/zoo.yaml --out runs/shipped $names
+    fi
+    tar czf "$OUT/overcooked-cpu.tgz" --exclude='checkpoints' $REPORT $WORK runs/*.log runs/shipped 2>/dev/null
+}
+
 case "${1:-}" in
 bench)
     nvidia-smi --query-gpu=name,memory.total,driver_version,clocks.max.sm --format=csv
@@ -52,9 +64,13 @@ train)
     tail -n 3 runs/repro-*.log
     ;;
 paper)
-    export XLA_PYTHON_CLIENT_MEM_FRACTION=0.3
-    setsid nohup python3 -m apps.cli train --config configs/train/cec_overcooked.yaml run_dir=$PAPER_RUN seed=0 \
-        > runs/paper.log 2>&1 < /dev/null &
+    export XLA_PYTHON_CLIENT_MEM_FRACTION=0.5  # 0.3 failed: autotuning asked for 10 GB at 512 x 256
+    if [ -d $PAPER_RUN/cec-overcooked-generator-s0 ]; then
+        args=(--resume $PAPER_RUN/cec-overcooked-generator-s0)
+    else
+        args=(--config configs/train/cec_overcooked.yaml run_dir=$PAPER_RUN seed=0)
+    fi
+    setsid nohup python3 -m apps.cli train "${args[@]}" > runs/paper.log 2>&1 < /dev/null &
     sleep 45
     tail -n 5 runs/paper.log
     ;;
@@ -68,21 +84,18 @@ wait)
     done
     tail -n 25 runs/repro-main.log
     [ -f runs/paper.log ] && tail -n 3 runs/paper.log
+    pgrep -f "apps.cli reproduce" > /dev/null || pack_overcooked
     ;;
 pack)
-    if pkill -TERM -f "apps.cli train --config configs/train/cec_overcooked.yaml"; then
-        for _ in $(seq 1 120); do pgrep -f "configs/train/cec_overcooked.yaml" > /dev/null || break; sleep 1; done
+    if pkill -TERM -f "apps.cli train"; then  # the paper run saves a checkpoint at the end of its call
+        for _ in $(seq 1 120); do pgrep -f "apps.cli train" > /dev/null || break; sleep 1; done
     fi
-    if [ -f $WORK/zoo/zoo.yaml ]; then
-        names=$(python3 -c "import yaml; print(' '.join('--name ' + e['name'] for e in \
-yaml.safe_load(open('$WORK/zoo/zoo.yaml'))['policies'] if e['algorithm'] == 'cec'))")
-        # shellcheck disable=SC2086
-        cec zoo export $WORK/zoo/zoo.yaml --out runs/shipped $names
-    fi
-    tar czf "$OUT/overcooked-cpu.tgz" --exclude='checkpoints' $REPORT $WORK runs/*.log runs/shipped 2>/dev/null
-    if [ -d $PAPER_RUN ]; then
-        tar cf - --exclude='.lock' $PAPER_RUN | split -b 15M - "$OUT/paper-run.tar.part-"
-    fi
+    pack_overcooked
+    for run in "$PAPER_RUN"/*/; do  # config, metrics and the latest checkpoint only (38 MB for the paper net)
+        [ -d "$run/checkpoints" ] || continue
+        latest=$(ls "$run/checkpoints" | sort | tail -n 1)
+        tar cf - -C "$run" config.yaml metrics.csv "checkpoints/$latest" | split -b 15M - "$OUT/paper-run.tar.part-"
+    done
     ls -la "$OUT"
     ;;
 crossplay)
