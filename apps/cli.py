@@ -447,7 +447,7 @@ def _add_optional(
         for name in names:
             stub = sub.add_parser(name, help=f"(needs {err.name}, not installed)", add_help=False)
             stub.add_argument("rest", nargs=argparse.REMAINDER)
-            stub.set_defaults(func=functools.partial(_missing_package, err.name))
+            stub.set_defaults(func=functools.partial(_missing_package, err.name or str(err)))
 
 
 def _missing_package(package: str, args: argparse.Namespace) -> int:
