@@ -93,3 +93,26 @@ def test_overrides_may_follow_flags_and_max_updates_must_be_positive(capsys):
         with pytest.raises(SystemExit) as exit_info:
             parse_args(parser, argv)
         assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_the_core_commands_run_without_the_services_packages() -> None:
+    """A GPU box with the `cec` core only (no Ray, Redis, gRPC health/reflection or web stack): the CLI
+    starts, core commands run, and a service's command names the missing package instead of a traceback."""
+    import subprocess
+    import sys
+
+    blocked = ["ray", "redis", "starlette", "uvicorn", "websockets", "grpc_health", "grpc_reflection"]
+    script = (
+        "import sys\n"
+        f"for m in {blocked!r}: sys.modules[m] = None\n"
+        "from apps.cli import main\n"
+        "assert main(['layouts']) == 0\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    for command in (["up"], ["play", "serve"], ["evaluator"], ["level-server"]):
+        out = subprocess.run(
+            [sys.executable, "-c", script, *command], capture_output=True, text=True, timeout=120
+        )
+        assert out.returncode == 2, (command, out.stderr[-2000:])
+        assert "needs the package" in out.stderr and "pip install" in out.stderr, out.stderr[-2000:]
+        assert "Traceback" not in out.stderr
