@@ -520,6 +520,7 @@ def _played_table(work: Path) -> tuple[Any, dict[str, Any]]:
     """The cross-play table and the `machine.json` that an earlier, complete invocation left in `work`."""
     from cec.evaluation.results import read_csv
 
+    # the key is written after the table (`cached_table`): its presence says the playing finished
     need = [work / "results.csv", work / "results.key.json", work / MACHINE_FILE]
     missing = [str(p) for p in need if not p.is_file()]
     if missing:
