@@ -1,8 +1,9 @@
 """Typed, frozen configuration: load dataclasses from YAML presets and `key=value` overrides, strictly.
 
 Unknown keys, wrong types and malformed overrides raise `ConfigError` naming the key, the expected type
-and the fix, before any work starts. Nothing is silently dropped or coerced (an int is accepted for a
-float field; nothing else converts).
+and the fix, before any work starts. Nothing is silently dropped or coerced: an int is accepted for a float
+field, and so is exponent notation without a dot (`lr: 3e-4`, which YAML 1.1 reads as a string); nothing
+else converts.
 
     params = load_config(EnvParams, "configs/env/cec_train.yaml", overrides=["max_steps=256"])
 """
@@ -12,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import re
 import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -20,6 +22,9 @@ from typing import Any, TypeVar
 import yaml
 
 T = TypeVar("T")
+
+# `3e-4`, `-1E5`: numbers to a reader, strings to YAML 1.1 (its float pattern needs a dot).
+_EXPONENT_FLOAT = re.compile(r"[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+")
 
 
 class ConfigError(ValueError):
@@ -62,6 +67,8 @@ def _check_value(kind: Any, value: Any, path: str) -> Any:
             raise ConfigError(f"{path} must be an integer, got {value!r}")
         return value
     if kind is float:
+        if isinstance(value, str) and _EXPONENT_FLOAT.fullmatch(value.strip()):
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, int | float):
             raise ConfigError(f"{path} must be a number, got {value!r}")
         if not math.isfinite(value):

@@ -32,6 +32,21 @@ def test_overrides_apply_after_the_file() -> None:
     assert isinstance(params.soup_pickup_reward, float)
 
 
+def test_exponent_notation_is_a_number(tmp_path: Path) -> None:
+    """`3e-4` is how papers write learning rates; YAML 1.1 reads it as a string unless it has a dot."""
+    from cec.training.config import TrainConfig
+
+    base = ["algorithm=ippo", "env.levels=cramped_room"]
+    assert load_config(TrainConfig, None, [*base, "ppo.lr=3e-4"]).ppo.lr == pytest.approx(3e-4)
+    path = tmp_path / "lr.yaml"
+    path.write_text("algorithm: ippo\nenv:\n  levels: cramped_room\nppo:\n  lr: 2.5E-4\n  max_grad_norm: 1e0\n")
+    config = load_config(TrainConfig, path)
+    assert config.ppo.lr == pytest.approx(2.5e-4) and config.ppo.max_grad_norm == 1.0
+    with pytest.raises(ConfigError, match="ppo.lr must be a number, got '3e-4x'"):
+        load_config(TrainConfig, None, [*base, "ppo.lr=3e-4x"])
+    assert load_config(TrainConfig, None, [*base, "name=1e3"]).name == "1e3"  # only float fields convert
+
+
 @pytest.mark.parametrize(
     ("overrides", "message"),
     [
