@@ -38,7 +38,6 @@ import json
 import logging
 import os
 import re
-import threading
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -82,28 +81,31 @@ def _dumps(event: dict[str, Any]) -> str:
 
 
 class FileStore:
-    """Append-only JSON lines, one file per participant, fsynced after every event."""
+    """Append-only JSON lines, one file per participant, fsynced after every event.
+
+    A file is open only while an event is written to it (opened for appending, written, fsynced, closed),
+    so the server holds no descriptor per participant, however many join.
+    """
 
     def __init__(self, root: str | Path, study: str, *, create: bool = True) -> None:
         self.dir = Path(root) / study
         if create:
             self.dir.mkdir(parents=True, exist_ok=True)
-        self._lock = threading.Lock()
-        self._files: dict[str, Any] = {}
 
     def path(self, participant: str) -> Path:
         _check_id(participant)
         return self.dir / f"{participant}.jsonl"
 
     def append(self, participant: str, event: dict[str, Any]) -> None:
-        line = _dumps(event) + "\n"
-        with self._lock:
-            f = self._files.get(participant)
-            if f is None:
-                f = self._files[participant] = open(self.path(participant), "a", encoding="utf-8")  # noqa: SIM115
-            f.write(line)
-            f.flush()
-            os.fsync(f.fileno())
+        data = (_dumps(event) + "\n").encode("utf-8")
+        fd = os.open(self.path(participant), os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        try:
+            view = memoryview(data)
+            while view:  # one write() for a line in practice; O_APPEND keeps lines whole at the end
+                view = view[os.write(fd, view) :]
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
     def participants(self) -> list[str]:
         return sorted(p.stem for p in self.dir.glob("p*.jsonl") if PARTICIPANT_ID.match(p.stem))
@@ -127,10 +129,7 @@ class FileStore:
         return out
 
     def close(self) -> None:
-        with self._lock:
-            for f in self._files.values():
-                f.close()
-            self._files.clear()
+        """Nothing to close: no file stays open between events."""
 
 
 class RedisStore:
