@@ -4,7 +4,8 @@ Routes:
 
     GET  /                 the single page (static/index.html); it asks /api/state what to show
     GET  /static/...       its script and style
-    POST /api/join         starts a participant: sets the session cookie (opaque, HttpOnly, SameSite=Strict)
+    POST /api/join         starts a participant: sets the session cookie (opaque, HttpOnly, SameSite=Strict);
+                           429 or 503 with {"error", "limit"} beyond the study's `limits` (config.py)
     GET  /api/state        the participant's current stage (`{"stage": "welcome"}` without a session)
     POST /api/submit       a form of the current stage (consent, info, instructions, survey) -> next stage
     WS   /ws/round         the current round: start message, then steps (see below)
@@ -16,6 +17,11 @@ real-time mode `ack`, the sequence number of the key it played), `error` (messag
 played), `end` (the round is over; fetch /api/state). Browser -> server: turn-based `{"type": "act", "t": T,
 "action": A, "rt_ms": R}` (T: steps played so far, so a repeated message is not played twice), real-time
 `{"type": "key", "seq": S, "action": A, "rt_ms": R}` (the latest key before a tick is played at that tick).
+A malformed message (not a JSON object, nested deeper than 16 levels, a number longer than 64 characters,
+larger than 4 KB) gets an `error` reply and the round goes on; a binary frame closes the connection (1003).
+
+Request bodies are JSON objects of at most 16 KB; a longer one is refused with 413 as soon as its 16,385th
+byte arrives (a chunked body is not read further). Malformed input never ends in a 500 or a traceback.
 
 The JAX work and the record writes run in worker threads, so one participant's step never blocks another's.
 """
@@ -24,8 +30,8 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import logging
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -33,7 +39,7 @@ from urllib.parse import urlsplit
 
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from starlette.applications import Starlette
-from starlette.requests import Request
+from starlette.requests import ClientDisconnect, Request
 from starlette.responses import FileResponse, JSONResponse, PlainTextResponse, Response
 from starlette.routing import Mount, Route, WebSocketRoute
 from starlette.staticfiles import StaticFiles
@@ -42,7 +48,9 @@ from starlette.websockets import WebSocket, WebSocketDisconnect
 from services.metrics import ComponentRegistry
 from services.play import metrics
 from services.play.game import STAY, Round
-from services.play.study import InputError, Participant, Study, validate_action, validate_rt
+from services.play.limits import JSONInputError, brief, parse_json
+from services.play.study import InputError, JoinRefusedError, Participant, Study, validate_action, validate_rt
+from services.store import StoreError
 
 log = logging.getLogger("cec.play")
 
@@ -50,6 +58,19 @@ STATIC = Path(__file__).with_name("static")
 COOKIE = "cec_play"
 MAX_BODY_BYTES = 16_384
 MAX_WS_MESSAGE_BYTES = 4_096
+
+
+class BodyTooLargeError(InputError):
+    """A request body longer than `MAX_BODY_BYTES` (answered 413)."""
+
+
+class _ProtocolError(Exception):
+    """The client does not speak the round's protocol: close its connection with `code` and `reason`."""
+
+    def __init__(self, code: int, reason: str) -> None:
+        super().__init__(reason)
+        self.code = code
+        self.reason = reason
 
 
 def create_app(study: Study) -> Starlette:
@@ -64,15 +85,24 @@ def create_app(study: Study) -> Starlette:
     async def read_json(request: Request) -> Any:
         if not _is_json(request):
             raise InputError("send the body as JSON (Content-Type: application/json)")
-        if int(request.headers.get("content-length") or 0) > MAX_BODY_BYTES:
-            raise InputError(f"request body larger than {MAX_BODY_BYTES} bytes")
-        body = await request.body()
-        if len(body) > MAX_BODY_BYTES:
-            raise InputError(f"request body larger than {MAX_BODY_BYTES} bytes")
+        too_large = BodyTooLargeError(f"request body larger than {MAX_BODY_BYTES} bytes")
+        declared = request.headers.get("content-length")
+        if declared is not None and not (declared.isascii() and declared.isdigit()):
+            raise InputError(f"Content-Length {brief(declared)} is not a number of bytes")
+        if declared is not None and int(declared) > MAX_BODY_BYTES:
+            raise too_large
+        body = bytearray()
         try:
-            return json.loads(body or b"{}")
-        except (json.JSONDecodeError, UnicodeDecodeError) as err:
-            raise InputError(f"the request body is not JSON: {err}") from err
+            async for chunk in request.stream():  # a chunked body is read only up to the limit
+                body += chunk
+                if len(body) > MAX_BODY_BYTES:
+                    raise too_large
+        except ClientDisconnect:
+            raise InputError("the client went away before the body arrived") from None
+        try:
+            return parse_json(bytes(body) or b"{}")
+        except JSONInputError as err:
+            raise InputError(f"the request body is not acceptable JSON: {err}") from None
 
     async def join(request: Request) -> Response:
         if not _is_json(request):  # a plain cross-site form cannot send JSON
@@ -80,7 +110,18 @@ def create_app(study: Study) -> Starlette:
         p = session(request)
         if p is not None:  # already joined in this browser: continue where they are
             return JSONResponse(study.view(p))
-        token, joined = await asyncio.to_thread(study.join)
+        address = request.client.host if request.client else ""
+        try:
+            token, joined = await asyncio.to_thread(study.join, address)
+        except JoinRefusedError as refusal:
+            wait = refusal.retry_after
+            headers = {} if wait is None else {"Retry-After": str(math.ceil(wait))}
+            return JSONResponse(
+                {"error": str(refusal), "limit": refusal.limit}, 429 if refusal.rate else 503, headers
+            )
+        except (OSError, StoreError) as err:  # the records cannot be written: say so, admit nobody
+            log.error("cannot record a new participant: %s", err)
+            return JSONResponse({"error": "the server cannot record a new participant now; try later"}, 503)
         response = JSONResponse(study.view(joined))
         response.set_cookie(
             COOKIE, token, httponly=True, samesite="strict", secure=request.url.scheme == "https", path="/"
@@ -100,6 +141,8 @@ def create_app(study: Study) -> Starlette:
         try:
             payload = await read_json(request)
             view = await asyncio.to_thread(study.submit, p, payload)
+        except BodyTooLargeError as err:
+            return JSONResponse({"error": str(err)}, status_code=413)
         except InputError as err:
             return JSONResponse({"error": str(err)}, status_code=400)
         return JSONResponse(view)
@@ -134,6 +177,14 @@ def create_app(study: Study) -> Starlette:
                 await _real_time(ws, study, p, rnd)
         except WebSocketDisconnect:
             pass
+        except _ProtocolError as err:  # the client's fault: one line, no traceback
+            log.warning("participant %s: round connection closed (%d): %s", p.id, err.code, err.reason)
+            with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+                await ws.close(code=err.code, reason=err.reason)
+        except Exception:  # the server's fault: the traceback, and a close frame for the browser
+            log.exception("participant %s: the round's connection failed", p.id)
+            with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+                await ws.close(code=1011, reason="server error; reload the page to play the round again")
         finally:
             if not rnd.done:
                 await asyncio.to_thread(study.abort_round, p, rnd)
@@ -177,15 +228,21 @@ def _frame(result: Any, rnd: Round, ack: int | None = None) -> dict[str, Any]:
 
 
 async def _receive(ws: WebSocket) -> dict[str, Any] | None:
-    """The next JSON object from the browser; None (after an error reply) for a malformed message."""
-    text = await ws.receive_text()
+    """The next JSON object from the browser; None (after an error reply) for a malformed message.
+    `_ProtocolError` for a binary frame, `WebSocketDisconnect` when the browser went away."""
+    message = await ws.receive()
+    if message["type"] == "websocket.disconnect":
+        raise WebSocketDisconnect(message.get("code", 1000), message.get("reason"))
+    text = message.get("text")
+    if text is None:
+        raise _ProtocolError(1003, "binary frames are not accepted; send JSON text")
     if len(text) > MAX_WS_MESSAGE_BYTES:
         await ws.send_json({"type": "error", "message": f"message larger than {MAX_WS_MESSAGE_BYTES} bytes"})
         return None
     try:
-        msg = json.loads(text)
-    except json.JSONDecodeError:
-        await ws.send_json({"type": "error", "message": "messages must be JSON objects"})
+        msg = parse_json(text)
+    except JSONInputError as err:
+        await ws.send_json({"type": "error", "message": f"messages must be JSON objects: {err}"})
         return None
     if not isinstance(msg, dict):
         await ws.send_json({"type": "error", "message": "messages must be JSON objects"})
@@ -205,7 +262,7 @@ async def _turn_based(ws: WebSocket, study: Study, p: Participant, rnd: Round) -
             continue
         if msg.get("t") != rnd.t:
             await ws.send_json(
-                {"type": "error", "message": f"stale action for step {msg.get('t')!r}; now {rnd.t}"}
+                {"type": "error", "message": f"stale action for step {brief(msg.get('t'))}; now {rnd.t}"}
             )
             continue
         try:
@@ -244,6 +301,9 @@ async def _real_time(ws: WebSocket, study: Study, p: Participant, rnd: Round) ->
     next_tick = time.monotonic() + period
     try:
         while not rnd.done:
+            if receiver.done():  # the browser went away, or sent what closes the connection
+                receiver.result()
+                return
             delay = next_tick - time.monotonic()
             if delay > 0:
                 done, _ = await asyncio.wait({receiver}, timeout=delay)

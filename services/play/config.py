@@ -11,6 +11,7 @@ types and inconsistent values are `ConfigError`s that name the key and the fix).
       - {name: e3t, checkpoint: ../../runs/e3t-cc-s0}
     practice: {partner: cec, level: cramped_room, steps: 50}
     env: {max_steps: 200, random_start_facing: false}           # the round length is env.max_steps
+    limits: {joins_per_address_per_minute: 20, max_active_participants: 500}   # bounds on anonymous joins
     survey: {items: [{id: enjoyed, text: I enjoyed playing with my partner.}, ...]}
 
 Level specs (`levels`, `practice.level`): a classic kitchen (`counter_circuit`, ...), a held-out kitchen
@@ -31,6 +32,7 @@ MODES = ("turn_based", "real_time")
 AGENT_ACTIONS = ("greedy", "sampled")
 MAX_TICKS_PER_SECOND = 30.0
 MAX_STEPS = 10_000
+MAX_LIMIT = 10_000_000
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 _ID = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 
@@ -213,6 +215,39 @@ class StorageConfig:
 
 
 @dataclass(frozen=True)
+class LimitsConfig:
+    """Bounds on what anonymous clients can make the server hold. `POST /api/join` is open to anyone who
+    can reach the port, so new participants are admitted only within these bounds; a join beyond one is
+    refused with HTTP 429 (a rate) or 503 (the server is full) and a JSON error naming the key. A
+    participant who has joined is never refused by them (reloads, rounds and forms go on).
+
+    Attributes:
+        joins_per_address_per_minute: new participants one client address may start: this many at once,
+            then this many a minute (a token bucket). The address is the connection's peer, or the
+            client that a proxy on the same machine names in X-Forwarded-For; participants behind one
+            NAT (a lab) share it, so raise it for a lab session.
+        max_active_participants: participants in progress at once (joined, not finished or declined,
+            and seen within `idle_minutes`); joins beyond it get 503 until one finishes or goes idle.
+        idle_minutes: a participant with no request for this long stops counting as active (they can
+            still come back and continue).
+        max_participants: participants this server holds in all, those taken back from the records of
+            earlier runs included; joins beyond it get 503 (each costs memory and a record file).
+    """
+
+    joins_per_address_per_minute: int = 20
+    max_active_participants: int = 500
+    idle_minutes: float = 30.0
+    max_participants: int = 10_000
+
+    def __post_init__(self) -> None:
+        for key in ("joins_per_address_per_minute", "max_active_participants", "max_participants"):
+            if not 1 <= getattr(self, key) <= MAX_LIMIT:
+                raise ConfigError(f"limits.{key} must lie in [1, {MAX_LIMIT}], got {getattr(self, key)}")
+        if not 0.0 < self.idle_minutes <= 7 * 24 * 60:
+            raise ConfigError(f"limits.idle_minutes must lie in (0, 10080] (a week), got {self.idle_minutes}")
+
+
+@dataclass(frozen=True)
 class StudyConfig:
     """A human-AI study (or a free-play page): flow, partners, kitchens, game settings, survey, storage.
 
@@ -238,6 +273,7 @@ class StudyConfig:
         completion_code: the code shown at the end ('' : a random code per participant).
         seed: seeds the participants' round orders, seat draws and partner draws (with their index).
         storage: where the records go.
+        limits: bounds on joins (per client address, participants in progress, participants in all).
     """
 
     name: str
@@ -263,6 +299,7 @@ class StudyConfig:
     completion_code: str = ""
     seed: int = 0
     storage: StorageConfig = field(default_factory=StorageConfig)
+    limits: LimitsConfig = field(default_factory=LimitsConfig)
 
     def __post_init__(self) -> None:
         if not _NAME.match(self.name):

@@ -22,6 +22,7 @@ import re
 import secrets
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -40,16 +41,34 @@ from services.play.game import (
     level_json,
     resolve_level,
 )
+from services.play.limits import RateLimiter, brief
 from services.play.recording import Recorder
 
 log = logging.getLogger("cec.play")
 
 MAX_RT_MS = 3_600_000.0
 PRACTICE = -1  # the practice round's index in the records
+FINAL_STAGES = ("done", "declined")
 
 
 class InputError(ValueError):
     """A client sent something the study does not accept; the message says what and what is expected."""
+
+
+class JoinRefusedError(Exception):
+    """A new participant is refused by one of the study's `limits` (the existing ones go on).
+
+    Attributes:
+        limit: the config key of the bound (`limits.max_active_participants`, ...).
+        rate: True for a rate bound (HTTP 429), False when the server is full (HTTP 503).
+        retry_after: seconds after which a join may succeed (None: not foreseeable).
+    """
+
+    def __init__(self, message: str, limit: str, *, rate: bool, retry_after: float | None) -> None:
+        super().__init__(message)
+        self.limit = limit
+        self.rate = rate
+        self.retry_after = retry_after
 
 
 @dataclass(frozen=True)
@@ -95,15 +114,21 @@ class Participant:
     attempts: dict[int, int] = field(default_factory=dict)
     round: Round | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
+    seen: float = 0.0  # the study clock at the participant's last request
 
     @property
     def current(self) -> tuple[str, int]:
         return self.stages[self.stage]
 
+    @property
+    def finished(self) -> bool:
+        return self.current[0] in FINAL_STAGES
+
 
 def _config_digest(config: StudyConfig) -> str:
-    """A digest of everything that shapes a participant's study (where records go does not)."""
-    data = {k: v for k, v in asdict(config).items() if k != "storage"}
+    """A digest of everything that shapes a participant's study (where records go and the server's limits
+    do not)."""
+    data = {k: v for k, v in asdict(config).items() if k not in ("storage", "limits")}
     return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
@@ -115,6 +140,7 @@ class Study:
         base_dir: the folder the study's relative paths are relative to.
         pools: the loaded partner conditions, by name.
         recorder: where events go.
+        clock: seconds, monotonic (the join rate and idle times are measured with it).
     """
 
     def __init__(
@@ -123,42 +149,123 @@ class Study:
         base_dir: Path,
         pools: dict[str, PartnerPool],
         recorder: Recorder,
+        clock: Callable[[], float] = time.monotonic,
     ) -> None:
         self.config = config
         self.base_dir = base_dir
         self.pools = pools
         self.recorder = recorder
         self.digest = _config_digest(config)
+        self.clock = clock
         self._by_token: dict[str, Participant] = {}
+        self._active: dict[str, Participant] = {}  # in progress, least recently seen first
+        self._joining = 0  # admitted joins whose participant is being recorded
+        self._joins = RateLimiter(
+            config.limits.joins_per_address_per_minute,
+            config.limits.joins_per_address_per_minute,
+            clock=clock,
+        )
+        self._refused = 0  # joins refused since the last log line about it
+        self._refused_logged = -math.inf
         self._lock = threading.Lock()
         self._next_index = 0  # arrival index of the next participant (`restore` continues the count)
 
     # --- participants ---------------------------------------------------------------------------------
 
-    def join(self) -> tuple[str, Participant]:
-        """A new participant: (session token for the cookie, participant). The id is random and opaque."""
+    def join(self, address: str = "") -> tuple[str, Participant]:
+        """A new participant: (session token for the cookie, participant). The id is random and opaque.
+
+        `address`: the client's address, for `limits.joins_per_address_per_minute`. `JoinRefusedError` when a
+        bound of `config.limits` does not admit another participant now.
+        """
         with self._lock:
+            self._admit(address)
+            self._joining += 1
             index = self._next_index
             self._next_index += 1
-        token = secrets.token_urlsafe(24)
-        code = self.config.completion_code or "C" + secrets.token_hex(4).upper()
-        p = self._participant("p" + secrets.token_hex(10), index, code)
-        self._record(
-            p,
-            "participant",
-            study=self.config.name,
-            index=index,
-            level=p.level_spec,
-            plan=[r.partner for r in p.rounds if not r.practice],
-            config_digest=self.digest,
-            session=_token_hash(token),
-            code=code,
-        )
+        try:
+            token = secrets.token_urlsafe(24)
+            code = self.config.completion_code or "C" + secrets.token_hex(4).upper()
+            p = self._participant("p" + secrets.token_hex(10), index, code)
+            self._record(
+                p,
+                "participant",
+                study=self.config.name,
+                index=index,
+                level=p.level_spec,
+                plan=[r.partner for r in p.rounds if not r.practice],
+                config_digest=self.digest,
+                session=_token_hash(token),
+                code=code,
+            )
+        finally:
+            with self._lock:
+                self._joining -= 1
         with self._lock:
             self._by_token[_token_hash(token)] = p
+            self._seen(p)
         metrics.PARTICIPANTS.inc()
         log.info("participant %s joined (index %d, level %s)", p.id, index, p.level_spec)
         return token, p
+
+    def _admit(self, address: str) -> None:
+        """Raises `JoinRefusedError` unless the limits admit one more participant (lock held)."""
+        limits = self.config.limits
+        now = self.clock()
+        idle = limits.idle_minutes * 60.0
+        while self._active:  # least recently seen first: drop the idle ones
+            pid, oldest = next(iter(self._active.items()))
+            if now - oldest.seen <= idle:
+                break
+            del self._active[pid]
+        refusal: JoinRefusedError | None = None
+        if len(self._by_token) + self._joining >= limits.max_participants:
+            refusal = JoinRefusedError(
+                "this study takes no more participants "
+                f"(limits.max_participants = {limits.max_participants})",
+                "limits.max_participants",
+                rate=False,
+                retry_after=None,
+            )
+        elif len(self._active) + self._joining >= limits.max_active_participants:
+            first = next(iter(self._active.values()), None)
+            wait = idle - (now - first.seen) if first is not None else 60.0
+            refusal = JoinRefusedError(
+                "the study is full right now (limits.max_active_participants = "
+                f"{limits.max_active_participants} in progress); please try again later",
+                "limits.max_active_participants",
+                rate=False,
+                retry_after=max(1.0, min(wait, 60.0)),
+            )
+        else:
+            wait = self._joins.take(address)
+            if wait > 0:
+                refusal = JoinRefusedError(
+                    "too many new participants from your address (limits.joins_per_address_per_minute = "
+                    f"{limits.joins_per_address_per_minute}); try again in {math.ceil(wait)} s",
+                    "limits.joins_per_address_per_minute",
+                    rate=True,
+                    retry_after=wait,
+                )
+        if refusal is None:
+            return
+        self._refused += 1
+        if now - self._refused_logged >= 60.0:  # one line a minute at most, however many are refused
+            log.warning("refusing joins: %s (%d refused since the last such line)", refusal, self._refused)
+            self._refused, self._refused_logged = 0, now
+        raise refusal
+
+    def _seen(self, p: Participant) -> None:
+        """Marks `p` active now (the caller holds the lock); finished participants are not active."""
+        self._active.pop(p.id, None)
+        p.seen = self.clock()
+        if not p.finished:
+            self._active[p.id] = p
+
+    def active_participants(self) -> int:
+        """Participants counted against `limits.max_active_participants` (idle ones not yet dropped)."""
+        with self._lock:
+            return len(self._active)
 
     def _participant(self, pid: str, index: int, code: str) -> Participant:
         """Participant `index`'s plan and stages (a function of the study config and the index only)."""
@@ -183,7 +290,10 @@ class Study:
         if not token or len(token) > 128:
             return None
         with self._lock:
-            return self._by_token.get(_token_hash(token))
+            p = self._by_token.get(_token_hash(token))
+            if p is not None:
+                self._seen(p)
+            return p
 
     def restore(self, records: dict[str, list[dict[str, Any]]]) -> int:
         """Takes back the participants of earlier runs of this server from their records, so that a
@@ -313,7 +423,7 @@ class Study:
             kind, index = p.current
             if payload.get("stage") != kind:
                 raise InputError(
-                    f"this participant is at stage {kind!r}, not {payload.get('stage')!r}; reload"
+                    f"this participant is at stage {kind!r}, not {brief(payload.get('stage'))}; reload"
                 )
             if kind == "consent":
                 accept = payload.get("accept")
@@ -331,7 +441,7 @@ class Study:
                 self._advance(p)
             elif kind == "survey":
                 if payload.get("round") != index:
-                    raise InputError(f"this survey is about round {index}, not {payload.get('round')!r}")
+                    raise InputError(f"this survey is about round {index}, not {brief(payload.get('round'))}")
                 answers = self.validate_answers(payload.get("answers"))
                 self._record(
                     p, "survey", round=index, partner=self._plan_of(p, index).partner, answers=answers
@@ -358,7 +468,7 @@ class Study:
             if spec.required and not value:
                 raise InputError(f"{spec.label}: please answer")
             if value and spec.pattern and not re.fullmatch(spec.pattern, value):
-                raise InputError(f"{spec.label}: {value!r} is not in the expected format")
+                raise InputError(f"{spec.label}: {brief(value)} is not in the expected format")
             out[key] = value
         return out
 
@@ -372,12 +482,15 @@ class Study:
         for key in items:
             value = answers[key]
             if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
-                raise InputError(f"answer {key!r} must be an integer from 1 to {top}, got {value!r}")
+                raise InputError(f"answer {key!r} must be an integer from 1 to {top}, got {brief(value)}")
             out[key] = value
         return out
 
     def _advance(self, p: Participant) -> None:
         p.stage = min(p.stage + 1, len(p.stages) - 1)
+        if p.finished:
+            with self._lock:
+                self._active.pop(p.id, None)
         if p.current[0] == "done":
             self._record(p, "complete", code=p.code)
             log.info("participant %s completed the study", p.id)
@@ -458,6 +571,8 @@ class Study:
             if p.round is not rnd or rnd.done:
                 raise InputError("this round is no longer running (it was restarted or has ended)")
             plan = self._plan_of(p, p.current[1])
+            with self._lock:
+                self._seen(p)
             result = rnd.step(action, with_branches=plan.mode == "turn_based")
             attempt = p.attempts[plan.index] - 1
             self._record(
@@ -526,7 +641,7 @@ def _token_hash(token: str) -> str:
 def validate_action(action: Any) -> int:
     """An action index 0..5 (an int, not a bool or a float); `InputError` otherwise."""
     if isinstance(action, bool) or not isinstance(action, int) or not 0 <= action < NUM_ACTIONS:
-        raise InputError(f"action must be an integer from 0 to {NUM_ACTIONS - 1}, got {action!r}")
+        raise InputError(f"action must be an integer from 0 to {NUM_ACTIONS - 1}, got {brief(action)}")
     return action
 
 
@@ -535,7 +650,7 @@ def validate_rt(rt_ms: Any) -> float | None:
     if rt_ms is None:
         return None
     if isinstance(rt_ms, bool) or not isinstance(rt_ms, int | float) or not math.isfinite(rt_ms):
-        raise InputError(f"rt_ms must be a number of milliseconds, got {rt_ms!r}")
+        raise InputError(f"rt_ms must be a number of milliseconds, got {brief(rt_ms)}")
     if not 0.0 <= rt_ms <= MAX_RT_MS:
         raise InputError(f"rt_ms must lie in [0, {MAX_RT_MS:.0f}], got {rt_ms}")
     return round(float(rt_ms), 3)
