@@ -22,7 +22,7 @@ import shutil
 import subprocess
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, TextIO, TypeVar
 
 import jax
 import numpy as np
@@ -37,6 +37,11 @@ T = TypeVar("T")
 
 class CheckpointError(RuntimeError):
     """A checkpoint is missing, corrupt or does not match what the caller expects."""
+
+
+class CorruptCheckpointError(CheckpointError):
+    """A checkpoint's files are damaged (missing, unreadable, checksum or metadata wrong): an older one of
+    the same run may still be good, unlike a checkpoint that does not fit the caller's state."""
 
 
 class RunBusyError(CheckpointError):
@@ -146,20 +151,22 @@ def read_meta(path: str | Path) -> dict:
     """The metadata of the checkpoint at `path` (no state loaded)."""
     meta_file = Path(path) / META_FILE
     if not meta_file.is_file():
-        raise CheckpointError(f"{path} is not a checkpoint: {META_FILE} is missing")
+        raise CorruptCheckpointError(f"{path} is not a checkpoint: {META_FILE} is missing")
     try:
         meta: dict = json.loads(meta_file.read_text())
-    except json.JSONDecodeError as err:
-        raise CheckpointError(
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise CorruptCheckpointError(
             f"checkpoint metadata {meta_file} is corrupt ({err}); use another checkpoint"
         ) from err
     if not isinstance(meta, dict):
-        raise CheckpointError(f"checkpoint metadata {meta_file} is not a JSON object; use another checkpoint")
+        raise CorruptCheckpointError(
+            f"checkpoint metadata {meta_file} is not a JSON object; use another checkpoint"
+        )
     if meta.get("format") != FORMAT:
-        raise CheckpointError(f"{path} has format {meta.get('format')!r}, expected {FORMAT!r}")
+        raise CheckpointError(f"{path} has format {str(meta.get('format'))[:80]!r}, expected {FORMAT!r}")
     problem = _meta_problem(meta)
     if problem:
-        raise CheckpointError(
+        raise CorruptCheckpointError(
             f"checkpoint metadata {meta_file} is corrupt: {problem}; use another checkpoint"
         )
     return meta
@@ -195,11 +202,11 @@ def load(path: str | Path, template: T) -> tuple[T, dict]:
     meta = read_meta(path)
     state_file = path / STATE_FILE
     if not state_file.is_file():
-        raise CheckpointError(f"checkpoint {path} has no {STATE_FILE}")
+        raise CorruptCheckpointError(f"checkpoint {path} has no {STATE_FILE}")
     data = state_file.read_bytes()
     digest = hashlib.sha256(data).hexdigest()
     if digest != meta["sha256"]:
-        raise CheckpointError(
+        raise CorruptCheckpointError(
             f"checkpoint {path} is corrupt: {STATE_FILE} has SHA-256 {digest[:12]}..., its metadata says "
             f"{meta['sha256'][:12]}...; it was not loaded. "
             "Resume from an earlier checkpoint or delete this one"
@@ -249,12 +256,15 @@ class CheckpointStore:
     def path(self, update: int) -> Path:
         return self.root / f"update_{update:09d}"
 
+    def directories(self) -> list[Path]:
+        """Every checkpoint directory, readable or not, oldest first (not the temporary directories of
+        interrupted writes)."""
+        return sorted(p for p in self.root.glob("update_*") if not p.name.endswith(".tmp"))
+
     def list(self) -> list[CheckpointInfo]:
-        """Complete checkpoints, oldest first (temporary directories of interrupted writes are ignored)."""
+        """Checkpoints with valid metadata, oldest first."""
         out = []
-        for p in self.root.glob("update_*"):
-            if p.name.endswith(".tmp"):
-                continue
+        for p in self.directories():
             try:
                 meta = read_meta(p)
             except CheckpointError:
@@ -265,6 +275,27 @@ class CheckpointStore:
     def latest(self) -> CheckpointInfo | None:
         items = self.list()
         return items[-1] if items else None
+
+    def load_latest(self, template: T, log: TextIO) -> tuple[T, dict] | None:
+        """(state, meta) of the newest checkpoint that loads into `template`, or None if there is none.
+
+        A damaged checkpoint (`CorruptCheckpointError`) is passed over for the next older one with a
+        warning on `log` naming it and why, and left in place; one that does not fit `template` stops
+        the search (an older one of the same run would not fit either).
+        """
+        skipped = []
+        for path in reversed(self.directories()):
+            try:
+                return load(path, template)
+            except CorruptCheckpointError as err:
+                print(f"warning: passing over a damaged checkpoint: {err}", file=log, flush=True)
+                skipped.append(path.name)
+        if skipped:
+            raise CorruptCheckpointError(
+                f"no checkpoint of {self.root.parent} can be loaded (damaged: {', '.join(skipped)}); "
+                "restore them from a copy, or start a new run under another name"
+            )
+        return None
 
     def save(
         self, state: Any, *, update: int, env_steps: int, config: dict, metadata: dict, milestone: bool

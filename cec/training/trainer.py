@@ -449,27 +449,28 @@ class RunFiles:
         self.lock.release()
 
     def _open(self, template: TrainState, resume: bool, log: TextIO) -> tuple[TrainState | None, int]:
-        latest = self.store.latest()
-        if latest is not None and not resume:
+        if self.store.directories() and not resume:
             raise checkpoints.CheckpointError(
                 f"{self.run_dir} already has checkpoints; resume it with --resume {self.run_dir} "
                 "or choose another name or run_dir"
             )
+        latest = self.store.load_latest(template, log)
         if latest is None:
             self.writer.truncate_after(0)  # rows of an attempt killed before its first checkpoint
             (self.run_dir / "config.yaml").write_text(
                 yaml.safe_dump(config_dict(self.config), sort_keys=False)
             )
             return None, 0
-        state, meta = checkpoints.load(latest.path, template)
+        state, meta = latest
+        name = self.store.path(int(meta["update"])).name
         if not trains_as(meta["config"], self.config):
             raise checkpoints.CheckpointError(
-                f"checkpoint {latest.path} was written with a different config; resume with the run's own "
-                f"config ({self.run_dir / 'config.yaml'}) and no overrides"
+                f"checkpoint {name} of {self.run_dir} was written with a different config; resume with the "
+                f"run's own config ({self.run_dir / 'config.yaml'}) and no overrides"
             )
         done = int(meta["update"])
         self.writer.truncate_after(done)
-        print(f"resuming {self.run_dir} from update {done} ({latest.path.name})", file=log, flush=True)
+        print(f"resuming {self.run_dir} from update {done} ({name})", file=log, flush=True)
         return state, done
 
     def due(self, prev: int, done: int) -> tuple[bool, bool]:

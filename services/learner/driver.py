@@ -38,7 +38,7 @@ def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig 
     dist.check(train)
     files = RunFiles(train)
     latest = files.store.latest()
-    if latest is not None and not resume:
+    if files.store.directories() and not resume:
         raise ConfigError(
             f"{files.run_dir} already has checkpoints; continue it with --resume, or choose another name"
         )

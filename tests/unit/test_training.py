@@ -1,5 +1,6 @@
 """The rollout, the update step and the single-process trainer: shapes, resets, resume, checkpoints."""
 
+import io
 import json
 import shutil
 import subprocess
@@ -166,6 +167,37 @@ def test_malformed_checkpoint_metadata_is_refused_with_its_cause(tmp_path, chang
     with pytest.raises(checkpoints.CheckpointError, match="meta.json|format"):
         checkpoints.load(path, state)
     assert store.list() == []  # never offered as a checkpoint to resume from
+
+
+def test_resume_passes_over_a_damaged_newest_checkpoint_and_says_so(tmp_path):
+    cfg = _config(tmp_path, checkpoint={"keep_last": 5}, total_env_steps=4 * 12 * 3)
+    train(cfg, progress=False)
+    store = checkpoints.CheckpointStore(tmp_path / "run", keep_last=5)
+    newest = store.path(3)
+
+    def flip_a_state_byte() -> None:
+        data = bytearray((newest / "state.msgpack").read_bytes())
+        data[-1] ^= 0xFF
+        (newest / "state.msgpack").write_bytes(bytes(data))
+
+    def truncate_meta() -> None:
+        (newest / "meta.json").write_text('{"format": "cec-checkpoint/1", "update": 3')
+
+    for damage in (flip_a_state_byte, truncate_meta):
+        damage()
+        with pytest.raises(checkpoints.CheckpointError, match="already has checkpoints"):
+            train(cfg, progress=False)  # a damaged checkpoint still marks the run as started
+        log = io.StringIO()
+        result = train(cfg, resume=True, progress=False, log=log)
+        text = log.getvalue()
+        assert "warning: passing over a damaged checkpoint: checkpoint" in text and newest.name in text
+        assert "from update 2 (update_000000002)" in text
+        assert result.updates_done == 3 and checkpoints.read_meta(newest)["update"] == 3  # redone
+
+    for path in store.directories():  # nothing loadable: refused, naming every damaged one
+        (path / "meta.json").write_text("[]")
+    with pytest.raises(checkpoints.CorruptCheckpointError, match="no checkpoint of .* can be loaded"):
+        train(cfg, resume=True, progress=False, log=io.StringIO())
 
 
 def test_resume_refuses_a_changed_config(tmp_path):
