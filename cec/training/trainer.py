@@ -17,6 +17,7 @@ import csv
 import dataclasses
 import json
 import math
+import os
 import signal
 import sys
 import time
@@ -87,6 +88,7 @@ class Trainer:
     def __init__(self, config: TrainConfig) -> None:
         self.config = config
         self.task = Task.from_config(config.env)
+        check_memory(config, self.task.obs_shape)
         self.network = ActorCritic(config.network_config, self.task.num_actions)
         self.env_params = config.env.params
         self.optimizer, self.schedule = make_optimizer(
@@ -242,6 +244,29 @@ class Trainer:
         """Shapes and dtypes of the state (no compute), for loading checkpoints."""
         keys = jax.ShapeDtypeStruct((self.config.num_seeds, 2), jnp.uint32)
         return jax.eval_shape(jax.vmap(self.init_one), keys)
+
+
+def device_memory_bytes() -> int:
+    """Memory of the first JAX device: its allocator's limit on an accelerator, physical RAM on a CPU."""
+    stats = jax.devices()[0].memory_stats() or {}
+    if "bytes_limit" in stats:
+        return int(stats["bytes_limit"])
+    return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def check_memory(config: TrainConfig, obs_shape: tuple[int, ...]) -> None:
+    """`ConfigError` when one update's observations alone (float32, every seed, env, step and seat; the
+    least any rollout keeps) exceed the device's memory: a run that could only crash, refused before any
+    work instead of after minutes of compiling or an out-of-memory kill."""
+    need = config.num_seeds * config.steps_per_update * 2 * math.prod(obs_shape) * 4
+    have = device_memory_bytes()
+    if need > have:
+        raise ConfigError(
+            f"one update's observations need {need / 2**30:,.1f} GiB (num_seeds {config.num_seeds} x "
+            f"num_envs {config.num_envs} x num_steps {config.num_steps} x 2 seats x {math.prod(obs_shape)} "
+            f"floats), more than the {have / 2**30:,.1f} GiB of {jax.devices()[0].device_kind}; lower "
+            "num_envs, num_steps or num_seeds"
+        )
 
 
 def _adam_count(opt_state: Any) -> jax.Array:

@@ -44,6 +44,12 @@ def test_config_errors_exit_2_with_the_cause(tmp_path):
     proc = _cec("train", "--config", str(tmp_path / "missing.yaml"))
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 2 and "does not exist" in err
+    good = tmp_path / "good.yaml"
+    good.write_text(yaml.safe_dump(QUICK))
+    proc = _cec("train", "--config", str(good), f"run_dir={tmp_path / 'runs'}", "num_envs=1_000_000_000_000")
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 2 and "GiB" in err and "lower num_envs, num_steps or num_seeds" in err
+    assert not (tmp_path / "runs").exists()  # refused before any work
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
