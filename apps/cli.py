@@ -42,6 +42,9 @@ if TYPE_CHECKING:
 log = logging.getLogger("cec")
 
 
+MAX_KITCHEN_FILE_BYTES = 64 * 1024
+
+
 def _load_level(spec: str) -> Level:
     """A classic layout name, a held-out kitchen's name (`generated_007`), or an ASCII kitchen file."""
     from cec.envs.overcooked import CLASSIC_ASCII, classic_level
@@ -58,7 +61,18 @@ def _load_level(spec: str) -> Level:
             f"{spec!r} is neither a classic layout ({', '.join(sorted(CLASSIC_ASCII))}), a held-out kitchen "
             "(generated_000 .. generated_099) nor an ASCII kitchen file"
         )
-    return from_ascii(path.read_text())
+    try:
+        if path.stat().st_size > MAX_KITCHEN_FILE_BYTES:
+            raise LevelError(
+                f"{spec} is {path.stat().st_size:,} bytes; an ASCII kitchen is a few lines of tiles "
+                f"(at most {MAX_KITCHEN_FILE_BYTES:,} bytes here)"
+            )
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError:
+        raise LevelError(f"{spec} is not a text file; an ASCII kitchen is UTF-8 lines of tiles") from None
+    except OSError as err:
+        raise LevelError(f"cannot read {spec}: {err.strerror}") from None
+    return from_ascii(text)
 
 
 def _env_params(args: argparse.Namespace) -> EnvParams:

@@ -75,6 +75,14 @@ def test_levels_validate_reports_solvability_and_reasons(
     bad = tmp_path / "bad.txt"
     bad.write_text("WWPWW\nO0  O\nW   W\nWBWXW\n")
     assert main(["levels", "validate", str(bad)]) == 2
+    binary = tmp_path / "kitchen.png"
+    binary.write_bytes(b"\x89PNG\r\n\x1a\n\xd0\xff")
+    assert main(["levels", "validate", str(binary)]) == 2
+    assert "is not a text file" in capsys.readouterr().err
+    huge = tmp_path / "huge.txt"
+    huge.write_text("W" * 100_000)
+    assert main(["levels", "validate", str(huge)]) == 2
+    assert "an ASCII kitchen is a few lines of tiles" in capsys.readouterr().err
 
 
 def test_overrides_may_follow_flags_and_max_updates_must_be_positive(capsys):
