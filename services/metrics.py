@@ -7,7 +7,7 @@ a seed or a client address). Metrics live in the default registry of the process
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 
 from prometheus_client import REGISTRY, Counter, Gauge, Histogram, Metric, start_http_server
 
@@ -159,17 +159,34 @@ COMPONENTS: dict[str, tuple[str, ...]] = {
 
 
 class ComponentRegistry:
-    """The default registry seen through one component: its `cec_*` families and the process ones."""
+    """The default registry seen through one component: its `cec_*` families and the process ones.
 
-    def __init__(self, component: str | None) -> None:
+    `names`: only these samples (what `/metrics?name[]=a&name[]=b` asks for; unknown names select nothing).
+    """
+
+    def __init__(self, component: str | None, names: Iterable[str] | None = None) -> None:
         if component is not None and component not in COMPONENTS:
             raise ValueError(f"unknown metrics component {component!r}; one of {sorted(COMPONENTS)}")
+        self.component = component
         self.prefixes = ("cec_",) if component is None else COMPONENTS[component]
+        self.names = None if names is None else frozenset(names)
+
+    def restricted_registry(self, names: Iterable[str]) -> ComponentRegistry:
+        """The same view restricted to the samples `names` (prometheus_client calls this for `name[]`)."""
+        return ComponentRegistry(self.component, names)
 
     def collect(self) -> Iterator[Metric]:
         for family in REGISTRY.collect():
-            if not family.name.startswith("cec_") or family.name.startswith(self.prefixes):
+            if family.name.startswith("cec_") and not family.name.startswith(self.prefixes):
+                continue
+            if self.names is None:
                 yield family
+                continue
+            samples = [sample for sample in family.samples if sample.name in self.names]
+            if samples:
+                restricted = Metric(family.name, family.documentation, family.type, family.unit)
+                restricted.samples = samples
+                yield restricted
 
 
 class MetricsEndpoint:
