@@ -11,6 +11,11 @@ from cec.config import ConfigError
 from cec.levels.generator import GeneratorConfig
 
 TOKEN_ENV = "CEC_LEVEL_SERVER_TOKEN"
+#: the most bytes a request without levels can need (a generator config is under 200): larger `GetLevels`,
+#: `StreamLevels`, `GetHeldout` and `GetServerInfo` requests get RESOURCE_EXHAUSTED before they are parsed
+SMALL_REQUEST_BYTES = 16 * 1024
+#: the longest ASCII kitchen: 9 rows of 9 tiles and a facing line, with room for blank lines and CRs
+MIN_ASCII_BYTES = 128
 
 
 @dataclass(frozen=True)
@@ -26,6 +31,10 @@ class CurriculumConfig:
         temperature: rank prioritisation P(i) ~ (1 / rank_i) ** (1 / temperature).
         staleness_coef: weight of the staleness term (levels not sampled for long get picked again).
         seed: seed of the replay sampler.
+        served_window: how many of the levels most recently served (generated or replayed) the server
+            remembers (8 bytes each). `ReportScores` takes scores only for levels among them, so no client
+            can put a level the server did not produce (a held-out or unsolvable kitchen, any hand-made one)
+            into what it streams; report scores before more than this many levels have been served since.
     """
 
     enabled: bool = False
@@ -35,6 +44,7 @@ class CurriculumConfig:
     temperature: float = 0.3
     staleness_coef: float = 0.3
     seed: int = 0
+    served_window: int = 2**20
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.replay_prob <= 1.0:
@@ -48,6 +58,11 @@ class CurriculumConfig:
             raise ConfigError(f"curriculum.temperature must be > 0, got {self.temperature}")
         if not 0.0 <= self.staleness_coef <= 1.0:
             raise ConfigError(f"curriculum.staleness_coef must lie in [0, 1], got {self.staleness_coef}")
+        if self.served_window < 1:
+            raise ConfigError(
+                f"curriculum.served_window must be >= 1 (levels remembered for ReportScores), got "
+                f"{self.served_window}; the default is {2**20}"
+            )
 
 
 @dataclass(frozen=True)
@@ -75,7 +90,17 @@ class LevelServerConfig:
         max_levels_per_request: largest `GetLevels` count (and `ReportScores` batch); streams are unlimited.
         max_concurrent_streams: streams served at once; more get RESOURCE_EXHAUSTED.
         max_distinct_configs: generator configs compiled at most (each costs compile time and memory).
-        max_message_bytes: largest request message accepted.
+        max_message_bytes: largest request message accepted (gRPC answers RESOURCE_EXHAUSTED beyond it):
+            it bounds `ReportScores` batches (~94 bytes a level: ~11,000 levels at the default 1 MiB); the
+            other requests are bounded tighter, by what they can need (`SMALL_REQUEST_BYTES`, and
+            `max_ascii_bytes` for `ValidateLevel`).
+        max_ascii_bytes: largest ASCII kitchen `ValidateLevel` parses (a 9x9 kitchen with its facing line is
+            about 100 bytes); longer text gets INVALID_ARGUMENT before any parsing.
+        max_concurrent_validations: `ValidateLevel` and `ReportScores` calls checked at once, on their own
+            threads (apart from the generation `workers`, so validations never starve generation); more
+            get RESOURCE_EXHAUSTED.
+        max_concurrent_rpcs: calls of any kind (streams included) in progress at once; more get
+            RESOURCE_EXHAUSTED from gRPC. With `max_message_bytes` it bounds the memory requests can hold.
         grace_seconds: on SIGTERM, time given to in-flight RPCs before they are cancelled.
         generator: defaults for request fields left unset (and the only config when requests set none).
         curriculum: prioritized level replay (off by default).
@@ -97,7 +122,10 @@ class LevelServerConfig:
     max_levels_per_request: int = 100_000
     max_concurrent_streams: int = 32
     max_distinct_configs: int = 8
-    max_message_bytes: int = 4 * 1024 * 1024
+    max_message_bytes: int = 1024 * 1024
+    max_ascii_bytes: int = 4096
+    max_concurrent_validations: int = 4
+    max_concurrent_rpcs: int = 128
     grace_seconds: float = 5.0
     generator: GeneratorConfig = field(default_factory=GeneratorConfig)
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
@@ -108,9 +136,26 @@ class LevelServerConfig:
             if not (-1 if name == "metrics_port" else 0) <= value <= 65535:
                 raise ConfigError(f"{name} must be a TCP port in 0..65535, got {value}")
         for name in ("chunk_levels", "cache_chunks", "workers", "max_batch_size", "max_levels_per_request",
-                     "max_concurrent_streams", "max_distinct_configs", "max_message_bytes"):  # fmt: skip
+                     "max_concurrent_streams", "max_distinct_configs", "max_message_bytes", "max_ascii_bytes",
+                     "max_concurrent_validations", "max_concurrent_rpcs"):  # fmt: skip
             if getattr(self, name) < 1:
                 raise ConfigError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_message_bytes < SMALL_REQUEST_BYTES:
+            raise ConfigError(
+                f"max_message_bytes must be >= {SMALL_REQUEST_BYTES} (what a request with a generator config "
+                f"may need), got {self.max_message_bytes}; the default is {1024 * 1024}"
+            )
+        if self.max_ascii_bytes < MIN_ASCII_BYTES:
+            raise ConfigError(
+                f"max_ascii_bytes must be >= {MIN_ASCII_BYTES} (a 9x9 kitchen with its facing line), got "
+                f"{self.max_ascii_bytes}; the default is 4096"
+            )
+        if self.max_concurrent_rpcs <= self.max_concurrent_streams:
+            raise ConfigError(
+                f"max_concurrent_rpcs ({self.max_concurrent_rpcs}) must exceed max_concurrent_streams "
+                f"({self.max_concurrent_streams}), or open streams would leave no room for other calls; "
+                "raise max_concurrent_rpcs or lower max_concurrent_streams"
+            )
         if bool(self.tls_cert) != bool(self.tls_key):
             raise ConfigError("TLS needs both tls_cert and tls_key (PEM files); set both or neither")
         for name in ("tls_cert", "tls_key"):

@@ -6,11 +6,18 @@ replaces its previous one. Sampling mixes rank prioritisation of the scores with
     P(i) = (1 - rho) * h_i^(1/T) / sum_j h_j^(1/T) + rho * (t - t_i) / sum_j (t - t_j),   h_i = 1 / rank_i
 
 where t counts sampled batches and t_i is when level i was last sampled (or added).
+
+Only levels the server itself served may enter the buffer: `ServedWindow` remembers keyed digests of the
+levels most recently served, and the source refuses scores for any other level (a held-out kitchen, an
+unsolvable one, anything hand-made), so what the server streams stays what its generator produces.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
 import threading
+from collections import deque
 
 import numpy as np
 
@@ -99,3 +106,77 @@ class PrioritizedLevelReplay:
                 agent_dir=self._dir[idx],  # type: ignore[arg-type]
                 size=self._size[idx],  # type: ignore[arg-type]
             )
+
+
+def wire_rows(levels: Level) -> np.ndarray:
+    """uint8[N, 89]: each level of a batch as the bytes `cec.levels.wire.encode` sends for it."""
+    grid = np.asarray(levels.grid)
+    n = grid.shape[0]
+    parts = (grid, levels.agent_pos, levels.agent_dir, levels.size)
+    return np.concatenate([np.asarray(x).astype(np.uint8).reshape(n, -1) for x in parts], axis=1)
+
+
+class ServedWindow:
+    """Digests of the last `capacity` (or a few thousand more) levels served, for membership tests.
+
+    A digest is a keyed 64-bit BLAKE2b of a level's exact wire bytes (tiles, start cells and seats,
+    facings, size), under a key drawn at start-up: a client cannot compute digests, let alone craft a level
+    that collides with a served one. Digests are kept in sorted blocks (8 bytes a level), the oldest block
+    dropped once the newer ones hold `capacity`. Thread-safe.
+    """
+
+    BLOCK = 16384
+
+    def __init__(self, capacity: int) -> None:
+        self.capacity = capacity
+        self._key = os.urandom(16)
+        self._block = max(1, min(self.BLOCK, capacity))
+        self._blocks: deque[np.ndarray] = deque()  # sorted unique digests, oldest first
+        self._pending: list[np.ndarray] = []
+        self._pending_n = 0
+        self._size = 0  # digests in `_blocks`
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return self._size + self._pending_n
+
+    def digests(self, levels: Level) -> np.ndarray:
+        """uint64[N]: the digest of each level of a batch."""
+        rows = wire_rows(levels)
+        width = rows.shape[1]
+        buf = memoryview(rows.tobytes())
+        key = self._key
+        return np.fromiter(
+            (int.from_bytes(hashlib.blake2b(buf[i : i + width], digest_size=8, key=key).digest(), "little")
+             for i in range(0, len(buf), width)),
+            dtype=np.uint64, count=rows.shape[0],
+        )  # fmt: skip
+
+    def add(self, digests: np.ndarray) -> None:
+        """Records digests of levels just served."""
+        if not len(digests):
+            return
+        with self._lock:
+            self._pending.append(np.asarray(digests, np.uint64))
+            self._pending_n += len(digests)
+            if self._pending_n >= self._block:
+                block = np.unique(np.concatenate(self._pending))
+                self._pending, self._pending_n = [], 0
+                self._blocks.append(block)
+                self._size += len(block)
+                while self._blocks and self._size - len(self._blocks[0]) >= self.capacity:
+                    self._size -= len(self._blocks.popleft())
+
+    def contains(self, digests: np.ndarray) -> np.ndarray:
+        """bool[N]: which of these digests belong to recently served levels."""
+        digests = np.asarray(digests, np.uint64)
+        hit = np.zeros(len(digests), bool)
+        if not len(digests):
+            return hit
+        with self._lock:
+            if self._pending:
+                hit |= np.isin(digests, np.concatenate(self._pending))
+            for block in self._blocks:
+                idx = np.minimum(np.searchsorted(block, digests), len(block) - 1)
+                hit |= block[idx] == digests
+        return hit

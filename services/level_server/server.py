@@ -1,10 +1,14 @@
 """The gRPC adapter: `cec.levels.v1.LevelService` served by `grpc.aio` over a `LevelSource`.
 
 Requests are parsed here (raw bytes in, so that undecodable bytes get INVALID_ARGUMENT rather than a
-generic error), checked against the limits, and handed to the source on a thread pool, so generation never
-blocks the event loop. Streams prefetch one batch and yield under gRPC flow control: a slow client makes
-the server wait, never buffer. The standard health service and server reflection are registered; a bearer
-token (if configured) guards everything but health checks; TLS when configured.
+generic error; a request larger than its RPC can need gets RESOURCE_EXHAUSTED before it is parsed),
+checked against the limits, and handed to the source on a thread pool, so generation never blocks the event
+loop. Client-sent levels (`ValidateLevel`, `ReportScores`) are checked on a second, smaller pool whose
+admission is bounded, so that validations can neither starve generation nor queue up without end. Error
+messages are clipped (`clip`), so an echoed input never outgrows what gRPC can carry in a status. Streams
+prefetch one batch and yield under gRPC flow control: a slow client makes the server wait, never buffer.
+The standard health service and server reflection are registered; a bearer token (if configured) guards
+everything but health checks; TLS when configured.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import logging
 import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -40,20 +44,40 @@ from cec.levels.wire import (
     reject_unknown_fields,
 )
 from services import metrics
-from services.level_server.config import LevelServerConfig
-from services.level_server.source import InvalidRequestError, LevelSource, LimitExceededError, take_rows
+from services.level_server.config import SMALL_REQUEST_BYTES, LevelServerConfig
+from services.level_server.source import (
+    InvalidRequestError,
+    LevelSource,
+    LimitExceededError,
+    UnknownLevelError,
+    take_rows,
+)
 
 log = logging.getLogger("cec.level_server")
 
 SERVICE_NAME = pb.DESCRIPTOR.services_by_name["LevelService"].full_name
 M = TypeVar("M", bound=Message)
+#: longest status message sent (characters): gRPC carries it in a trailer limited to 16 KiB in all, and
+#: messages may echo client input (an unknown structure name, a bad facing line)
+MAX_DETAIL_CHARS = 600
+
+
+def clip(text: str, limit: int = MAX_DETAIL_CHARS) -> str:
+    """`text`, its middle cut out if longer than `limit` (the cause leads a message, the fix ends it)."""
+    if len(text) <= limit:
+        return text
+    head = limit * 2 // 3
+    tail = limit - head
+    return f"{text[:head]} [... {len(text) - head - tail} characters cut ...] {text[-tail:]}"
 
 
 def _status_of(err: BaseException) -> tuple[grpc.StatusCode, str]:
     if isinstance(err, InvalidRequestError | ConfigError | LevelError):
-        return grpc.StatusCode.INVALID_ARGUMENT, str(err)
+        return grpc.StatusCode.INVALID_ARGUMENT, clip(str(err))
     if isinstance(err, LimitExceededError):
-        return grpc.StatusCode.RESOURCE_EXHAUSTED, str(err)
+        return grpc.StatusCode.RESOURCE_EXHAUSTED, clip(str(err))
+    if isinstance(err, UnknownLevelError):
+        return grpc.StatusCode.NOT_FOUND, clip(str(err))
     log.exception("internal error", exc_info=err)
     return grpc.StatusCode.INTERNAL, f"internal server error ({type(err).__name__}); see the server log"
 
@@ -69,17 +93,55 @@ def _parse(cls: type[M], raw: bytes) -> M:
 
 
 class LevelServicer:
-    """The RPC methods. Each takes the raw request bytes and the call context."""
+    """The RPC methods. Each takes the raw request bytes and the call context.
 
-    def __init__(self, source: LevelSource, executor: ThreadPoolExecutor) -> None:
+    Generation runs on `executor`; checks of client-sent levels on `check_executor` (its own threads, at
+    most `max_concurrent_validations` calls admitted at once, counted until their job ends, so a client
+    that cancels cannot pile up queued work).
+    """
+
+    def __init__(
+        self,
+        source: LevelSource,
+        executor: ThreadPoolExecutor,
+        check_executor: ThreadPoolExecutor | None = None,
+    ) -> None:
         self.source = source
         self.config = source.config
         self.executor = executor
+        self.check_executor = check_executor or ThreadPoolExecutor(
+            self.config.max_concurrent_validations, thread_name_prefix="level-check"
+        )
+        self._check_slots = threading.BoundedSemaphore(self.config.max_concurrent_validations)
         self.active_streams = 0
         self.version = f"{__version__} ({code_version()})"
 
     async def _run(self, fn: Callable[..., Any], *args: Any) -> Any:
         return await asyncio.get_running_loop().run_in_executor(self.executor, fn, *args)
+
+    async def _check(self, rpc: str, fn: Callable[..., Any], *args: Any) -> Any:
+        """Runs a check of client-sent levels on the check pool, or refuses it when the pool is full."""
+        if not self._check_slots.acquire(blocking=False):
+            raise LimitExceededError(
+                f"the server is already checking {self.config.max_concurrent_validations} requests with "
+                f"client levels (ValidateLevel, ReportScores; max_concurrent_validations="
+                f"{self.config.max_concurrent_validations}); retry {rpc} with backoff"
+            )
+        try:
+            job: Future[Any] = self.check_executor.submit(fn, *args)
+        except BaseException:
+            self._check_slots.release()
+            raise
+        job.add_done_callback(lambda _: self._check_slots.release())
+        return await asyncio.wrap_future(job)
+
+    @staticmethod
+    def _check_size(rpc: str, raw: bytes, limit: int, why: str) -> None:
+        if len(raw) > limit:
+            raise LimitExceededError(
+                f"a {rpc} request of {len(raw)} bytes exceeds the {limit} bytes this server accepts for it "
+                f"({why}); send a smaller request"
+            )
 
     async def _unary(
         self, rpc: str, context: grpc.aio.ServicerContext, body: Callable[[], Awaitable[M]]
@@ -104,6 +166,7 @@ class LevelServicer:
 
     async def get_levels(self, raw: bytes, context: grpc.aio.ServicerContext) -> pb.LevelBatch:
         async def body() -> pb.LevelBatch:
+            self._check_size("GetLevels", raw, SMALL_REQUEST_BYTES, "a request without levels")
             req = _parse(pb.GetLevelsRequest, raw)
             gen = config_from_proto(req.config, self.config.generator)
 
@@ -124,6 +187,7 @@ class LevelServicer:
 
     async def get_heldout(self, raw: bytes, context: grpc.aio.ServicerContext) -> pb.LevelBatch:
         async def body() -> pb.LevelBatch:
+            self._check_size("GetHeldout", raw, SMALL_REQUEST_BYTES, "a request without levels")
             _parse(pb.GetHeldoutRequest, raw)
             names, levels = self.source.heldout
             metrics.LEVELS_SENT.labels("GetHeldout").inc(len(names))
@@ -133,6 +197,8 @@ class LevelServicer:
 
     async def validate_level(self, raw: bytes, context: grpc.aio.ServicerContext) -> pb.ValidateLevelResponse:
         async def body() -> pb.ValidateLevelResponse:
+            limit = SMALL_REQUEST_BYTES + self.config.max_ascii_bytes
+            self._check_size("ValidateLevel", raw, limit, "one level: max_ascii_bytes plus room for a config")
             req = _parse(pb.ValidateLevelRequest, raw)
             gen = config_from_proto(req.config, self.config.generator)
             which = req.WhichOneof("level")
@@ -146,7 +212,13 @@ class LevelServicer:
                 level: Any = take_rows(decode(req.packed, check=False), 0)
             else:
                 level = req.ascii
-            v = await self._run(self.source.validate, level, gen)
+                if len(level) > self.config.max_ascii_bytes:
+                    raise InvalidRequestError(
+                        f"the ASCII level has {len(level)} characters; a kitchen is at most 9x9 tiles plus a "
+                        "facing line (about 100), and this server parses at most "
+                        f"{self.config.max_ascii_bytes} (max_ascii_bytes)"
+                    )
+            v = await self._check("ValidateLevel", self.source.validate, level, gen)
             return pb.ValidateLevelResponse(
                 solvable=v.solvable,
                 reasons=list(v.reasons),
@@ -167,8 +239,12 @@ class LevelServicer:
                     f"{req.levels.count} levels exceed max_levels_per_request="
                     f"{self.config.max_levels_per_request}; report in several requests"
                 )
-            levels = decode(req.levels)
-            accepted = await self._run(self.source.report_scores, levels, np.asarray(req.scores, np.float32))
+
+            def job() -> int:
+                levels = decode(req.levels)
+                return self.source.report_scores(levels, np.asarray(req.scores, np.float32))
+
+            accepted = await self._check("ReportScores", job)
             replay = self.source.replay
             return pb.ReportScoresResponse(
                 accepted=accepted, buffer_size=len(replay) if replay else 0, curriculum_enabled=bool(replay)
@@ -178,6 +254,7 @@ class LevelServicer:
 
     async def get_server_info(self, raw: bytes, context: grpc.aio.ServicerContext) -> pb.ServerInfo:
         async def body() -> pb.ServerInfo:
+            self._check_size("GetServerInfo", raw, SMALL_REQUEST_BYTES, "a request without levels")
             _parse(pb.GetServerInfoRequest, raw)
             c = self.config
             return pb.ServerInfo(
@@ -208,6 +285,7 @@ class LevelServicer:
         counted = False
         pending: asyncio.Future[pb.LevelBatch] | None = None
         try:
+            self._check_size("StreamLevels", raw, SMALL_REQUEST_BYTES, "a request without levels")
             req = _parse(pb.StreamLevelsRequest, raw)
             if not 1 <= req.batch_size <= self.config.max_batch_size:
                 raise (LimitExceededError if req.batch_size > 0 else InvalidRequestError)(
@@ -219,6 +297,7 @@ class LevelServicer:
                     f"count (0 = until cancelled) and start_index must be >= 0, got count={req.count}, "
                     f"start_index={req.start_index}"
                 )
+            self.source.check_range(req.start_index, req.count or None)
             gen = config_from_proto(req.config, self.config.generator)
             if self.active_streams >= self.config.max_concurrent_streams:
                 raise LimitExceededError(
@@ -229,10 +308,11 @@ class LevelServicer:
             counted = True
             metrics.ACTIVE_STREAMS.inc()
             await self._run(self.source.check_config, gen)
-            end = req.start_index + req.count if req.count else None
+            # an endless stream ends (OK) at the end of its sequence, after 2**41 levels at the default chunk
+            end = req.start_index + req.count if req.count else self.source.sequence_length
 
             def job(i: int) -> pb.LevelBatch:
-                n = req.batch_size if end is None else min(req.batch_size, end - i)
+                n = min(req.batch_size, end - i)
                 levels = self.source.with_replay(self.source.levels(req.seed, i, n, gen))
                 return encode(levels, first_index=i)
 
@@ -242,7 +322,7 @@ class LevelServicer:
             while pending is not None:
                 msg = await pending
                 i += msg.count
-                pending = asyncio.ensure_future(self._run(job, i)) if end is None or i < end else None
+                pending = asyncio.ensure_future(self._run(job, i)) if i < end else None
                 if first:
                     metrics.RPC_LATENCY.labels("StreamLevels").observe(time.perf_counter() - start_time)
                     first = False
@@ -323,7 +403,10 @@ class LevelServer:
         self.config = config
         self.source = source or LevelSource(config)
         self.executor = ThreadPoolExecutor(config.workers, thread_name_prefix="level-gen")
-        self.servicer = LevelServicer(self.source, self.executor)
+        self.check_executor = ThreadPoolExecutor(
+            config.max_concurrent_validations, thread_name_prefix="level-check"
+        )
+        self.servicer = LevelServicer(self.source, self.executor, self.check_executor)
         self.health = health_aio.HealthServicer()
         self.port = 0
         self._server: grpc.aio.Server | None = None
@@ -339,6 +422,7 @@ class LevelServer:
         await asyncio.get_running_loop().run_in_executor(self.executor, self.source.warm_up)
         server = grpc.aio.server(
             interceptors=[_TokenAuth(c.token)] if c.token else None,
+            maximum_concurrent_rpcs=c.max_concurrent_rpcs,
             options=[
                 ("grpc.max_receive_message_length", c.max_message_bytes),
                 ("grpc.max_send_message_length", 128 * 1024 * 1024),
@@ -378,6 +462,7 @@ class LevelServer:
         await self._server.stop(self.config.grace_seconds if grace is None else grace)
         self._server = None
         self.executor.shutdown(wait=False, cancel_futures=True)
+        self.check_executor.shutdown(wait=False, cancel_futures=True)
         log.info("level server stopped")
 
     async def wait_for_termination(self) -> None:
