@@ -234,7 +234,7 @@ class LevelSource:
         n = int(np.asarray(levels.grid).shape[0])
         if len(scores) != n:
             raise InvalidRequestError(f"{len(scores)} scores for {n} levels; send one score per level")
-        if self.replay is None or self.served is None:
+        if self.replay is None or self.served is None or n == 0:
             return 0
         self._refuse_foreign(levels)
         taken = self.replay.update(levels, np.asarray(scores))

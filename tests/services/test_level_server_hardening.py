@@ -14,7 +14,7 @@ import grpc
 import jax
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from cec.config import ConfigError
@@ -396,6 +396,8 @@ ANSWERS = {
 
 @settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(case=REQUESTS)
+@example(case=("ReportScores", b""))  # no levels: found by this test (fingerprinting an empty batch)
+@example(case=("GetLevels", pb.GetLevelsRequest(n=1, seed=1, start_index=SEQUENCE_END)))  # fold_in overflow
 def test_malformed_requests_never_get_internal_or_unknown(small_server, case):
     _, c = small_server
     method, request = case
