@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from cec.config import ConfigError
+from cec.config import ConfigError, load_config
 from cec.levels import from_ascii, stack_levels
 from cec.levels.heldout import fingerprint_host, heldout_levels
 from cec.levels.solvability import validate_solvable
@@ -95,10 +95,8 @@ def test_report_scores_refuses_heldout_unsolvable_and_unserved_levels(curriculum
     unsolvable = [from_ascii(text) for text in UNSOLVABLE]
     assert all(validate_solvable(level, True) for level in unsolvable)
 
-    for (
-        name,
-        level,
-    ) in heldout_levels():  # each held-out kitchen alone, with a score that would top the buffer
+    # each held-out kitchen alone, with a score that would top the buffer
+    for name, level in heldout_levels():
         err = _error(lambda lv=level: c.report_scores(stack_levels([lv]), np.array([1e6])))
         assert err.code() == grpc.StatusCode.INVALID_ARGUMENT, (name, err.details())
         assert "held-out" in err.details() and repr(name) in err.details()
@@ -109,17 +107,15 @@ def test_report_scores_refuses_heldout_unsolvable_and_unserved_levels(curriculum
         assert err.code() == grpc.StatusCode.INVALID_ARGUMENT and "unsolvable" in err.details(), err.details()
 
     served = c.get_levels(40, seed=77)
-    # a solvable level the server never served (a served one, turned to face east): NOT_FOUND
+    # a solvable level the server never served (a served one, both cooks turned a quarter): NOT_FOUND
     turned = jax.tree.map(lambda x: np.array(x[:1]), served)
-    turned.agent_dir[:] = 2
+    turned.agent_dir[:] = (turned.agent_dir + 1) % 4
     err = _error(lambda: c.report_scores(turned, np.array([1e6])))
     assert err.code() == grpc.StatusCode.NOT_FOUND and "served_window" in err.details(), err.details()
     # all or nothing: served levels with one held-out kitchen among them are refused whole
     mixed = stack_levels([jax.tree.map(lambda x: x[0], served), heldout[0]])
-    assert (
-        _error(lambda: c.report_scores(mixed, np.array([1.0, 1e6]))).code()
-        == grpc.StatusCode.INVALID_ARGUMENT
-    )
+    err = _error(lambda: c.report_scores(mixed, np.array([1.0, 1e6])))
+    assert err.code() == grpc.StatusCode.INVALID_ARGUMENT
     assert len(server.server.source.replay) == 0
 
     reply = c.report_scores(served, np.linspace(0.1, 4.0, 40))  # levels it served: taken
@@ -354,7 +350,7 @@ REQUESTS = st.one_of(
         INT64,
         st.one_of(st.none(), generator_configs()),
         st.booleans(),
-    ),  # fmt: skip
+    ),
     st.builds(
         lambda seed, batch, count, start, config: (
             "StreamLevels",
@@ -367,7 +363,7 @@ REQUESTS = st.one_of(
         st.one_of(st.integers(-2, 200), INT64),
         INT64,
         st.one_of(st.none(), generator_configs()),
-    ),  # fmt: skip
+    ),
     st.builds(
         lambda text, config: ("ValidateLevel", pb.ValidateLevelRequest(ascii=text, config=config)),
         st.one_of(KITCHEN_TEXT, st.sampled_from(UNSOLVABLE), st.text(min_size=4000, max_size=5000)),
@@ -383,7 +379,7 @@ REQUESTS = st.one_of(
         lambda method, raw: (method, raw),
         st.sampled_from(
             ["GetLevels", "GetHeldout", "ValidateLevel", "ReportScores", "GetServerInfo", "StreamLevels"]
-        ),  # fmt: skip
+        ),
         st.binary(max_size=300),
     ),
 )
@@ -409,23 +405,11 @@ def test_malformed_requests_never_get_internal_or_unknown(small_server, case):
         assert len(err.details()) <= MAX_DETAIL_CHARS + 50
 
 
-def test_new_limits_are_checked_at_load():
-    for kwargs, key in [
-        ({"max_ascii_bytes": 10}, "max_ascii_bytes"),
-        ({"max_message_bytes": 1000}, "max_message_bytes"),
-        ({"max_concurrent_validations": 0}, "max_concurrent_validations"),
-        ({"max_concurrent_rpcs": 32}, "max_concurrent_rpcs"),
-        ({"curriculum": {"served_window": 0}}, "served_window"),
-    ]:
-        with pytest.raises(ConfigError, match=key):
-            from cec.config import load_config
-
-            load_config(LevelServerConfig, None, [f"{k}={v}" for k, v in _flat(kwargs)])
-
-
-def _flat(d: dict, prefix: str = ""):
-    for k, v in d.items():
-        if isinstance(v, dict):
-            yield from _flat(v, f"{prefix}{k}.")
-        else:
-            yield f"{prefix}{k}", v
+@pytest.mark.parametrize(
+    "override",
+    ["max_ascii_bytes=10", "max_message_bytes=1000", "max_concurrent_validations=0", "max_concurrent_rpcs=32",
+     "curriculum.served_window=0"],
+)  # fmt: skip
+def test_new_limits_are_checked_at_load(override):
+    with pytest.raises(ConfigError, match=override.split("=")[0].split(".")[-1]):
+        load_config(LevelServerConfig, None, [override])
