@@ -41,6 +41,7 @@ import yaml
 from prometheus_client import REGISTRY, CollectorRegistry
 
 from cec.config import ConfigError, load_config
+from services.processes import free_port, terminate, with_parent_death
 
 log = logging.getLogger("services.monitoring")
 
@@ -345,12 +346,6 @@ def find_binary(*names: str) -> str | None:
     return None
 
 
-def _free_port(host: str) -> int:
-    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
-
-
 def _port_taken(host: str, port: int) -> bool:
     with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as s:
         s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
@@ -370,16 +365,6 @@ def _http_get(url: str, timeout_s: float = 2.0) -> tuple[int, bytes]:
         return int(err.code), err.read()
     except (urllib.error.URLError, OSError):
         return 0, b""
-
-
-def _terminate(proc: subprocess.Popen[bytes], grace_s: float = 10.0) -> None:
-    if proc.poll() is None:
-        proc.terminate()
-        try:
-            proc.wait(grace_s)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
 
 
 def _log_tail(path: Path, offset: int, chars: int = 1500) -> str:
@@ -415,6 +400,11 @@ class _Server:
         return self._proc is not None and self._proc.poll() is None
 
     @property
+    def pid(self) -> int | None:
+        """The server's process id while it runs."""
+        return self._proc.pid if self._proc is not None and self.running else None
+
+    @property
     def log_path(self) -> Path:
         return self.run_dir / f"{self.name}.log"
 
@@ -429,7 +419,7 @@ class _Server:
         attempts = 3 if self.requested_port == 0 else 1
         for attempt in range(attempts):
             if self.requested_port == 0:
-                self.port = _free_port(self.host)
+                self.port = free_port(self.host)
             elif _port_taken(self.host, self.port):
                 raise MonitoringError(
                     f"{self.name} cannot listen on {self.host}:{self.port}: the port is in use (another "
@@ -449,7 +439,7 @@ class _Server:
         offset = self.log_path.stat().st_size if self.log_path.exists() else 0
         with self.log_path.open("ab") as log_file:
             proc = subprocess.Popen(
-                command,
+                with_parent_death(command),
                 stdin=subprocess.DEVNULL,
                 stdout=log_file,
                 stderr=subprocess.STDOUT,
@@ -458,7 +448,7 @@ class _Server:
                 start_new_session=True,  # a Ctrl-C in the terminal reaches us; we stop it in order
             )
         self._proc = proc
-        self._finalizer = weakref.finalize(self, _terminate, proc)  # never leave a stray server behind
+        self._finalizer = weakref.finalize(self, terminate, proc)  # never leave a stray server behind
         deadline = time.monotonic() + self.start_timeout_s
         while time.monotonic() < deadline:
             if proc.poll() is not None:
@@ -475,7 +465,7 @@ class _Server:
     def stop(self) -> None:
         """Stops the server (SIGTERM, then SIGKILL after 10 s). Idempotent."""
         if self._proc is not None:
-            _terminate(self._proc)
+            terminate(self._proc)
             self._proc = None
         if self._finalizer is not None:
             self._finalizer.detach()

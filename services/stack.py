@@ -23,7 +23,6 @@ import dataclasses
 import logging
 import os
 import queue
-import socket
 import subprocess
 import sys
 import threading
@@ -36,6 +35,7 @@ from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
+from services.processes import ChildRecord, free_port, terminate, with_parent_death
 from services.store import StoreConfig
 
 log = logging.getLogger("cec.up")
@@ -90,12 +90,6 @@ def preset_path(path: str) -> Path:
     return p if p.exists() or p.is_absolute() or not (repo / p).exists() else repo / p
 
 
-def free_port(host: str = "127.0.0.1") -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
-
-
 def _port(requested: int) -> int:
     return free_port() if requested == 0 else requested
 
@@ -112,7 +106,7 @@ class ServiceProcess:
         self.log_path = log_path
         self._log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
         self.proc = subprocess.Popen(
-            [sys.executable, "-u", *args],
+            with_parent_death([sys.executable, "-u", *args]),
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             env={"JAX_PLATFORMS": "cpu", **os.environ, **(env or {})},
@@ -154,13 +148,7 @@ class ServiceProcess:
         return self.proc.poll() is None
 
     def stop(self, timeout: float = 30.0) -> None:
-        if self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        terminate(self.proc, timeout)
         with contextlib.suppress(Exception):
             self._log.close()
 
@@ -180,13 +168,18 @@ class Stack:
         self.dist = config.distributed
         self.urls: dict[str, str] = {}
         self.ray_started = False
+        self.children = ChildRecord(self.run_dir / "logs" / "children.json")
 
     def say(self, text: str) -> None:
         print(text, file=self.out, flush=True)
 
-    def start(self) -> None:
+    def start(self, resume: bool = False) -> None:
+        from services.learner.driver import check_run
+
         cfg = self.config
         self.dist.check(self.train_config)
+        check_run(self.train_config, resume)  # before anything starts
+        self.children.check()  # leftovers of an earlier `cec up` of this run: named, not collided with
         logs = self.run_dir / "logs"
         # 1. Redis
         if self.store.url_given:
@@ -201,6 +194,7 @@ class Stack:
             from services.store import LocalRedis
 
             self.redis = LocalRedis(self.run_dir / "redis").start()
+            self.children.add("redis-server", self.redis.pid)
             self.store = self.redis.config()
             self.say(
                 f"redis                  {self.redis.url} (started here; data in {self.run_dir / 'redis'})"
@@ -224,7 +218,7 @@ class Stack:
                 "level server ready on",
                 cfg.start_timeout_s,
             )
-            self.services.append(server)
+            self._started(server)
             address = server.ready_line.rsplit(" ", 1)[-1]
             self.say(f"level server           grpc://{address}  (log: {server.log_path})")
             if mport >= 0:
@@ -263,21 +257,41 @@ class Stack:
                 cfg.start_timeout_s,
                 env={"JAX_COMPILATION_CACHE_DIR": str(self.run_dir / "jax_cache")},  # fast restarts
             )
-            self.services.append(evaluator)
+            self._started(evaluator)
             self.say(f"evaluator              consuming checkpoint events  (log: {evaluator.log_path})")
             if eport >= 0:
                 self.urls["evaluator metrics"] = f"http://127.0.0.1:{eport}/metrics"
         # 4. Ray
+        if not self.dist.ray_address:
+            # Ray's token authentication (its default for a new local cluster; the token is Ray's own,
+            # ~/.ray/auth_token): the head and this driver must agree, and Ray reads the mode when imported.
+            os.environ.setdefault("RAY_AUTH_MODE", "token")
         import ray
 
-        if self.dist.ray_address:
-            info = ray.init(address=self.dist.ray_address)
-        else:
-            info = ray.init(
-                num_cpus=self.dist.ray_num_cpus or None,
-                include_dashboard=cfg.ray_dashboard,
-                logging_level=logging.WARNING,
+        address = self.dist.ray_address
+        if not address:  # a local Ray started by its own CLI: no fork of this (JAX-threaded) process
+            port = free_port()
+            head = ServiceProcess(
+                "ray head",
+                [
+                    "-m",
+                    "ray.scripts.scripts",
+                    "start",
+                    "--head",
+                    "--block",  # until SIGTERM, then it stops every Ray process it started
+                    "--node-ip-address=127.0.0.1",
+                    f"--port={port}",
+                    f"--include-dashboard={str(cfg.ray_dashboard).lower()}",
+                    "--disable-usage-stats",
+                    *([f"--num-cpus={self.dist.ray_num_cpus}"] if self.dist.ray_num_cpus else []),
+                ],
+                logs / "ray.log",
+                "Ray runtime started",
+                cfg.start_timeout_s,
             )
+            self._started(head)
+            address = f"127.0.0.1:{port}"
+        info = ray.init(address=address, logging_level=logging.WARNING)
         self.ray_started = True
         dash = getattr(info, "dashboard_url", "") or ""
         if dash:
@@ -300,10 +314,17 @@ class Stack:
                     self.run_dir / "monitoring", targets, cfg.monitoring_config
                 )
                 self.say(self.monitoring.describe())
+                for server in (self.monitoring.prometheus, self.monitoring.grafana):
+                    if server is not None and server.pid is not None:
+                        self.children.add(server.name, server.pid)
             except MonitoringError as err:
                 self.say(f"monitoring not started: {err}")
         for name, url in self.urls.items():
             self.say(f"{name:<22} {url}")
+
+    def _started(self, service: ServiceProcess) -> None:
+        self.services.append(service)
+        self.children.add(service.name, service.proc.pid)
 
     def train(self, resume: bool, max_updates: int | None = None) -> int:
         from services.learner.driver import run_distributed
@@ -328,6 +349,7 @@ class Stack:
             self.monitoring.stop()
         if self.redis is not None:
             self.redis.stop()
+        self.children.clear()
         self.say("stack stopped")
 
 
@@ -367,7 +389,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     train = config.train_config(train_overrides)
     stack = Stack(config, train)
     try:
-        stack.start()
+        stack.start(resume=args.resume)
         return stack.train(resume=args.resume, max_updates=args.max_updates)
     except KeyboardInterrupt:
         print("stopped", file=sys.stderr)

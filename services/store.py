@@ -67,6 +67,7 @@ from redis.backoff import ExponentialBackoff
 from redis.retry import Retry
 
 from cec.config import ConfigError
+from services.processes import free_port, terminate, with_parent_death
 
 T = TypeVar("T")
 
@@ -1041,18 +1042,6 @@ class CheckpointConsumer:
 # --- a local redis-server ----------------------------------------------------------------------------------
 
 
-def _free_port(host: str) -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
-        s.bind((host, 0))
-        return int(s.getsockname()[1])
-
-
-def _terminate(proc: subprocess.Popen[bytes]) -> None:
-    if proc.poll() is None:
-        proc.kill()
-        proc.wait()
-
-
 class LocalRedis:
     """A real `redis-server` on loopback, in a directory of its own, with append-only persistence.
 
@@ -1119,7 +1108,7 @@ class LocalRedis:
         attempts = 3 if self.port == 0 else 1
         for attempt in range(attempts):
             if self.port == 0 or attempt > 0:
-                self.port = _free_port(self.host)
+                self.port = free_port(self.host)
             error = self._start_once(binary)
             if error is None:
                 return self
@@ -1146,10 +1135,13 @@ class LocalRedis:
         log = self.data_dir / "redis.log"
         offset = log.stat().st_size if log.exists() else 0
         proc = subprocess.Popen(
-            [binary, str(conf)], stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+            with_parent_death([binary, str(conf)]),
+            stdin=subprocess.DEVNULL,
+            stdout=subprocess.DEVNULL,
+            stderr=subprocess.PIPE,
         )
         self._proc = proc
-        self._finalizer = weakref.finalize(self, _terminate, proc)  # never leave a stray server behind
+        self._finalizer = weakref.finalize(self, terminate, proc, 0.0)  # never leave a stray server behind
         client = redis.Redis(
             host=self.host, port=self.port, password=self.password or None, socket_connect_timeout=0.5
         )
@@ -1173,6 +1165,13 @@ class LocalRedis:
             client.close()
         self.stop(kill=True)
         return f"it did not answer within {self.start_timeout_s} s (log: {log})"
+
+    @property
+    def pid(self) -> int:
+        """The running server's process id."""
+        if self._proc is None:
+            raise StoreError("the local redis-server is not running")
+        return self._proc.pid
 
     def stop(self, *, kill: bool = False) -> None:
         """Stops the server: SIGTERM (a clean shutdown) or, with `kill`, SIGKILL (a crash)."""

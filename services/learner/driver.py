@@ -36,6 +36,21 @@ def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig 
     """Everything that can be checked before a process starts: the config pair, the run directory and the
     checkpoint to resume, Redis and the level server (each failure a `ConfigError` naming the fix)."""
     dist.check(train)
+    check_run(train, resume)
+    if store is not None and dist.publish_checkpoints:
+        from services.store import ControlPlane, StoreError
+
+        try:
+            ControlPlane.connect(store).close()
+        except StoreError as err:
+            raise ConfigError(str(err)) from err
+    if dist.level_server and train.env.levels == "generator":
+        check_level_server(dist.level_server, dist.level_token)
+
+
+def check_run(train: TrainConfig, resume: bool) -> None:
+    """The run directory: a run with checkpoints continues only with `resume`, and then only with the
+    config its latest checkpoint was written with (`ConfigError` naming the fix)."""
     files = RunFiles(train)
     latest = files.store.latest()
     if files.store.directories() and not resume:
@@ -52,15 +67,6 @@ def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig 
                 f"checkpoint {latest.path} was written with a different config; resume with the run's own "
                 f"config ({files.run_dir / 'config.yaml'}) and no overrides, or start a new run (name=...)"
             )
-    if store is not None and dist.publish_checkpoints:
-        from services.store import ControlPlane, StoreError
-
-        try:
-            ControlPlane.connect(store).close()
-        except StoreError as err:
-            raise ConfigError(str(err)) from err
-    if dist.level_server and train.env.levels == "generator":
-        check_level_server(dist.level_server, dist.level_token)
 
 
 def check_level_server(address: str, token: str = "", timeout: float = 10.0) -> None:

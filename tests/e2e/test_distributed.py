@@ -26,7 +26,8 @@ from services import metrics as M  # noqa: E402,N812
 from services.learner.config import DistributedConfig  # noqa: E402
 from services.learner.driver import check_start  # noqa: E402
 from services.learner.learner import Learner  # noqa: E402
-from services.stack import ServiceProcess, free_port  # noqa: E402
+from services.processes import free_port  # noqa: E402
+from services.stack import ServiceProcess  # noqa: E402
 from services.store import ControlPlane, LocalRedis, StoreConfig  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
@@ -219,6 +220,7 @@ def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) 
     latest = sorted((run_dir / "checkpoints").iterdir())[-1]
     assert latest.name == f"update_{rows[-1]:09d}", "SIGTERM checkpointed the last update"
     assert "stack stopped" in text
+    assert "os.fork() was called" not in text, "children are started without forking a JAX process"
 
 
 def test_bad_inputs_stop_start_up_with_the_fix(tmp_path: Path) -> None:

@@ -376,7 +376,9 @@ def test_the_server_validates_what_clients_send(server: dict[str, Any]) -> None:
     cookie = next(c for c in jar if c.name == "cec_play")
     assert cookie.has_nonstandard_attr("HttpOnly") and str(cookie.value) not in json.dumps(view)
     assert post("/api/submit", b"not json")[0] == 400
-    assert post("/api/submit", b'{"stage": "consent", "accept": "' + b"x" * 20_000 + b'"}')[0] == 400
+    assert (
+        post("/api/submit", b'{"stage": "consent", "accept": "' + b"x" * 20_000 + b'"}')[0] == 413
+    )  # too large
     assert post("/api/submit", b'{"stage": "survey", "round": 0, "answers": {}}')[1]["error"].startswith(
         "this participant is at stage 'consent'"
     )

@@ -14,6 +14,7 @@ import uuid
 import pytest
 
 from cec.config import ConfigError, from_dict
+from services.processes import free_port
 from services.store import (
     ENV_PASSWORD,
     ENV_URL,
@@ -24,7 +25,6 @@ from services.store import (
     StoreConfig,
     StoreError,
     StoreUnavailableError,
-    _free_port,
     checkpoint_id,
     redact_url,
 )
@@ -253,7 +253,7 @@ def test_zoo_manifest(plane):
 
 
 def test_unreachable_redis_stops_start_up_with_the_fix():
-    url = f"redis://127.0.0.1:{_free_port('127.0.0.1')}/0"
+    url = f"redis://127.0.0.1:{free_port('127.0.0.1')}/0"
     with pytest.raises(StoreUnavailableError) as info:
         ControlPlane.connect(StoreConfig(url=url, retries=0))
     message = str(info.value)

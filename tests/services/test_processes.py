@@ -1,0 +1,112 @@
+"""Child processes of the stack: they die with their parent, and leftovers are named, not collided with."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from cec.config import ConfigError
+from services.processes import ChildRecord
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _alive(pid: int) -> bool:
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return False
+    return stat.rsplit(")", 1)[1].split()[0] != "Z"  # a zombie has exited
+
+
+def _wait_gone(pid: int, timeout: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not _alive(pid):
+            return True
+        time.sleep(0.05)
+    return False
+
+
+def _parent_with_child(tmp_path: Path, *, parent_death: bool) -> tuple[subprocess.Popen, int]:
+    """A Python process that starts `sleep 600` (recorded in `tmp_path/children.json`) and waits."""
+    script = (
+        "import subprocess, sys, time\n"
+        "from pathlib import Path\n"
+        "from services.processes import ChildRecord, with_parent_death\n"
+        f"argv = ['sleep', '600']\n"
+        f"child = subprocess.Popen(with_parent_death(argv) if {parent_death} else argv)\n"
+        "time.sleep(0.3)  # exec'd past setpriv: the recorded command line is sleep's\n"
+        f"ChildRecord(Path({str(tmp_path / 'children.json')!r})).add('sleeper', child.pid)\n"
+        "print(child.pid, flush=True)\n"
+        "time.sleep(600)\n"
+    )
+    parent = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    assert parent.stdout is not None
+    return parent, int(parent.stdout.readline())
+
+
+@pytest.mark.skipif(shutil.which("setpriv") is None, reason="util-linux setpriv is not installed")
+def test_a_child_dies_with_its_sigkilled_parent(tmp_path: Path) -> None:
+    parent, child = _parent_with_child(tmp_path, parent_death=True)
+    assert _alive(child)
+    parent.send_signal(signal.SIGKILL)
+    parent.wait()
+    assert _wait_gone(child), "the child outlived its SIGKILLed parent"
+    ChildRecord(tmp_path / "children.json").check()  # nothing left to report
+
+
+def test_leftovers_of_a_dead_owner_are_named_with_the_command_to_stop_them(tmp_path: Path) -> None:
+    parent, child = _parent_with_child(tmp_path, parent_death=False)
+    record = ChildRecord(tmp_path / "children.json")
+    try:
+        with pytest.raises(ConfigError, match=rf"another `cec up` \(pid {parent.pid}\) runs this run"):
+            record.check()
+        parent.send_signal(signal.SIGKILL)
+        parent.wait()
+        gone = rf"ended without stopping .*sleeper \(pid {child}\).*kill {child}"
+        with pytest.raises(ConfigError, match=gone):
+            record.check()
+    finally:
+        subprocess.run(["kill", str(child)], check=False)
+    assert _wait_gone(child)
+    record.check()  # stopped: nothing to report
+    # a recycled pid running something else is not a leftover
+    other = subprocess.Popen(["sleep", "5"])
+    try:
+        data = json.loads((tmp_path / "children.json").read_text())
+        data["children"][0]["pid"] = other.pid
+        (tmp_path / "children.json").write_text(json.dumps(data))
+        record.check()
+    finally:
+        other.kill()
+        other.wait()
+
+
+def test_cec_up_refuses_to_start_beside_leftovers_before_starting_anything(tmp_path: Path) -> None:
+    sleeper = subprocess.Popen(["sleep", "600"])
+    try:
+        time.sleep(0.2)
+        run_dir = tmp_path / "up"
+        record = ChildRecord(run_dir / "logs" / "children.json")
+        record.add("level server", sleeper.pid)  # as if a killed `cec up` had left it
+        proc = subprocess.run(
+            [sys.executable, "-m", "apps.cli", "up", f"train.run_dir={tmp_path}", "train.name=up"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+    finally:
+        sleeper.kill()
+        sleeper.wait()
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"level server (pid {sleeper.pid}) still run" in proc.stderr
+    assert not (run_dir / "redis").exists(), "nothing was started"
