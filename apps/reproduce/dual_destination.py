@@ -16,8 +16,9 @@ For each variant of the game (fully observable, partially observable 3x3 view, m
    (zero-shot coordination with unseen partners, the paper's measure), self-play, and every policy with
    the scripted oracle partner (`dd_oracle`) as a reference point.
 3. **Report** `report.md` (+ `summary.json`, bar plots) beside the paper's numbers: per variant, task set
-   and algorithm the normalised cross-play score (return / 200) with its standard error over pairs and the
-   number of seeds; the paper's orderings with Welch t-tests and bootstrap intervals; and, where a number
+   and algorithm the normalised cross-play score (return / 200) with its standard error over seeds (each
+   seed's mean with the other seeds); the paper's orderings with Welch t-tests and bootstrap intervals over
+   those per-seed means (seeds are the independent units; pairs share seeds); and, where a number
    differs from the paper's by more than 0.05, by how much.
 
 The work directory (`--work`, default `runs/reproduce/dual_destination-<mode>`) holds one zoo per
@@ -441,9 +442,10 @@ class Score:
     """One algorithm's score of one kind on one level set of one variant.
 
     Attributes:
-        mean, sem: over the samples (pair scores; NaN when there are none / fewer than 2).
-        n_seeds: the algorithm's seeds; n: the samples (pairs of seeds, or seeds for `sp`/`oracle`).
-        samples: the samples themselves (normalised scores).
+        mean, sem: over the samples (NaN when there are none / fewer than 2).
+        n_seeds: the algorithm's seeds; n: the samples, one per seed (`xp`: the seed's mean with the other
+            seeds, `cec.evaluation.stats.seed_means`; `sp`: with itself; `oracle`: with the oracle).
+        samples: the samples themselves (normalised scores); tests compare them, seeds being the units.
     """
 
     mean: float
@@ -454,11 +456,11 @@ class Score:
 
 
 def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]]:
-    """{level set: {kind: {algorithm: Score}}} with kinds `xp` (pairs of different seeds of the
-    algorithm: the paper's measure), `sp` (each seed with itself) and `oracle` (each seed with the oracle
-    partner); the oracle partner's own self-play is under `sp` as `oracle`."""
+    """{level set: {kind: {algorithm: Score}}} with kinds `xp` (per seed, its mean with the algorithm's
+    other seeds: the paper's measure, with seeds as the units), `sp` (each seed with itself) and `oracle`
+    (each seed with the oracle partner); the oracle partner's own self-play is under `sp` as `oracle`."""
     from cec.evaluation import analysis as an
-    from cec.evaluation.stats import sem
+    from cec.evaluation.stats import seed_means, sem
 
     out: dict[str, dict[str, dict[str, Score]]] = {}
     for level_set in LEVEL_SETS:
@@ -474,7 +476,7 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
         for algo, idx in seeds.items():
             if not idx:
                 continue
-            xp = [m[i, j] for k, i in enumerate(idx) for j in idx[k + 1 :] if not math.isnan(m[i, j])]
+            xp = [x for x in seed_means(m[np.ix_(idx, idx)]) if not math.isnan(x)]  # seeds: the units
             sp = [m[i, i] for i in idx if not math.isnan(m[i, i])]
             with_oracle = [m[i, o] for i in idx for o in seeds[ORACLE] if not math.isnan(m[i, o])]
             for kind, vals in (("xp", xp), ("sp", sp), ("oracle", with_oracle)):
@@ -489,7 +491,7 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
 
 @dataclass(frozen=True)
 class ClaimResult:
-    """One of the paper's orderings tested on our numbers (Welch t-test on XP pair scores)."""
+    """One of the paper's orderings tested on our numbers (Welch t-test on per-seed XP)."""
 
     variant: str
     level_set: str
@@ -619,9 +621,9 @@ def write_report(
         )
     md.append(
         "Score: the paper's normalised score, return / (2 x 100 steps); the oracle reaches 0.955 on the "
-        "fixed task. **XP** (the paper's measure, zero-shot coordination): the mean over pairs of two "
-        "different seeds of one algorithm of the pair's score (both seat orders, all episodes, all levels "
-        "of the set); ± is the standard error over those pairs (pairs share seeds, so it is optimistic). "
+        "fixed task. **XP** (the paper's measure, zero-shot coordination): per seed, the mean score with "
+        "each other seed of its algorithm (both seat orders, all episodes, all levels of the set), then the "
+        "mean over seeds; ± is the standard error over seeds (the independent units: pairs share seeds). "
         "The multi-task variant's fixed task is its two-pair layout. CEC never trains on either task set "
         "(both fixed tasks and the 100 generated evaluation tasks are excluded from its generator).\n"
     )
@@ -642,22 +644,20 @@ def write_report(
     missing = [VARIANT_TITLES[v] for v in VARIANTS if v not in summaries]
     if missing:
         md.append(f"Not run for this report: {', '.join(missing)} (`--variants`).\n")
-    md.append(
-        "| variant | task set | algorithm | ours: XP mean ± SE | seeds (pairs) | paper | ours − paper |"
-    )
+    md.append("| variant | task set | algorithm | ours: XP mean ± SE | seeds | paper | ours − paper |")
     md.append("|---|---|---|---|---|---|---|")
     for variant in [v for v in VARIANTS if v in summaries]:
         for level_set in LEVEL_SETS:
             for algo in ALGORITHMS:
                 s = summaries.get(variant, {}).get(level_set, {}).get("xp", {}).get(algo)
                 p = paper_number(variant, level_set, algo)
-                n = "—" if s is None else f"{s.n_seeds} ({s.n})"
+                n = "—" if s is None else str(s.n)
                 where = f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo.upper()} |"
                 md.append(f"{where} {_pm(s)} | {n} | {_paper_cell(p)} | {_verdict(s, p)} |")
     md.append("")
     md.append("## The paper's orderings\n")
     md.append(
-        f"Welch two-sided t-test on the XP pair scores and a 95% bootstrap interval of the difference; "
+        f"Welch two-sided t-test on the per-seed XP and a 95% bootstrap interval of the difference; "
         f"*significant* = the ordering holds and p < {ALPHA}.\n"
     )
     md.append("| variant | task set | ordering | difference [95% CI] | p | holds | significant |")

@@ -298,6 +298,7 @@ class SeedScores:
 def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]:
     """{algorithm: SeedScores} on `level_names` (the cook's own self-play under `cook`)."""
     from cec.evaluation import analysis as an
+    from cec.evaluation.stats import seed_means
 
     pl = an.pair_level_scores(table, level_names)
     m = an.pair_scores(pl)
@@ -312,7 +313,7 @@ def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]
 
         out[algo] = SeedScores(
             tuple(pl.policies[i].seed for i in idx),
-            tuple(mean([m[i, j] for j in idx if j != i]) for i in idx),
+            tuple(float(x) for x in seed_means(m[np.ix_(idx, idx)])),
             tuple(float(m[i, i]) for i in idx),
             tuple(mean([m[i, c] for c in cook]) for i in idx),
         )

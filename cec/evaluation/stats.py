@@ -1,8 +1,13 @@
 """Statistics for comparing algorithms: standard errors, Welch t-tests, bootstrap intervals, IQM.
 
 The t-test is scipy's (two-sided Welch test, as the paper reports two-sided t-tests); the bootstrap is a
-vectorised percentile bootstrap of the difference of means (each group resampled on its own). The unit
-of a sample is the caller's choice; `cec.evaluation.analysis` uses one pairing of two policies.
+vectorised percentile bootstrap of the difference of means (each group resampled on its own).
+
+The unit of a sample is the caller's choice, and it must be an independent draw. Comparing algorithms'
+cross-play, that is a training seed, not a pair of seeds: the pairs (i, j) and (i, k) share seed i, so
+testing over pairs as if independent counts each seed several times and grants significance that the
+seeds do not carry. `seed_means` turns one algorithm's seed x seed matrix into one number per seed (its
+mean with the other seeds); compare those.
 """
 
 from __future__ import annotations
@@ -49,6 +54,20 @@ def iqm(x: np.ndarray) -> float:
     """Interquartile mean (25% trimmed from each end), as ZSC-Eval aggregates BR-Prox; NaN if empty."""
     x = np.asarray(x, np.float64)
     return float(sps.trim_mean(x, 0.25)) if x.size else math.nan
+
+
+def seed_means(matrix: np.ndarray) -> np.ndarray:
+    """Each seed's mean score with the *other* seeds of one algorithm's seed x seed matrix (`[i, j]`: seed
+    i with seed j; the diagonal, self-play, and NaN entries left out; NaN for a seed without a partner):
+    the per-seed cross-play to compare algorithms with."""
+    m = np.array(matrix, np.float64)
+    if m.ndim != 2 or m.shape[0] != m.shape[1]:
+        raise ValueError(f"expected a square seed x seed matrix, got shape {m.shape}")
+    np.fill_diagonal(m, np.nan)
+    count = np.sum(~np.isnan(m), axis=1)
+    total = np.nansum(m, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(count > 0, total / count, np.nan)
 
 
 def welch_ttest(a: np.ndarray, b: np.ndarray) -> tuple[float, float, float]:

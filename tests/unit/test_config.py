@@ -39,7 +39,7 @@ def test_exponent_notation_is_a_number(tmp_path: Path) -> None:
     base = ["algorithm=ippo", "env.levels=cramped_room"]
     assert load_config(TrainConfig, None, [*base, "ppo.lr=3e-4"]).ppo.lr == pytest.approx(3e-4)
     path = tmp_path / "lr.yaml"
-    path.write_text("algorithm: ippo\nenv:\n  levels: cramped_room\nppo:\n  lr: 2.5E-4\n  max_grad_norm: 1e0\n")
+    path.write_text("algorithm: ippo\nenv:\n  levels: cramped_room\nppo:\n  lr: 2.5E-4\n  max_grad_norm: 1e0")
     config = load_config(TrainConfig, path)
     assert config.ppo.lr == pytest.approx(2.5e-4) and config.ppo.max_grad_norm == 1.0
     with pytest.raises(ConfigError, match="ppo.lr must be a number, got '3e-4x'"):

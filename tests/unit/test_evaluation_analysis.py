@@ -12,7 +12,7 @@ from cec.evaluation import analysis as an
 from cec.evaluation import egta
 from cec.evaluation.report import write_report
 from cec.evaluation.results import ResultsError, SkippedEntry, make_table, read_csv, write_csv
-from cec.evaluation.stats import bootstrap_diff_ci, compare, iqm, sem, welch_ttest
+from cec.evaluation.stats import bootstrap_diff_ci, compare, iqm, seed_means, sem, welch_ttest
 
 A = np.array([12.1, 9.8, 11.4, 10.2, 13.0, 9.1, 10.7])
 B = np.array([8.2, 9.9, 7.1, 8.8, 10.4, 6.5, 9.0, 7.7, 8.1])
@@ -67,6 +67,28 @@ def test_standard_error_and_interquartile_mean():
 
 def _points(payoff):
     return {tuple(np.round(r.x, 6)): r for r in egta.rest_points(np.asarray(payoff, float))}
+
+
+def test_seed_level_testing_refuses_what_pair_level_testing_grants():
+    """Algorithm A: half its seeds coordinate, half do not (a pair scores the mean of its seeds' quality);
+    B: every seed mediocre. Over the 28 pairs of 8 seeds, A beats B at p < 0.05; but the pairs reuse each
+    seed 7 times, and over the 8 seeds (the independent draws) the difference is not significant."""
+    quality_a = np.array([0.9, 0.0, 0.6, 0.0, 0.5, 0.1, 0.3, 0.0])
+    quality_b = np.array([0.2, 0.25, 0.15, 0.2, 0.25, 0.15, 0.2, 0.2])
+    a, b = ((q[:, None] + q[None, :]) / 2 for q in (quality_a, quality_b))
+    upper = np.triu_indices(8, k=1)
+    pair_level = compare(a[upper], b[upper])
+    seed_level = compare(seed_means(a), seed_means(b))
+    assert pair_level.n_a == 28 and seed_level.n_a == 8
+    assert pair_level.mean_a == pytest.approx(seed_level.mean_a)  # same mean XP, different evidence
+    assert pair_level.p < 0.05 < seed_level.p
+
+    # the diagonal (self-play) and missing pairs never enter a seed's cross-play
+    m = np.array([[9.0, 1.0, np.nan], [3.0, 9.0, 2.0], [np.nan, 4.0, 9.0]])
+    np.testing.assert_allclose(seed_means(m), [1.0, 2.5, 4.0])
+    assert np.isnan(seed_means(np.array([[5.0]])))[0]
+    with pytest.raises(ValueError, match="square"):
+        seed_means(np.zeros((2, 3)))
 
 
 def test_replicator_rest_points_of_textbook_2x2_games():
