@@ -22,7 +22,6 @@ import time
 from collections import deque
 from collections.abc import Generator
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import grpc
@@ -33,7 +32,7 @@ from cec.levels.level import Level
 from cec.levels.v1 import level_service_pb2 as pb
 from cec.levels.v1 import level_service_pb2_grpc as pb_grpc
 from cec.levels.wire import config_to_proto, decode, encode
-from services.level_server.config import TOKEN_ENV
+from services.level_server.config import TOKEN_ENV, read_pem
 from services.level_server.source import Validation, concat, take_rows
 
 log = logging.getLogger("cec.level_client")
@@ -54,7 +53,7 @@ def _channel(address: str, root_cert: str | None) -> grpc.Channel:
     ]
     if root_cert is None:
         return grpc.insecure_channel(address, options=options)
-    creds = grpc.ssl_channel_credentials(root_certificates=Path(root_cert).read_bytes())
+    creds = grpc.ssl_channel_credentials(root_certificates=read_pem(root_cert, "root certificate"))
     return grpc.secure_channel(address, creds, options=options)
 
 

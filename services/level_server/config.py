@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ipaddress
 import os
+import ssl
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -158,10 +159,8 @@ class LevelServerConfig:
             )
         if bool(self.tls_cert) != bool(self.tls_key):
             raise ConfigError("TLS needs both tls_cert and tls_key (PEM files); set both or neither")
-        for name in ("tls_cert", "tls_key"):
-            path = getattr(self, name)
-            if path and not Path(path).is_file():
-                raise ConfigError(f"{name} file {path!r} does not exist")
+        if self.tls_cert:
+            check_tls_pair(self.tls_cert, self.tls_key)
         if not self.is_loopback and not self.insecure and not (self.tls and self.token):
             raise ConfigError(
                 f"binding {self.host!r} exposes the server beyond this machine: set auth_token (or "
@@ -185,3 +184,33 @@ class LevelServerConfig:
             return ipaddress.ip_address(self.host).is_loopback
         except ValueError:
             return False
+
+
+def read_pem(path: str, what: str) -> bytes:
+    """The bytes of a PEM file (a certificate or key), or a `ConfigError` naming `what` and the cause:
+    missing, unreadable, or not PEM at all (gRPC would fail later, with a less helpful message)."""
+    try:
+        data = Path(path).read_bytes()
+    except OSError as err:
+        raise ConfigError(f"{what} file {path!r} cannot be read: {err.strerror}") from None
+    if b"-----BEGIN " not in data:
+        raise ConfigError(
+            f"{what} file {path!r} is not PEM (no '-----BEGIN' line); give the PEM file, e.g. as written by "
+            "`openssl req -x509 -newkey rsa:2048 -nodes -keyout key.pem -out cert.pem`"
+        )
+    return data
+
+
+def check_tls_pair(cert: str, key: str) -> None:
+    """`ConfigError` unless `cert` and `key` are PEM files holding a certificate chain and its unencrypted
+    private key (checked with Python's own TLS library: gRPC would only say it could not bind)."""
+    read_pem(cert, "tls_cert")
+    read_pem(key, "tls_key")
+    context = ssl.SSLContext(ssl.PROTOCOL_TLS_SERVER)
+    try:
+        context.load_cert_chain(cert, key, password=lambda: b"")  # an encrypted key fails, never prompts
+    except ssl.SSLError as err:
+        raise ConfigError(
+            f"tls_cert {cert!r} and tls_key {key!r} are not a certificate and its unencrypted private key "
+            f"({err.reason or err}); give the pair the certificate was made with"
+        ) from None

@@ -20,7 +20,6 @@ import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from pathlib import Path
 from typing import Any, TypeVar
 
 import grpc
@@ -44,7 +43,7 @@ from cec.levels.wire import (
     reject_unknown_fields,
 )
 from services import metrics
-from services.level_server.config import SMALL_REQUEST_BYTES, LevelServerConfig
+from services.level_server.config import SMALL_REQUEST_BYTES, LevelServerConfig, read_pem
 from services.level_server.source import (
     InvalidRequestError,
     LevelSource,
@@ -418,8 +417,6 @@ class LevelServer:
     async def start(self) -> int:
         """Compiles the generator, binds, and starts serving; returns the bound port."""
         c = self.config
-        log.info("warming up: compiling the generator and computing the layout space")
-        await asyncio.get_running_loop().run_in_executor(self.executor, self.source.warm_up)
         server = grpc.aio.server(
             interceptors=[_TokenAuth(c.token)] if c.token else None,
             maximum_concurrent_rpcs=c.max_concurrent_rpcs,
@@ -434,15 +431,20 @@ class LevelServer:
         reflection.enable_server_reflection((SERVICE_NAME, reflection.SERVICE_NAME, "grpc.health.v1.Health"),
                                             server)  # fmt: skip
         address = f"{c.host}:{c.port}"
-        if c.tls:
-            creds = grpc.ssl_server_credentials(
-                [(Path(c.tls_key).read_bytes(), Path(c.tls_cert).read_bytes())]
-            )
-            self.port = server.add_secure_port(address, creds)
-        else:
-            self.port = server.add_insecure_port(address)
+        try:  # bound before the warm-up, so that a port in use is reported at once
+            if c.tls:
+                creds = grpc.ssl_server_credentials(
+                    [(read_pem(c.tls_key, "tls_key"), read_pem(c.tls_cert, "tls_cert"))]
+                )
+                self.port = server.add_secure_port(address, creds)
+            else:
+                self.port = server.add_insecure_port(address)
+        except RuntimeError:  # grpc's "Failed to bind"
+            self.port = 0
         if self.port == 0:
             raise OSError(f"could not bind {address}; is the port in use? choose another with port=...")
+        log.info("warming up: compiling the generator and computing the layout space")
+        await asyncio.get_running_loop().run_in_executor(self.executor, self.source.warm_up)
         await server.start()
         self._server = server
         for name in ("", SERVICE_NAME):

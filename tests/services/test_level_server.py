@@ -7,6 +7,7 @@ their own. Each bad-input test also checks that the server keeps serving.
 from __future__ import annotations
 
 import random
+import socket
 import subprocess
 import sys
 import threading
@@ -366,6 +367,39 @@ def test_tls_and_token_authentication(tls_files):
                 )
         with LevelClient(s.address, token="s3cret") as plaintext:  # a plaintext client cannot talk to it
             assert _code(lambda: plaintext.get_levels(1, seed=1)) == grpc.StatusCode.UNAVAILABLE
+
+
+def test_bad_tls_files_and_a_port_in_use_are_clear_errors_before_any_work(tls_files, tmp_path):
+    from cec.config import ConfigError
+
+    cert, key = tls_files
+    garbage = tmp_path / "garbage.pem"
+    garbage.write_bytes(b"\x00not a certificate")
+    armoured = tmp_path / "armoured.pem"
+    armoured.write_text("-----BEGIN CERTIFICATE-----\nnot base64!\n-----END CERTIFICATE-----\n")
+    other_key = tmp_path / "other_key.pem"
+    subprocess.run(["openssl", "genrsa", "-out", str(other_key), "2048"], check=True, capture_output=True)
+    for bad_cert, bad_key, message in (
+        (garbage, key, "is not PEM"),
+        (tmp_path / "missing.pem", key, "cannot be read: No such file"),
+        (armoured, armoured, "are not a certificate and its unencrypted private key"),
+        (cert, other_key, "KEY_VALUES_MISMATCH"),
+    ):
+        with pytest.raises(ConfigError, match=message):
+            LevelServerConfig(tls_cert=str(bad_cert), tls_key=str(bad_key))
+    with pytest.raises(ConfigError, match="root certificate file .* cannot be read"):
+        LevelClient("127.0.0.1:1", root_cert=str(tmp_path / "missing.pem"))
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        proc = subprocess.run(
+            [sys.executable, "-m", "apps.cli", "level-server", f"port={port}", "metrics_port=-1"],
+            cwd=ROOT, capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+    assert proc.returncode == 1 and "is the port in use?" in proc.stderr
+    assert "warming up" not in proc.stderr and "Traceback" not in proc.stderr  # refused before compiling
 
 
 def test_exposed_bind_without_auth_is_a_config_error():
