@@ -62,9 +62,9 @@ def _load_level(spec: str) -> Level:
             "(generated_000 .. generated_099) nor an ASCII kitchen file"
         )
     try:
-        if path.stat().st_size > MAX_KITCHEN_FILE_BYTES:
+        if (size := path.stat().st_size) > MAX_KITCHEN_FILE_BYTES:
             raise LevelError(
-                f"{spec} is {path.stat().st_size:,} bytes; an ASCII kitchen is a few lines of tiles "
+                f"{spec} is {size:,} bytes; an ASCII kitchen is a few lines of tiles "
                 f"(at most {MAX_KITCHEN_FILE_BYTES:,} bytes here)"
             )
         text = path.read_text(encoding="utf-8")

@@ -77,16 +77,10 @@ class ChildRecord:
         """`ConfigError` naming the recorded processes that still run (same pid and command line)."""
         try:
             old = json.loads(self.path.read_text())
-            owner, children = int(old["owner"]), list(old["children"])
-        except FileNotFoundError:
-            return
-        except (OSError, ValueError, KeyError, TypeError):
-            return  # unreadable: nothing to go by (it is rewritten below)
-        alive = [
-            c
-            for c in children
-            if isinstance(c, dict) and c.get("cmd") and _cmdline(int(c["pid"])) == c["cmd"]
-        ]
+            owner = int(old["owner"])
+            alive = [c for c in old["children"] if c.get("cmd") and _cmdline(int(c["pid"])) == c["cmd"]]
+        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return  # missing or unreadable: nothing to go by (`add` writes a new one)
         if not alive:
             return
         names = ", ".join(f"{c.get('name')} (pid {c['pid']})" for c in alive)
