@@ -83,6 +83,7 @@ def main() -> int:
     results["single_process_env_steps_per_s"] = single
 
     ray.init(
+        address="local",  # a Ray of its own, whatever other cluster this machine runs or last ran
         num_cpus=max(os.cpu_count() or 1, max(args.actors)), include_dashboard=False, logging_level="ERROR"
     )
     stages = ("rollout", "transfer", "update", "publish", "checkpoint", "wait")

@@ -94,6 +94,18 @@ def _port(requested: int) -> int:
     return free_port() if requested == 0 else requested
 
 
+def _forget_ray_address(port: int) -> None:
+    """Remove the "last cluster" file (<Ray temp dir>/ray_current_cluster) if it names our stopped head, as
+    `ray stop` does, so that no later `ray.init()` on this machine tries to join a cluster that is gone; a
+    file naming another cluster is left alone."""
+    from ray._common.utils import get_ray_address_file
+
+    path = Path(get_ray_address_file(None))
+    with contextlib.suppress(OSError):
+        if path.read_text().strip().rpartition(":")[2] == str(port):
+            path.unlink()
+
+
 class ServiceProcess:
     """A service in a child process (`python -m <module> ...`): waits for its ready line, then copies its
     output to a log file in the run directory."""
@@ -168,6 +180,7 @@ class Stack:
         self.dist = config.distributed
         self.urls: dict[str, str] = {}
         self.ray_started = False
+        self.ray_head_port: int | None = None  # of the Ray head started here
         self.children = ChildRecord(self.run_dir / "logs" / "children.json")
 
     def say(self, text: str) -> None:
@@ -291,6 +304,7 @@ class Stack:
             )
             self._started(head)
             address = f"127.0.0.1:{port}"
+            self.ray_head_port = port
         info = ray.init(address=address, logging_level=logging.WARNING)
         self.ray_started = True
         dash = getattr(info, "dashboard_url", "") or ""
@@ -345,6 +359,9 @@ class Stack:
             ray.shutdown()
         for service in reversed(self.services):
             service.stop()
+        if self.ray_head_port is not None:
+            _forget_ray_address(self.ray_head_port)
+            self.ray_head_port = None
         if self.monitoring is not None:
             self.monitoring.stop()
         if self.redis is not None:

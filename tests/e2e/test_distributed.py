@@ -19,6 +19,8 @@ import pytest
 
 ray = pytest.importorskip("ray")
 
+from ray._private.utils import read_ray_address  # noqa: E402
+
 from cec.config import ConfigError, load_config  # noqa: E402
 from cec.training.config import TrainConfig  # noqa: E402
 from cec.training.trainer import config_dict, train  # noqa: E402
@@ -44,7 +46,8 @@ MLP = [
 
 @pytest.fixture(scope="module")
 def local_ray() -> Any:
-    ray.init(num_cpus=4, include_dashboard=False, logging_level="WARNING")
+    # "local": a Ray of its own, whatever other cluster this machine runs or last ran
+    ray.init(address="local", num_cpus=4, include_dashboard=False, logging_level="WARNING")
     yield ray
     ray.shutdown()
 
@@ -198,6 +201,7 @@ def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) 
     run_dir = tmp_path / "up"
     try:
         _wait_rows(run_dir, 3)
+        ours = read_ray_address()  # the "last cluster" file that its `ray start --head` wrote
         learners = [
             p for p in psutil.process_iter(["cmdline"]) if "ray::Learner" in " ".join(p.info["cmdline"] or [])
         ]
@@ -221,6 +225,7 @@ def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) 
     assert latest.name == f"update_{rows[-1]:09d}", "SIGTERM checkpointed the last update"
     assert "stack stopped" in text
     assert "os.fork() was called" not in text, "children are started without forking a JAX process"
+    assert ours and read_ray_address() != ours, "no later ray.init() here may try to join the stopped cluster"
 
 
 def test_bad_inputs_stop_start_up_with_the_fix(tmp_path: Path) -> None:
