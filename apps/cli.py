@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING
 
 from cec.checkpoints import CheckpointError
 from cec.config import ConfigError
-from cec.levels import Level, LevelError, from_ascii
+from cec.levels import Level, LevelError
 
 if TYPE_CHECKING:
     from cec.envs.overcooked import EnvParams
@@ -42,37 +42,23 @@ if TYPE_CHECKING:
 log = logging.getLogger("cec")
 
 
-MAX_KITCHEN_FILE_BYTES = 64 * 1024
-
-
 def _load_level(spec: str) -> Level:
     """A classic layout name, a held-out kitchen's name (`generated_007`), or an ASCII kitchen file."""
     from cec.envs.overcooked import CLASSIC_ASCII, classic_level
     from cec.levels.heldout import heldout_levels
+    from cec.levels.named import read_kitchen
 
     if spec in CLASSIC_ASCII:
         return classic_level(spec)
     heldout = dict(heldout_levels())
     if spec in heldout:
         return heldout[spec]
-    path = Path(spec)
-    if not path.is_file():
+    if not Path(spec).is_file():
         raise LevelError(
             f"{spec!r} is neither a classic layout ({', '.join(sorted(CLASSIC_ASCII))}), a held-out kitchen "
             "(generated_000 .. generated_099) nor an ASCII kitchen file"
         )
-    try:
-        if (size := path.stat().st_size) > MAX_KITCHEN_FILE_BYTES:
-            raise LevelError(
-                f"{spec} is {size:,} bytes; an ASCII kitchen is a few lines of tiles "
-                f"(at most {MAX_KITCHEN_FILE_BYTES:,} bytes here)"
-            )
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError:
-        raise LevelError(f"{spec} is not a text file; an ASCII kitchen is UTF-8 lines of tiles") from None
-    except OSError as err:
-        raise LevelError(f"cannot read {spec}: {err.strerror}") from None
-    return from_ascii(text)
+    return read_kitchen(Path(spec))
 
 
 def _env_params(args: argparse.Namespace) -> EnvParams:

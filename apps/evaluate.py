@@ -19,9 +19,11 @@ log = logging.getLogger("cec")
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    from cec.config import ConfigError
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels, plan_games
     from cec.evaluation.results import write_csv
     from cec.evaluation.zoo import load_policies, load_zoo
+    from cec.levels.named import names_files
 
     config = EvalConfig(
         levels=args.levels,
@@ -33,11 +35,15 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         games_per_call=args.games_per_call,
     )  # config errors before any work
     entries = load_zoo(args.zoo)
+    # The user's kitchen files are read and checked before any checkpoint is loaded or anything compiled.
+    own = eval_levels("overcooked", config.levels) if names_files(config.levels) else None
     policies, skipped = load_policies(entries)
     for s in skipped:
         print(f"cec eval: skipping {s.name}: {s.reason}", file=sys.stderr)
     env = policies[0].env.name if policies else "overcooked"
-    levels = eval_levels(env, config.levels)
+    if own is not None and env != "overcooked":
+        raise ConfigError(f"--levels names Overcooked kitchen files, but the zoo's policies play {env}")
+    levels = own or eval_levels(env, config.levels)
     games = plan_games(policies, levels.names, config.pairs) if policies else []
     log.info(
         "%d policies (%d skipped), %d levels, %d games x %d episodes",
@@ -80,7 +86,8 @@ def add_subcommands(sub: Any) -> None:
     ev.add_argument(
         "--levels",
         default="heldout",
-        help="heldout (5 classic + 100 generated), classic, generated, or level names, comma-separated; "
+        help="heldout (5 classic + 100 generated), classic, generated, level names, ASCII kitchen files or "
+        "folders of them, comma-separated; "
         "Dual Destination: fixed, multi_task, generated (100 held-out tasks), heldout (fixed + generated) "
         "(default: heldout)",
     )

@@ -200,7 +200,7 @@ def plan_zoo(spec_path: str | Path, out_dir: str | Path) -> list[PlannedRun]:
             deps += (
                 ("init_from", Path(init_from), () if base.init_from_seed < 0 else (base.init_from_seed,)),
             )
-        stem = item.get("name") or f"{base.algorithm}-{base.env.name}-{base.env.levels}"
+        stem = item.get("name") or f"{base.algorithm}-{base.env.name}-{base.env.levels_label}"
         for group in _seed_groups(seeds):
             try:
                 config = dataclasses.replace(

@@ -39,8 +39,8 @@ from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
 from cec.evaluation.zoo import Policy
-from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.level import stack_levels
+from cec.levels.named import resolve_levels
 from cec.training.rollout import init_carry, rollout
 from cec.training.tasks import Task
 
@@ -55,7 +55,8 @@ class EvalConfig:
 
     Attributes:
         levels: level set (see `eval_levels`): Overcooked `heldout` (5 classic + 100 generated),
-            `classic`, `generated`, or comma-separated level names; Dual Destination `fixed`,
+            `classic`, `generated`, or comma-separated level names, ASCII kitchen files and folders of
+            them (`cec.levels.named`); Dual Destination `fixed`,
             `multi_task`, `generated` (100 held-out generated tasks), `heldout` (fixed + generated) or
             level names.
         episodes: episodes per pairing, seat order and level.
@@ -94,30 +95,14 @@ class EvalLevels(NamedTuple):
 
 def eval_levels(env: str, spec: str) -> EvalLevels:
     """The levels named by `spec` for game `env` (see `EvalConfig.levels`), in a stable order."""
-    from cec.levels.heldout import heldout_levels
-
-    tokens = [t.strip() for t in spec.split(",") if t.strip()]
-    if not tokens:
-        raise ConfigError("levels is empty; give e.g. `heldout`, `classic` or level names")
-    out: dict[str, Any] = {}
     if env == "overcooked":
-        heldout = dict(heldout_levels())
-        for tok in tokens:
-            if tok == "heldout":
-                out.update(heldout)
-            elif tok == "classic":
-                out.update({n: classic_level(n) for n in CLASSIC_ASCII})
-            elif tok == "generated":
-                out.update({n: lv for n, lv in heldout.items() if n.startswith("generated_")})
-            elif tok in heldout:
-                out[tok] = heldout[tok]
-            else:
-                raise ConfigError(
-                    f"unknown Overcooked level {tok!r}; use heldout, classic, generated, a classic kitchen "
-                    f"({', '.join(sorted(CLASSIC_ASCII))}) or generated_000..generated_099"
-                )
-        return EvalLevels(tuple(out), stack_levels(list(out.values())))
+        kitchens = resolve_levels(spec)
+        return EvalLevels(tuple(kitchens), stack_levels(list(kitchens.values())))
     if env == "dual_destination":
+        tokens = [t.strip() for t in spec.split(",") if t.strip()]
+        if not tokens:
+            raise ConfigError("levels is empty; give e.g. `heldout`, `generated` or level names")
+        out: dict[str, Any] = {}
         generated = dict(dd.heldout_generated_dd_levels())
         known = {"fixed": dd.fixed_level(), "multi_task": dd.multi_task_level(), **generated}
         for tok in tokens:

@@ -11,6 +11,7 @@ from cec.config import ConfigError
 from cec.training.partners import PartnerConfig
 from cec.training.ppo import PPOConfig
 from cec.training.tasks import EnvConfig
+from cec.training.tracking import TrackingConfig
 
 #: algorithm -> (partner kind, trains on a procedural distribution)
 ALGORITHMS: dict[str, tuple[str, bool]] = {
@@ -73,6 +74,8 @@ class TrainConfig:
         init_from: start from this checkpoint's (or run directory's latest) parameters instead of a random
             init (CEC-Finetune); the optimizer starts fresh.
         init_from_seed: which seed of a multi-seed `init_from` checkpoint (-1: its only seed).
+        tracking: TensorBoard event files (`<run_dir>/<name>/tb/`) and the optional W&B mirror
+            (`cec.training.tracking`); where the run's series go, not what it trains.
         run_dir: where runs are written (`<run_dir>/<name>`).
         name: run name (default: `<algorithm>-<env>-<levels>-s<seed>`).
     """
@@ -92,6 +95,7 @@ class TrainConfig:
     partner: PartnerConfig = field(default_factory=PartnerConfig)
     init_from: str = ""
     init_from_seed: int = -1
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
     run_dir: str = "runs"
     name: str = ""
 
@@ -105,7 +109,11 @@ class TrainConfig:
             raise ConfigError(f"algorithm {self.algorithm!r} is unknown; choose one of {list(ALGORITHMS)}")
         kind, procedural = ALGORITHMS[self.algorithm]
         if procedural != self.env.procedural:
-            want = "a procedural distribution (generator / procedural)" if procedural else "one fixed level"
+            want = (
+                "a distribution of levels (generator / procedural / several kitchen files)"
+                if procedural
+                else "one fixed level"
+            )
             raise ConfigError(
                 f"algorithm {self.algorithm} trains on {want}, but env.levels is {self.env.levels!r}"
             )
@@ -158,7 +166,7 @@ class TrainConfig:
 
     @property
     def run_name(self) -> str:
-        return self.name or f"{self.algorithm}-{self.env.name}-{self.env.levels}-s{self.seed}"
+        return self.name or f"{self.algorithm}-{self.env.name}-{self.env.levels_label}-s{self.seed}"
 
     @property
     def levels_per_env(self) -> int:

@@ -6,13 +6,17 @@ and `sample_levels`, which fills the level buffers for one rollout:
 
     overcooked        generator              CEC: the procedural generator, held-out set excluded
                       cramped_room, ...      single-task IPPO on one classic kitchen
+                      kitchens/, a.txt,b.txt your own ASCII kitchens (`cec.levels.named`): one file is a
+                                             fixed level, several (or a folder) a distribution, uniform
     dual_destination  fixed | multi_task     the paper's fixed task (or its two-pair variant)
                       procedural[_multi_task] procedural tasks, both fixed tasks excluded
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -23,6 +27,8 @@ from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch
+from cec.levels.level import stack_levels
+from cec.levels.named import names_files, resolve_levels
 
 ENV_NAMES = ("overcooked", "dual_destination")
 DD_LEVELS = ("fixed", "multi_task", "procedural", "procedural_multi_task")
@@ -55,9 +61,9 @@ class EnvConfig:
 
     Attributes:
         name: `overcooked` or `dual_destination`.
-        levels: the level distribution (see the module docstring): `generator` or a classic kitchen name
-            for Overcooked; `fixed`, `multi_task`, `procedural` or `procedural_multi_task` for Dual
-            Destination.
+        levels: the level distribution (see the module docstring): `generator`, a classic kitchen name,
+            or ASCII kitchen files / folders (comma-separated) for Overcooked; `fixed`, `multi_task`,
+            `procedural` or `procedural_multi_task` for Dual Destination.
         overcooked: Overcooked settings (used when `name` is `overcooked`).
         dual_destination: Dual Destination settings (used when `name` is `dual_destination`).
         generator: what the procedural kitchen generator may produce (used when `levels` is `generator`).
@@ -73,7 +79,9 @@ class EnvConfig:
         if self.name not in ENV_NAMES:
             raise ConfigError(f"env.name {self.name!r} is unknown; choose one of {list(ENV_NAMES)}")
         valid = ("generator", *CLASSIC_ASCII) if self.name == "overcooked" else DD_LEVELS
-        if self.levels not in valid:
+        if self.name == "overcooked" and self.levels not in valid and _names_files(self.levels):
+            kitchen_set(self.levels)  # read and checked now: a bad file is refused before any work
+        elif self.levels not in valid:
             raise ConfigError(
                 f"env.levels {self.levels!r} is not valid for {self.name}; choose one of {list(valid)}"
             )
@@ -89,8 +97,17 @@ class EnvConfig:
 
     @property
     def procedural(self) -> bool:
-        """The levels come from a generator (CEC), not one fixed level."""
+        """The levels come from a distribution (a generator, several kitchen files), not one fixed level."""
+        if self.name == "overcooked" and _names_files(self.levels):
+            return len(kitchen_set(self.levels).names) > 1
         return self.levels in PROCEDURAL_LEVELS
+
+    @property
+    def levels_label(self) -> str:
+        """`levels` as a file-name part: kitchen files and folders by their stems."""
+        if self.name == "overcooked" and _names_files(self.levels):
+            return "+".join(Path(t.strip().rstrip("/\\")).stem for t in self.levels.split(",") if t.strip())
+        return self.levels
 
     @property
     def params(self) -> Any:
@@ -144,8 +161,12 @@ class Task:
         n = env_ids.shape[0]
         if self.levels == "generator":
             return jax.vmap(lambda kk: generate_batch(kk, k, self.generator))(env_keys(key, env_ids))
-        if self.env == "overcooked":
+        if self.env == "overcooked" and self.levels in CLASSIC_ASCII:
             return _broadcast(classic_level(self.levels), (n, k))
+        if self.env == "overcooked":  # the user's kitchen files, uniformly
+            stacked = kitchen_set(self.levels).levels
+            pick = jax.vmap(lambda kk: jax.random.randint(kk, (k,), 0, len(kitchen_set(self.levels).names)))
+            return jax.tree.map(lambda x: jnp.asarray(x)[pick(env_keys(key, env_ids))], stacked)
         if self.levels in ("fixed", "multi_task"):
             return _broadcast(dd.fixed_level() if self.levels == "fixed" else dd.multi_task_level(), (n, k))
         multi = self.levels == "procedural_multi_task"
@@ -161,6 +182,27 @@ class Task:
         """[2, ...] both seats' observations of a level-less `state` (`without_level`) on `level`."""
         full = state.replace(level=level)
         return oc.get_obs(full, params) if self.env == "overcooked" else dd.get_obs(full, params)
+
+
+class KitchenSet(NamedTuple):
+    """Kitchen files read for training: their names (file stems) and the levels stacked [N, ...]."""
+
+    names: tuple[str, ...]
+    levels: Any
+
+
+def _names_files(levels: str) -> bool:
+    if levels in ("generator", *CLASSIC_ASCII, *DD_LEVELS):
+        return False
+    return names_files(levels)
+
+
+@functools.cache
+def kitchen_set(levels: str) -> KitchenSet:
+    """The kitchens of an `env.levels` that names files or folders (read once per process; relative paths
+    from the working directory); `ConfigError` naming a missing, malformed or unsolvable file."""
+    found = resolve_levels(levels)
+    return KitchenSet(tuple(found), jax.device_get(stack_levels(list(found.values()))))
 
 
 def env_keys(key: jax.Array, env_ids: jax.Array) -> jax.Array:

@@ -38,10 +38,11 @@ from cec.agents.network import ActorCritic, LSTMState, NetworkConfig, empty_hist
 from cec.config import ConfigError
 from cec.envs import overcooked as oc
 from cec.evaluation.zoo import Policy, ZooEntry, load_policies, load_policy, load_zoo, random_policy
-from cec.levels import Level, LevelError, Tile, from_ascii, unstack_levels
+from cec.levels import Level, Tile, unstack_levels
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch
 from cec.levels.heldout import heldout_levels
+from cec.levels.named import load_kitchens
 from cec.training.tasks import EnvConfig
 from services.play.config import PartnerSpec, StudyConfig
 
@@ -70,16 +71,12 @@ def check_level_spec(spec: str, base_dir: Path) -> None:
         return
     if spec in dict(heldout_levels()):
         return
-    path = Path(spec) if Path(spec).is_absolute() else base_dir / spec
-    if not path.is_file():
+    if not (base_dir / spec).is_file():
         raise ConfigError(
             f"level {spec!r} is not a classic kitchen ({', '.join(sorted(CLASSIC_ASCII))}), a held-out one "
             "(generated_000 .. generated_099), generated:SEED, generated:random, or an ASCII kitchen file"
         )
-    try:
-        from_ascii(path.read_text())
-    except LevelError as err:
-        raise ConfigError(f"level file {str(path)!r}: {err}") from err
+    load_kitchens(base_dir / spec)  # malformed or unsolvable: refused with the reason
 
 
 def resolve_level(spec: str, base_dir: Path, rng: np.random.Generator) -> tuple[str, Level]:
@@ -93,8 +90,8 @@ def resolve_level(spec: str, base_dir: Path, rng: np.random.Generator) -> tuple[
     held = dict(heldout_levels())
     if spec in held:
         return spec, jax.device_get(held[spec])
-    path = Path(spec) if Path(spec).is_absolute() else base_dir / spec
-    return path.stem, from_ascii(path.read_text())
+    ((name, level),) = load_kitchens(base_dir / spec).items()
+    return name, level
 
 
 @cache
