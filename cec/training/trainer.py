@@ -37,6 +37,7 @@ from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
 from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
 from cec.training.tasks import Task
+from cec.training.tracking import Tracker, describe
 
 
 class TrainState(NamedTuple):
@@ -290,8 +291,9 @@ class RunResult(NamedTuple):
 
 def trains_as(written: dict, config: TrainConfig) -> bool:
     """Whether a checkpoint's recorded config (`written`) trains what `config` trains. Where the run lives
-    (`run_dir`, `name`) is left out: a moved or copied run is the same run."""
-    where = ("run_dir", "name")
+    (`run_dir`, `name`) and where its series go (`tracking`) are left out: a moved or copied run is the
+    same run, and so is one that was written before `tracking` existed."""
+    where = ("run_dir", "name", "tracking")
     ours = config_dict(config)
     return {k: v for k, v in written.items() if k not in where} == {
         k: v for k, v in ours.items() if k not in where
@@ -441,7 +443,7 @@ class RunFiles:
     checks the directory (a run with checkpoints continues only with `resume`), loads the latest checkpoint
     into the trainer's state template (refusing one written with another config), trims metrics rows
     written after it, and returns the state and update count to continue from (None, 0: a new run).
-    `close` drops the lock.
+    `tracker` opens the run's TensorBoard/W&B writer; `close` drops the lock.
     """
 
     def __init__(self, config: TrainConfig) -> None:
@@ -504,6 +506,17 @@ class RunFiles:
         crossed = any(prev < m <= done for m in self.milestones)
         return crossed or (every > 0 and done // every > prev // every), crossed
 
+    def tracker(self, done: int) -> Tracker:
+        """The run's `train` writer of TensorBoard events (and W&B), continuing after update `done`."""
+        return Tracker(
+            self.run_dir,
+            self.config.tracking,
+            name=self.config.run_name,
+            role="train",
+            resume_step=done * self.config.steps_per_update,
+            run_config=config_dict(self.config),
+        )
+
     def save(self, state: TrainState, update: int, milestone: bool) -> Path:
         return self.store.save(
             state,
@@ -525,22 +538,32 @@ def train(
 ) -> RunResult:
     """Runs (or resumes) a training run to its end, or until interrupted or `max_updates` more updates.
 
-    The run directory `<run_dir>/<name>` gets `config.yaml`, `metrics.jsonl`, `metrics.csv` and
-    `checkpoints/`. A run directory that already has checkpoints is only continued with `resume=True`.
+    The run directory `<run_dir>/<name>` gets `config.yaml`, `metrics.jsonl`, `metrics.csv`,
+    `checkpoints/` and, per `config.tracking`, TensorBoard events in `tb/` (the metrics rows' values, at
+    their env steps) and a W&B mirror. A run directory that already has checkpoints is only continued with
+    `resume=True`.
     """
+    config.tracking.check()  # W&B asked for and not installed: said before any work
     trainer = Trainer(config)
     trainer.load_partners()  # a bad population stops the run here, before any work
     files = RunFiles(config)
     loaded, done = files.open(trainer.state_template(), resume, log)
+    tracker = None
     try:
-        return _train_loop(trainer, files, loaded, done, max_updates, progress, log)
+        tracker = files.tracker(done)
+        for line in describe(files.run_dir, config.tracking):
+            print(line, file=log, flush=True)
+        return _train_loop(trainer, files, tracker, loaded, done, max_updates, progress, log)
     finally:
+        if tracker is not None:
+            tracker.close()
         files.close()
 
 
 def _train_loop(
     trainer: Trainer,
     files: RunFiles,
+    tracker: Tracker,
     loaded: TrainState | None,
     done: int,
     max_updates: int | None,
@@ -570,6 +593,7 @@ def _train_loop(
             sps = n * config.steps_per_update * config.num_seeds / dt
             rows = metrics_rows(config, done, metrics, sps)
             writer.write(rows)
+            tracker.log_rows(rows)
             prev, done = done, done + n
             if progress:
                 returns = [
