@@ -32,9 +32,22 @@ def is_path_spec(token: str) -> bool:
     return "/" in token or "\\" in token or token.endswith(KITCHEN_SUFFIX) or token.startswith((".", "~"))
 
 
+def _tokens(spec: str) -> list[str]:
+    return [t.strip() for t in spec.split(",") if t.strip()]
+
+
+def _names_path(token: str) -> bool:
+    return is_path_spec(token) or Path(token).exists()
+
+
 def names_files(spec: str) -> bool:
     """Whether a level spec names any kitchen file or folder (relative paths from the working directory)."""
-    return any(is_path_spec(t) or Path(t).exists() for t in (t.strip() for t in spec.split(",")) if t)
+    return any(_names_path(t) for t in _tokens(spec))
+
+
+def absolute_paths(spec: str) -> str:
+    """The spec with its file and folder tokens made absolute (from the working directory)."""
+    return ",".join(str(Path(t).expanduser().absolute()) if _names_path(t) else t for t in _tokens(spec))
 
 
 def read_kitchen(path: Path) -> Level:
@@ -92,7 +105,7 @@ def resolve_levels(spec: str, base_dir: Path | None = None) -> dict[str, Level]:
     `ConfigError` naming the bad token or file."""
     from cec.levels.heldout import heldout_levels
 
-    tokens = [t.strip() for t in spec.split(",") if t.strip()]
+    tokens = _tokens(spec)
     if not tokens:
         raise ConfigError("levels is empty; give e.g. `heldout`, `classic`, level names or kitchen files")
     heldout = dict(heldout_levels())

@@ -28,7 +28,7 @@ from cec.envs import overcooked as oc
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch
 from cec.levels.level import stack_levels
-from cec.levels.named import names_files, resolve_levels
+from cec.levels.named import absolute_paths, names_files, resolve_levels
 
 ENV_NAMES = ("overcooked", "dual_destination")
 DD_LEVELS = ("fixed", "multi_task", "procedural", "procedural_multi_task")
@@ -80,6 +80,8 @@ class EnvConfig:
             raise ConfigError(f"env.name {self.name!r} is unknown; choose one of {list(ENV_NAMES)}")
         valid = ("generator", *CLASSIC_ASCII) if self.name == "overcooked" else DD_LEVELS
         if self.name == "overcooked" and self.levels not in valid and _names_files(self.levels):
+            # Absolute paths, so that Ray workers and resumed runs read the same files wherever they run.
+            object.__setattr__(self, "levels", absolute_paths(self.levels))
             kitchen_set(self.levels)  # read and checked now: a bad file is refused before any work
         elif self.levels not in valid:
             raise ConfigError(
@@ -106,7 +108,7 @@ class EnvConfig:
     def levels_label(self) -> str:
         """`levels` as a file-name part: kitchen files and folders by their stems."""
         if self.name == "overcooked" and _names_files(self.levels):
-            return "+".join(Path(t.strip().rstrip("/\\")).stem for t in self.levels.split(",") if t.strip())
+            return "+".join(Path(t).stem for t in self.levels.split(","))
         return self.levels
 
     @property
