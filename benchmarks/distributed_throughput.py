@@ -84,7 +84,9 @@ def main() -> int:
 
     ray.init(
         address="local",  # a Ray of its own, whatever other cluster this machine runs or last ran
-        num_cpus=max(os.cpu_count() or 1, max(args.actors)), include_dashboard=False, logging_level="ERROR"
+        num_cpus=max(os.cpu_count() or 1, max(args.actors)),
+        include_dashboard=False,
+        logging_level="ERROR",
     )
     stages = ("rollout", "transfer", "update", "publish", "checkpoint", "wait")
     for mode in args.modes:
