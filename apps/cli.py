@@ -426,6 +426,7 @@ def build_parser() -> argparse.ArgumentParser:
 # services, the web stack) are installed: training, evaluation and the reports run on the `cec` core alone.
 SERVICE_COMMANDS = (
     ("services.stack", ("up",)),
+    ("services.status", ("status",)),
     ("services.cluster", ("cluster",)),
     ("services.evaluator.main", ("evaluator",)),
     ("services.play.main", ("play",)),

@@ -73,14 +73,32 @@ class ChildRecord:
         self.path = path
         self.children: list[dict] = []
 
-    def check(self) -> None:
-        """`ConfigError` naming the recorded processes that still run (same pid and command line)."""
+    def recorded(self) -> tuple[int, list[dict]] | None:
+        """(owner pid, the recorded children with `alive`: still the same pid and command line), or None
+        when there is no readable record."""
         try:
             old = json.loads(self.path.read_text())
             owner = int(old["owner"])
-            alive = [c for c in old["children"] if c.get("cmd") and _cmdline(int(c["pid"])) == c["cmd"]]
+            children = [
+                {**c, "alive": bool(c.get("cmd")) and _cmdline(int(c["pid"])) == c["cmd"]}
+                for c in old["children"]
+            ]
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
+            return None
+        return owner, children
+
+    @staticmethod
+    def running(pid: int) -> bool:
+        """Whether a process with this pid runs."""
+        return _cmdline(pid) is not None
+
+    def check(self) -> None:
+        """`ConfigError` naming the recorded processes that still run (same pid and command line)."""
+        record = self.recorded()
+        if record is None:
             return  # missing or unreadable: nothing to go by (`add` writes a new one)
+        owner, children = record
+        alive = [c for c in children if c["alive"]]
         if not alive:
             return
         names = ", ".join(f"{c.get('name')} (pid {c['pid']})" for c in alive)

@@ -36,6 +36,7 @@ from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
 from services.processes import ChildRecord, free_port, terminate, with_parent_death
+from services.status import write_stack_file
 from services.store import StoreConfig
 
 log = logging.getLogger("cec.up")
@@ -181,6 +182,7 @@ class Stack:
         self.urls: dict[str, str] = {}
         self.ray_started = False
         self.ray_head_port: int | None = None  # of the Ray head started here
+        self.stack_file: Path | None = None  # `cec status` reads it while the stack runs
         self.children = ChildRecord(self.run_dir / "logs" / "children.json")
 
     def say(self, text: str) -> None:
@@ -335,6 +337,8 @@ class Stack:
                 self.say(f"monitoring not started: {err}")
         for name, url in self.urls.items():
             self.say(f"{name:<22} {url}")
+        self.stack_file = write_stack_file(self.run_dir, self.urls, bool(self.store.resolved_password))
+        self.say(f"status                 cec status {self.run_dir}  [--watch]")
 
     def _started(self, service: ServiceProcess) -> None:
         self.services.append(service)
@@ -367,6 +371,8 @@ class Stack:
         if self.redis is not None:
             self.redis.stop()
         self.children.clear()
+        if self.stack_file is not None:
+            self.stack_file.unlink(missing_ok=True)
         self.say("stack stopped")
 
 

@@ -55,6 +55,12 @@ def _prom(base: str, query: str) -> float | None:
     return float(result[0]["value"][1]) if result else None
 
 
+def _cec(*args: str) -> str:
+    done = subprocess.run([sys.executable, "-m", "apps.cli", *args], capture_output=True, text=True, cwd=REPO)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
 def _rows(run_dir: Path) -> int:
     path = run_dir / "metrics.jsonl"
     return len(path.read_text().splitlines()) if path.exists() else 0
@@ -119,8 +125,20 @@ def test_dashboards_read_only_live_series_and_scraped_counters_follow_the_run(tm
         assert scraped is not None and scraped <= _rows(run_dir), "Prometheus never runs ahead of the run"
         ckpts = _prom(prom, 'cec_learner_checkpoints_total{job="learner"}')
         assert ckpts is not None and 1 <= ckpts <= _rows(run_dir) // 5 + 1, "one checkpoint per 5 updates"
+
+        # `cec status` on the live run: one screen from the run files, Redis and the services' endpoints
+        status = json.loads(_cec("status", str(run_dir), "--json"))
+        assert status["stack"]["state"] == "running" and all(status["stack"]["services"].values())
+        assert status["progress"]["update"] >= 5 and status["checkpoint"]["name"].startswith("update_")
+        plane = status["control_plane"]
+        assert plane["run_status"] == "running" and plane["latest_scored"].startswith("metrics/update_")
+        assert {(r["partner_group"], r["level_set"]) for r in plane["scores"]} == {("self_play", "classic")}
+        assert status["level_server"]["levels_sent"] > 0 and status["learner"]["policy_version"] >= 1
+        screen = _cec("status", str(run_dir))
+        assert "running (pid" in screen and "latest metrics/update_" in screen and "levels sent" in screen
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(300) == 130
+        assert "no `cec up` running" in _cec("status", str(run_dir)), "the stopped stack says so"
     finally:
         if proc.poll() is None:
             proc.kill()

@@ -1,0 +1,346 @@
+"""`cec status [RUN_DIR] [--watch [S]] [--json]`: how is my run doing, in one screen.
+
+Everything comes from what the run already writes, so it also works for a finished or crashed run:
+
+- the run directory: `config.yaml` (algorithm, env, budget), the last row of `metrics.jsonl` (update, env
+  steps, steps/s, returns, entropy, policy lag), the newest checkpoint and its age;
+- `logs/stack.json` and `logs/children.json`, written by a running `cec up`: whether the stack and each of
+  its services still run, and the addresses of Redis and the services' metrics;
+- the control plane (Redis, when the stack names it): the run's registry record and heartbeat, and the
+  evaluator's latest scores per partner group and level set;
+- the level server's and the learner's Prometheus endpoints: levels sent, active streams, the learner's
+  policy version.
+
+Nothing here writes anywhere; a part that cannot be read is shown as such, never an error of the command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import time
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cec.config import ConfigError
+from services.processes import ChildRecord
+
+STACK_FILE = "logs/stack.json"
+CHILDREN_FILE = "logs/children.json"
+HTTP_TIMEOUT_S = 2.0
+
+
+def write_stack_file(run_dir: Path, urls: dict[str, str], redis_needs_password: bool) -> Path:
+    """Written by `cec up` once its services run (atomically): its pid, start time and addresses."""
+    path = run_dir / STACK_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    info = {
+        "owner": os.getpid(),
+        "started_at": time.time(),
+        "urls": urls,
+        "redis_password": redis_needs_password,
+    }
+    tmp.write_text(json.dumps(info, indent=1))
+    tmp.replace(path)
+    return path
+
+
+def find_run(root: Path) -> Path:
+    """The newest run directory under `root` (the one whose metrics or stack file changed last)."""
+    marks = [
+        p
+        for pattern in ("*/metrics.jsonl", "*/*/metrics.jsonl", f"*/{STACK_FILE}")
+        for p in root.glob(pattern)
+    ]
+    if not marks:
+        raise ConfigError(f"no run under {str(root)!r}; give the run directory: cec status runs/<run name>")
+    newest = max(marks, key=lambda p: p.stat().st_mtime)
+    return newest.parent.parent if newest.parent.name == "logs" else newest.parent
+
+
+def collect(run_dir: Path, redis_url: str = "", now: float | None = None) -> dict[str, Any]:
+    """The run's status as one JSON-able dict (see the module docstring)."""
+    now = time.time() if now is None else now
+    if not run_dir.is_dir():
+        raise ConfigError(f"run directory {str(run_dir)!r} does not exist")
+    out: dict[str, Any] = {"run_dir": str(run_dir), "run": run_dir.name, "at": now}
+    out["config"] = _config(run_dir)
+    out["progress"] = _last_row(run_dir / "metrics.jsonl")
+    out["checkpoint"] = _checkpoint(run_dir, now)
+    stack = _stack(run_dir, now)
+    out["stack"] = stack
+    urls = stack.get("urls", {})
+    masked = stack.get("redis_password") and not redis_url  # the recorded URL has its password masked
+    out["control_plane"] = _control_plane(run_dir.name, redis_url or urls.get("redis", ""), bool(masked), now)
+    out["level_server"] = _scrape(
+        urls.get("level server metrics", ""),
+        {
+            "levels_sent": "cec_level_server_levels_sent_total",
+            "active_streams": "cec_level_server_active_streams",
+            "curriculum_buffer": "cec_level_server_curriculum_buffer_levels",
+        },
+    )
+    out["learner"] = _scrape(
+        urls.get("learner metrics", ""),
+        {"policy_version": "cec_learner_policy_version", "restarts": "cec_learner_restarts"},
+    )
+    return out
+
+
+def _config(run_dir: Path) -> dict[str, Any]:
+    try:
+        data = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
+        env = data.get("env", {})
+        return {
+            "algorithm": data.get("algorithm"),
+            "env": env.get("name"),
+            "levels": env.get("levels"),
+            "total_env_steps": data.get("total_env_steps"),
+            "num_seeds": data.get("num_seeds"),
+        }
+    except (OSError, yaml.YAMLError, AttributeError) as err:
+        return {"error": f"no readable config.yaml ({type(err).__name__})"}
+
+
+def _last_row(path: Path) -> dict[str, Any]:
+    """The last complete line of a JSON-lines file (read from its end, however long the file)."""
+    try:
+        with path.open("rb") as f:
+            f.seek(0, 2)
+            size = f.tell()
+            f.seek(max(0, size - 65536))
+            lines = f.read().splitlines()
+    except OSError:
+        return {}
+    for line in reversed(lines):
+        try:
+            row = json.loads(line)
+        except (json.JSONDecodeError, UnicodeDecodeError):
+            continue  # a line being written
+        if isinstance(row, dict):
+            row["written_at"] = path.stat().st_mtime
+            return row
+    return {}
+
+
+def _checkpoint(run_dir: Path, now: float) -> dict[str, Any]:
+    from cec.checkpoints import CheckpointStore
+
+    dirs = CheckpointStore(run_dir, keep_last=1).directories()
+    if not dirs:
+        return {}
+    newest = dirs[-1]
+    return {"name": newest.name, "count": len(dirs), "age_s": now - newest.stat().st_mtime}
+
+
+def _stack(run_dir: Path, now: float) -> dict[str, Any]:
+    try:
+        info = json.loads((run_dir / STACK_FILE).read_text())
+    except (OSError, ValueError):
+        return {"state": "none"}  # not a `cec up` run, or one that stopped cleanly
+    record = ChildRecord(run_dir / CHILDREN_FILE).recorded()
+    owner = int(info.get("owner", 0))
+    services = {c.get("name", "?"): bool(c["alive"]) for c in record[1]} if record else {}
+    return {
+        "state": "running" if owner and ChildRecord.running(owner) else "dead",
+        "pid": owner,
+        "up_s": now - float(info.get("started_at", now)),
+        "services": services,
+        "urls": info.get("urls", {}),
+        "redis_password": bool(info.get("redis_password")),
+    }
+
+
+def _control_plane(run_id: str, url: str, masked: bool, now: float) -> dict[str, Any]:
+    if not url:
+        return {}
+    if masked:
+        return {"error": f"Redis {url} needs its password: give --redis redis://:PASSWORD@host:port/0"}
+    from services.store import ControlPlane, StoreConfig, StoreError
+
+    config = StoreConfig(url=url, connect_timeout_s=HTTP_TIMEOUT_S, retries=0)
+    try:
+        plane = ControlPlane.connect(config)
+    except (StoreError, ConfigError) as err:
+        return {"error": f"Redis at {config.display_url} did not answer: {err}"}
+    try:
+        out: dict[str, Any] = {"redis": config.display_url}
+        run = plane.get_run(run_id)
+        if run is not None:
+            out["run_status"] = run.status
+            out["heartbeat_age_s"] = now - run.heartbeat_at
+        mine = {cid: at for cid, at in plane.list_scored().items() if cid.startswith(f"{run_id}/")}
+        if mine:
+            newest = max(mine, key=lambda cid: cid)  # update_<9 digits>: the name orders them
+            out["scored"] = len(mine)
+            out["latest_scored"] = newest
+            out["scores"] = [
+                {"partner_group": r.partner_group, "level_set": r.level_set, **_score(r.metrics)}
+                for r in plane.get_results(newest)
+            ]
+        return out
+    except StoreError as err:
+        return {"error": f"Redis at {config.display_url}: {err}"}
+    finally:
+        plane.close()
+
+
+def _score(metrics: dict[str, Any]) -> dict[str, Any]:
+    return {k: metrics[k] for k in ("return_mean", "return_sem", "episodes") if k in metrics}
+
+
+def _scrape(url: str, names: dict[str, str]) -> dict[str, Any]:
+    """Sums of the named Prometheus series at `url` (`{}` without a URL; `error` when it does not answer)."""
+    if not url:
+        return {}
+    from prometheus_client.parser import text_string_to_metric_families
+
+    try:
+        with urllib.request.urlopen(url, timeout=HTTP_TIMEOUT_S) as response:
+            text = response.read(8 * 1024 * 1024).decode()
+    except (OSError, ValueError) as err:
+        return {"error": f"{url} did not answer ({type(err).__name__})"}
+    wanted = {v.removesuffix("_total"): k for k, v in names.items()}
+    out: dict[str, Any] = {"up": True}
+    for family in text_string_to_metric_families(text):
+        key = wanted.get(family.name)
+        if key is not None:
+            out[key] = sum(s.value for s in family.samples if not s.name.endswith("_created"))
+    return out
+
+
+# ---- the screen -------------------------------------------------------------------------------------------
+
+
+def render(s: dict[str, Any]) -> str:
+    """The status as a few aligned lines."""
+    return "\n".join(
+        f"{label:<13}{text}"
+        for part in (_run_lines, _training_lines, _evaluator_lines, _service_lines)
+        for label, text in part(s)
+    )
+
+
+Lines = list[tuple[str, str]]
+STATES = {"dead": "NOT running (its `cec up` is gone)", "none": "no `cec up` running"}
+
+
+def _run_lines(s: dict[str, Any]) -> Lines:
+    cfg, stack = s["config"], s["stack"]
+    what = cfg.get("error") or f"{cfg.get('algorithm')} on {cfg.get('env')}/{cfg.get('levels')}"
+    state = STATES.get(stack["state"]) or f"running (pid {stack.get('pid')}, up {_age(stack.get('up_s'))})"
+    return [("run", f"{s['run']}  {what}  [{s['run_dir']}]"), ("stack", state)]
+
+
+def _training_lines(s: dict[str, Any]) -> Lines:
+    row, ckpt, total = s["progress"], s["checkpoint"], s["config"].get("total_env_steps") or 0
+    ckpt_text = (
+        f"{ckpt['name']}, written {_age(ckpt['age_s'])} ago ({ckpt['count']} on disk)" if ckpt else "none"
+    )
+    if not row:
+        return [("progress", "no metrics rows yet"), ("checkpoint", ckpt_text)]
+    steps, sps = int(row.get("env_steps", 0)), float(row.get("env_steps_per_s") or 0)
+    progress = f"update {row.get('update')}  env steps {steps:,}"
+    if total:
+        progress += f" / {total:,} ({100 * steps / total:.1f}%)"
+    progress += f"  {sps:,.0f} steps/s"
+    if total and sps > 0 and steps < total:
+        progress += f"  ETA {_age((total - steps) / sps)}"
+    training = [f"return {_num(row.get('mean_return'))}", f"shaped {_num(row.get('mean_shaped_return'))}"]
+    training.append(f"entropy {_num(row.get('entropy'))}")
+    if "policy_lag_mean" in row:
+        training.append(f"policy lag {_num(row['policy_lag_mean'])} (max {_num(row.get('policy_lag_max'))})")
+    training.append(f"last row {_age(s['at'] - row['written_at'])} ago")
+    return [("progress", progress), ("training", "  ".join(training)), ("checkpoint", ckpt_text)]
+
+
+def _evaluator_lines(s: dict[str, Any]) -> Lines:
+    plane = s["control_plane"]
+    if not plane:
+        return []
+    if "error" in plane:
+        return [("evaluator", plane["error"])]
+    out: Lines = []
+    if plane.get("scores"):
+        out.append(("evaluator", f"{plane['scored']} checkpoint(s) scored; latest {plane['latest_scored']}:"))
+        for r in sorted(plane["scores"], key=lambda r: (r["partner_group"], r["level_set"])):
+            score = f"return {_num(r.get('return_mean'))} ({r.get('episodes', '?')} episodes)"
+            out.append(("", f"  {r['partner_group']:<14} {r['level_set']:<12} {score}"))
+    else:
+        out.append(("evaluator", "no checkpoint of this run scored yet"))
+    if plane.get("run_status"):
+        beat = _age(plane["heartbeat_age_s"])
+        out.append(("registry", f"{plane['run_status']}, heartbeat {beat} ago ({plane['redis']})"))
+    return out
+
+
+def _service_lines(s: dict[str, Any]) -> Lines:
+    out: Lines = []
+    level, learner, services = s["level_server"], s["learner"], s["stack"].get("services")
+    if level:
+        sent, streams = int(level.get("levels_sent", 0)), int(level.get("active_streams", 0))
+        buffer = int(level.get("curriculum_buffer", 0))
+        up = f"up: {sent:,} levels sent, {streams} active stream(s), curriculum buffer {buffer:,}"
+        out.append(("level server", level.get("error") or up))
+    if learner:
+        version, restarts = int(learner.get("policy_version", 0)), int(learner.get("restarts", 0))
+        up = f"up: policy version {version}, restarts {restarts}"
+        out.append(("learner", learner.get("error") or up))
+    if services:
+        out.append(("services", ", ".join(f"{n} {'up' if up else 'DOWN'}" for n, up in services.items())))
+    return out
+
+
+def _num(x: Any) -> str:
+    return f"{x:.3g}" if isinstance(x, int | float) and math.isfinite(x) else "-"
+
+
+def _age(seconds: Any) -> str:
+    if not isinstance(seconds, int | float) or not math.isfinite(seconds):
+        return "?"
+    s = max(0, int(seconds))
+    if s < 120:
+        return f"{s} s"
+    if s < 7200:
+        return f"{s // 60} min"
+    return f"{s // 3600} h {s % 3600 // 60:02d} min"
+
+
+# ---- command line -----------------------------------------------------------------------------------------
+
+
+def _cmd_status(args: argparse.Namespace) -> int:
+    run_dir = Path(args.run_dir) if args.run_dir else find_run(Path(args.runs))
+    while True:
+        status = collect(run_dir, args.redis)
+        text = json.dumps(status, indent=1, default=str) if args.json else render(status)
+        if args.watch is None:
+            print(text, flush=True)
+            return 0
+        sys.stdout.write("\x1b[H\x1b[2J" + text + f"\n\n(every {args.watch:g} s; Ctrl-C stops)\n")
+        sys.stdout.flush()
+        try:
+            time.sleep(args.watch)
+        except KeyboardInterrupt:
+            return 0
+
+
+def add_subcommands(sub: Any) -> None:
+    st = sub.add_parser(
+        "status", help="one screen on a run: progress, checkpoints, evaluator scores, services"
+    )
+    st.add_argument("run_dir", nargs="?", help="the run directory (default: the newest run under --runs)")
+    st.add_argument("--runs", default="runs", help="where to look for the newest run (default: runs/)")
+    st.add_argument(
+        "--watch", type=float, nargs="?", const=5.0, metavar="S", help="redraw every S seconds (default 5)"
+    )
+    st.add_argument("--json", action="store_true", help="print the status as JSON (for scripts)")
+    st.add_argument("--redis", default="", help="control-plane URL (default: the one `cec up` recorded)")
+    st.set_defaults(func=_cmd_status)

@@ -1,0 +1,74 @@
+"""`cec status` from the files a run writes (the live `cec up` case is in tests/e2e/test_stack_metrics.py)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+import yaml
+
+from apps.cli import main
+from services.processes import ChildRecord
+from services.status import collect, find_run, render, write_stack_file
+
+
+def _run(root: Path, name: str = "r") -> Path:
+    run = root / name
+    (run / "checkpoints" / "update_000000010").mkdir(parents=True)
+    (run / "checkpoints" / "update_000000020").mkdir()
+    cfg = {"algorithm": "cec", "total_env_steps": 1000, "env": {"name": "overcooked", "levels": "generator"}}
+    (run / "config.yaml").write_text(yaml.safe_dump(cfg))
+    rows = [
+        {"update": u, "env_steps": 25 * u, "mean_return": 0.5 * u, "env_steps_per_s": 50.0} for u in (1, 20)
+    ]
+    text = "".join(json.dumps(r) + "\n" for r in rows)
+    (run / "metrics.jsonl").write_text(text + '{"update": 21, "env_st')  # a row being written
+    return run
+
+
+def test_status_reads_progress_checkpoints_and_eta_from_the_run_files(tmp_path: Path, capsys) -> None:
+    run = _run(tmp_path)
+    s = collect(run)
+    assert s["progress"]["update"] == 20 and s["checkpoint"]["name"] == "update_000000020"
+    assert s["stack"]["state"] == "none" and s["control_plane"] == {}
+    screen = render(s)
+    assert "env steps 500 / 1,000 (50.0%)" in screen and "ETA 10 s" in screen and "return 10" in screen
+    assert "update_000000020" in screen and "(2 on disk)" in screen
+    assert find_run(tmp_path) == run
+    assert main(["status", str(run)]) == 0 and "no `cec up` running" in capsys.readouterr().out
+    assert main(["status", str(tmp_path / "gone")]) == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+def test_a_dead_stack_and_its_down_services_are_named(tmp_path: Path) -> None:
+    run = _run(tmp_path)
+    code = "import time; print('ready', flush=True); time.sleep(60)"
+    child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout is not None and child.stdout.readline() == "ready\n"  # its own command line now
+        record = ChildRecord(run / "logs" / "children.json")
+        record.add("level server", child.pid)
+        record.add("evaluator", 2**22 + 7)  # no such process
+        write_stack_file(run, {"redis": "redis://127.0.0.1:1/0"}, redis_needs_password=False)
+        s = collect(run)
+        assert s["stack"]["state"] == "running" and s["stack"]["pid"] == os.getpid()
+        assert s["stack"]["services"] == {"level server": True, "evaluator": False}
+        assert "did not answer" in s["control_plane"]["error"], "an unreachable Redis is shown, not raised"
+        assert "level server up, evaluator DOWN" in render(s)
+        info = json.loads((run / "logs" / "stack.json").read_text())
+        (run / "logs" / "stack.json").write_text(json.dumps({**info, "owner": 2**22 + 9}))
+        assert "NOT running" in render(collect(run))
+    finally:
+        child.kill()
+        child.wait()
+
+
+@pytest.mark.parametrize("masked", ["redis://:***@127.0.0.1:6379/0"])
+def test_a_masked_redis_url_asks_for_the_password(tmp_path: Path, masked: str) -> None:
+    run = _run(tmp_path)
+    write_stack_file(run, {"redis": masked}, redis_needs_password=True)
+    assert "--redis" in collect(run)["control_plane"]["error"]
