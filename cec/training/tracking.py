@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import math
 import os
-import time
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -174,13 +173,14 @@ class Tracker:
         from tensorboardX import SummaryWriter
 
         self.dir.mkdir(parents=True, exist_ok=True)
-        earlier = any(self.dir.glob(f"*tfevents*.{role}"))
-        # tensorboardX names files by the second and host only (and truncates an existing one): the
-        # nanoseconds and the process keep two writers' files apart and in the order they were started.
-        now = time.time_ns()
+        files = list(self.dir.glob("*tfevents*"))
+        earlier = any(f.name.endswith(f".{role}") for f in files)
+        # tensorboardX names a file by the second and the host only (and truncates one of the same name):
+        # the count of files before it and the process keep two writers' files apart, and those of one
+        # second in the order they were started (TensorBoard reads a run's files in name order).
         return SummaryWriter(
             str(self.dir),
-            filename_suffix=f".{now % 10**9:09d}.{os.getpid()}.{role}",
+            filename_suffix=f".{len(files):05d}.{os.getpid()}.{role}",
             purge_step=resume_step + 1 if resume_step is not None and earlier else None,
             flush_secs=30,
         )
