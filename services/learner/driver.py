@@ -17,13 +17,15 @@ import signal
 import sys
 import threading
 import time
+from pathlib import Path
 from types import FrameType
 from typing import Any, TextIO
 
 from cec import checkpoints
 from cec.config import ConfigError
 from cec.training.config import TrainConfig
-from cec.training.trainer import RunFiles, config_dict
+from cec.training.tracking import describe
+from cec.training.trainer import RunFiles, config_dict, trains_as
 from services.learner.config import DistributedConfig
 from services.store import StoreConfig
 
@@ -50,7 +52,9 @@ def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig 
 
 def check_run(train: TrainConfig, resume: bool) -> None:
     """The run directory: a run with checkpoints continues only with `resume`, and then only with the
-    config its latest checkpoint was written with (`ConfigError` naming the fix)."""
+    config its latest checkpoint was written with; the run's tracking: W&B installed when asked for
+    (`ConfigError` naming the fix)."""
+    train.tracking.check()
     files = RunFiles(train)
     latest = files.store.latest()
     if files.store.directories() and not resume:
@@ -62,7 +66,7 @@ def check_run(train: TrainConfig, resume: bool) -> None:
             meta = checkpoints.read_meta(latest.path)
         except checkpoints.CheckpointError as err:
             raise ConfigError(f"cannot resume from {latest.path}: {err}") from err
-        if meta.get("config") != config_dict(train):
+        if not trains_as(meta.get("config") or {}, train):
             raise ConfigError(
                 f"checkpoint {latest.path} was written with a different config; resume with the run's own "
                 f"config ({files.run_dir / 'config.yaml'}) and no overrides, or start a new run (name=...)"
@@ -132,6 +136,8 @@ def run_distributed(
     from services.learner.learner import Learner
 
     check_start(train, dist, store, resume)
+    for line in describe(Path(train.run_dir) / train.run_name, train.tracking):
+        print(line, file=log_to, flush=True)
     remote = ray.remote(Learner).options(
         num_cpus=0,
         max_restarts=dist.learner_max_restarts,

@@ -16,6 +16,10 @@ The update is the single-process trainer's own `Trainer.learn`, keys come from t
 (`Trainer.update_keys`), and the checkpoint is the trainer's `TrainState` with one seed, so a `sync` run
 reproduces `cec train` and either can resume the other's checkpoints.
 
+Every update's metrics row (`metrics.jsonl`, `metrics.csv`, and the TensorBoard events of
+`cec.training.tracking`) holds the trainer's columns plus the learner's own (`DISTRIBUTED_COLUMNS`): the
+policy lag of the update's batches, the batches dropped while gathering them, and the actors' level feed.
+
 Faults: a dead actor (its call raises) is restarted by Ray; the learner gives it a new incarnation and a
 fresh carry and resubmits the rollout (batches stamped with an older incarnation are dropped and counted).
 Redis being down queues checkpoint events in the run's outbox; they are published when it returns.
@@ -29,7 +33,7 @@ import os
 import sys
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import jax
@@ -47,6 +51,54 @@ from services.actors.actor import ActorNotReadyError, RolloutActor, decode_batch
 from services.learner.config import DistributedConfig
 
 log = logging.getLogger("cec.learner")
+
+#: The learner's columns of a metrics row, after the trainer's (TensorBoard section `distributed`).
+DISTRIBUTED_COLUMNS = (
+    "policy_lag_mean",  # policy versions between a batch's weights and the update's, over its batches
+    "policy_lag_max",
+    "batches_stale",  # batches dropped while gathering this update's: older than max_policy_lag ...
+    "batches_dead_incarnation",  # ... or from an actor process that has since been restarted
+    "levels_buffered",  # streamed kitchens waiting in the actors' buffers (at their last batches)
+    "level_reconnects",  # level-stream reconnections of the actors so far in this learner (cumulative)
+    "levels_reused",  # kitchens replayed from the actors' pools for want of streamed ones (cumulative)
+)
+
+
+@dataclass
+class _FeedStats:
+    """The learner's columns of a metrics row (`DISTRIBUTED_COLUMNS`): per update, and the level feed.
+
+    The actors' level counters are cumulative per actor process; a restarted actor counts from 0 again,
+    which is added on, not subtracted."""
+
+    lags: list[int] = field(default_factory=list)
+    stale: int = 0
+    dead: int = 0
+    buffered: dict[int, int] = field(default_factory=dict)
+    totals: dict[str, int] = field(default_factory=lambda: {"reconnects": 0, "reused": 0})
+    last: dict[tuple[str, int], int] = field(default_factory=dict)
+
+    def actor(self, i: int, stats: Any) -> None:
+        """An actor's `ActorStats` of a batch."""
+        self.buffered[i] = int(stats.levels_buffered)
+        for name, now in (("reconnects", int(stats.reconnects)), ("reused", int(stats.levels_reused))):
+            before = self.last.get((name, i), 0)
+            self.totals[name] += now - before if now >= before else now
+            self.last[(name, i)] = now
+
+    def columns(self) -> dict[str, float | int | None]:
+        """This update's values, in the order of `DISTRIBUTED_COLUMNS` (the per-update ones start again)."""
+        out: dict[str, float | int | None] = {
+            "policy_lag_mean": float(np.mean(self.lags)) if self.lags else None,
+            "policy_lag_max": max(self.lags) if self.lags else None,
+            "batches_stale": self.stale,
+            "batches_dead_incarnation": self.dead,
+            "levels_buffered": sum(self.buffered.values()),
+            "level_reconnects": self.totals["reconnects"],
+            "levels_reused": self.totals["reused"],
+        }
+        self.lags, self.stale, self.dead = [], 0, 0
+        return out
 
 
 @dataclass
@@ -81,6 +133,7 @@ class Learner:
         self.plane: Any = None
         self.slots: list[_Slot] = []
         self._held: dict[int, tuple[Any, Any]] = {}  # async: a batch per actor waiting for the next update
+        self.feed = _FeedStats()
 
     # ---- pure pieces -------------------------------------------------------------------------------------
 
@@ -130,14 +183,21 @@ class Learner:
         `restarts`: how often the driver restarted this learner (exported as a metric)."""
         out = sys.stderr
         cfg = self.config
+        cfg.tracking.check()
         loaded, done = self.files.open(self.trainer.state_template(), resume, out)
         M.LEARNER_RESTARTS.set(restarts)
         state = self.trainer.init() if loaded is None else loaded
         one = jax.tree.map(lambda x: x[0], state)  # the run's one seed
         try:
+            tracker = self.files.tracker(done)
+        except BaseException:
+            self.files.close()
+            raise
+        try:
             self._connect_store(resume=loaded is not None)
             self._start_actors(one.carry)
         except BaseException:
+            tracker.close()
             self.files.close()
             raise
         total = cfg.num_updates
@@ -176,7 +236,11 @@ class Learner:
                 sps = cfg.steps_per_update / dt
                 self._record(done, metrics, sps)
                 rows = metrics_rows(cfg, done - 1, jax.tree.map(lambda x: x[None, None], metrics), sps)
+                extra = self.feed.columns()
+                for row in rows:
+                    row.update(extra)
                 self.files.writer.write(rows)
+                tracker.log_rows(rows, {c: "distributed" for c in DISTRIBUTED_COLUMNS})
                 meter.show(done, sps, rows[-1]["mean_return"], (stop_at - done) * dt)
                 due, crossed = self.files.due(done - 1, done)
                 if due or done == stop_at or self._stop.is_set():
@@ -194,6 +258,7 @@ class Learner:
             partial = status == "finished" and done < total  # max_updates reached
             self._set_status("interrupted" if partial else status)
             self._close_actors()
+            tracker.close()
             self.files.close()
         return {"updates": done, "status": status, "run_dir": str(self.files.run_dir)}
 
@@ -265,6 +330,7 @@ class Learner:
             log.warning("actor %d: rollout lost (%s)", i, type(err).__name__)
             return None
         header, stats, payload = decode_batch(data)
+        self.feed.actor(i, stats)
         M.LEARNER_STAGE_SECONDS.labels("transfer").inc(time.perf_counter() - t0)
         M.LEARNER_STAGE_SECONDS.labels("rollout").inc(stats.rollout_s)
         M.ACTOR_ROLLOUT_SECONDS.labels(str(i)).inc(stats.rollout_s)
@@ -279,12 +345,15 @@ class Learner:
         slot = self.slots[i]
         if header.incarnation != slot.incarnation:
             M.LEARNER_BATCHES.labels("dead_incarnation").inc()
+            self.feed.dead += 1
             return False
         lag = version - header.version
         if lag > self.dist.max_policy_lag and self.dist.mode == "async":
             M.LEARNER_BATCHES.labels("stale").inc()
+            self.feed.stale += 1
             return False
         M.LEARNER_POLICY_LAG.observe(lag)
+        self.feed.lags.append(lag)
         M.LEARNER_BATCHES.labels("accepted").inc()
         return True
 
@@ -344,6 +413,7 @@ class Learner:
             if i in parts:
                 if i in self._held:
                     M.LEARNER_BATCHES.labels("stale").inc()  # replaced by a newer one before its turn
+                    self.feed.stale += 1
                 self._held[i] = got
             elif self._accept(i, got[0], version):
                 parts[i] = from_bytes(template, got[1])
