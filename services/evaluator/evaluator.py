@@ -11,8 +11,14 @@ staging file, then its summary to Redis (`put_result`, keyed by checkpoint, grou
 already in Redis are never played again, so a restart resumes a half-scored checkpoint where it stopped.
 When every part is stored, the staging files are merged into `<results_dir>/<run_id>/eval/update_<N>.csv`
 (the canonical long table of `cec.evaluation.results`, written to a temporary file and renamed), the
-checkpoint is marked scored, the gauges move, and only then is the event acknowledged. A redelivered event
-of a scored checkpoint is acknowledged without work.
+checkpoint is marked scored, the gauges move, the scores go into the run's TensorBoard events (below), and
+only then is the event acknowledged. A redelivered event of a scored checkpoint is acknowledged without work.
+
+TensorBoard: a checkpoint's results are written into its own run's events, `<run directory>/tb/` (the run
+directory holds the checkpoint: `<run>/checkpoints/update_<N>`), by a writer of the evaluator's own
+(`cec.training.tracking.Tracker`, role `evaluator`) at the checkpoint's env steps, as
+`eval/<partner group>/<level set>/<metric>` (`TRACKED_METRICS`); the W&B mirror too when the run has one.
+The run's recorded `tracking` config decides; a failure to write is logged and changes nothing else.
 
 A checkpoint that cannot be loaded (missing, corrupt, replaced since its event, a config this code cannot
 read) is a failure: logged, counted (`cec_evaluator_failures_total`), recorded as the result
@@ -37,7 +43,7 @@ import jax
 import numpy as np
 
 from cec import checkpoints
-from cec.config import ConfigError
+from cec.config import ConfigError, from_dict
 from cec.evaluation.analysis import pair_level_scores, pair_scores
 from cec.evaluation.crossplay import EvalConfig, EvalLevels, crossplay, eval_levels
 from cec.evaluation.results import (
@@ -50,6 +56,7 @@ from cec.evaluation.results import (
 )
 from cec.evaluation.stats import sem
 from cec.evaluation.zoo import Policy, ZooEntry, load_policy, resolve_checkpoint
+from cec.training.tracking import Tracker, TrackingConfig
 from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
 from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in
 from services.metrics import (
@@ -70,6 +77,10 @@ FAILED_GROUP = "failed"
 FAILED_LEVEL_SET = "checkpoint"
 #: Summary statistics stored per part, as `<metric>_mean` (see `summarize`).
 SUMMARY_METRICS = ("return", "score", "deliveries", "collisions", "shaped_return")
+#: A stored result's values written to the run's TensorBoard events: result key -> tag's last part.
+TRACKED_METRICS = {**{f"{m}_mean": m for m in SUMMARY_METRICS}, "return_sem": "return_sem"}
+#: Runs whose writers are kept open (the least recently used one beyond is closed; reopened when needed).
+OPEN_TRACKERS = 8
 
 
 class Outcome(NamedTuple):
@@ -243,6 +254,7 @@ class Evaluator:
     def __init__(self, config: EvaluatorConfig, plane: ControlPlane | None = None) -> None:
         self.config = config
         self._own_plane = plane is None
+        self._trackers: dict[Path, Tracker | None] = {}  # run directory -> its writer (None: not tracked)
         self.plane = plane if plane is not None else ControlPlane.connect(config.store)
         try:
             self.zoo = PartnerZoo(config, self.plane)
@@ -257,6 +269,10 @@ class Evaluator:
         self._gauges: set[tuple[str, str]] = set()
 
     def close(self) -> None:
+        for tracker in self._trackers.values():
+            if tracker is not None:
+                tracker.close()
+        self._trackers.clear()
         if self._own_plane:
             self.plane.close()
 
@@ -432,6 +448,7 @@ class Evaluator:
         EVALUATOR_CHECKPOINTS_SCORED.inc()
         EVALUATOR_DURATION.observe(seconds)
         self._publish(event.update, results)
+        self._track(event, results)
         log.info(
             "scored %s in %.1f s (%d part(s) computed, %d already stored)",
             cid,
@@ -518,6 +535,55 @@ class Evaluator:
             cid, FAILED_GROUP, FAILED_LEVEL_SET, {"error": reason, **_event_info(event, self.config)}
         )
         return Outcome(cid, "failed", error=reason, seconds=time.perf_counter() - t0)
+
+    # --- TensorBoard ----------------------------------------------------------------------------------------
+
+    def _track(self, event: CheckpointEvent, results: Sequence[EvalResult]) -> None:
+        """Writes a scored checkpoint's results into its run's TensorBoard events (module docstring)."""
+        values = {
+            f"eval/{r.partner_group}/{r.level_set}/{name}": r.metrics.get(key)
+            for r in results
+            if r.partner_group != FAILED_GROUP
+            for key, name in TRACKED_METRICS.items()
+            if isinstance(r.metrics.get(key), int | float)
+        }
+        try:
+            tracker = self._tracker(Path(event.path), event.run_id)
+            if tracker is not None and values:
+                tracker.log(event.env_steps, values)
+        except Exception as err:  # a full disk, a read-only run directory: the scores are stored anyway
+            log.warning("%s: could not write its scores to TensorBoard: %s", event.checkpoint_id, err)
+
+    def _tracker(self, path: Path, run_id: str) -> Tracker | None:
+        """The evaluator's writer of the run holding checkpoint `path` (None: the run is not tracked or its
+        directory is unknown), per the run's recorded `tracking` config."""
+        if path.parent.name != "checkpoints":
+            return None
+        run_dir = path.parent.parent
+        if run_dir in self._trackers:
+            self._trackers[run_dir] = self._trackers.pop(run_dir)  # the most recently used, last
+        else:
+            if len(self._trackers) >= OPEN_TRACKERS:
+                oldest = self._trackers.pop(next(iter(self._trackers)))
+                if oldest is not None:
+                    oldest.close()
+            config = checkpoints.read_meta(path).get("config", {})
+            try:
+                tracking = from_dict(TrackingConfig, config.get("tracking", {}), where="tracking")
+            except ConfigError as err:
+                log.warning("run %s: unreadable tracking config (%s); writing TensorBoard only", run_id, err)
+                tracking = TrackingConfig()
+            if tracking.wandb:
+                try:
+                    tracking.check()
+                except ConfigError as err:
+                    log.warning("run %s: no W&B mirror of its scores: %s", run_id, err)
+                    tracking = dataclasses.replace(tracking, wandb=False)
+            tracked = tracking.tensorboard or tracking.wandb
+            self._trackers[run_dir] = (
+                Tracker(run_dir, tracking, name=run_id, role="evaluator") if tracked else None
+            )
+        return self._trackers[run_dir]
 
     # --- gauges -------------------------------------------------------------------------------------------
 

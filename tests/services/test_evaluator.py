@@ -35,7 +35,7 @@ from cec.evaluation.results import make_table, read_csv
 from cec.training.config import TrainConfig
 from cec.training.trainer import Trainer, config_dict
 from services.evaluator.config import EvaluatorConfig, LevelSetConfig, PartnerGroupConfig
-from services.evaluator.evaluator import FAILED_GROUP, Evaluator, summarize
+from services.evaluator.evaluator import FAILED_GROUP, TRACKED_METRICS, Evaluator, summarize
 from services.store import CheckpointEvent, CheckpointMessage, ControlPlane, LocalRedis, PartnerRecord
 
 pytestmark = pytest.mark.skipif(
@@ -58,15 +58,17 @@ class Checkpoints:
         self.root = root
         self._templates: dict[int, object] = {}
 
-    def config(self, num_seeds: int, name: str) -> TrainConfig:
+    def config(self, num_seeds: int, name: str, tracking: dict | None = None) -> TrainConfig:
         return from_dict(TrainConfig, {
             "algorithm": "cec", "num_seeds": num_seeds, "num_envs": 2, "num_steps": 8, "total_env_steps": 16,
-            "network": "small", "run_dir": str(self.root),  "name": name,
+            "network": "small", "run_dir": str(self.root),  "name": name, "tracking": tracking or {},
             "env": {"name": "overcooked", "levels": "generator", "overcooked": {"max_steps": STEPS}},
         })  # fmt: skip
 
-    def write(self, run: str, update: int, seeds: list[int], label: str = "cec") -> Path:
-        config = self.config(len(seeds), run)
+    def write(
+        self, run: str, update: int, seeds: list[int], label: str = "cec", tracking: dict | None = None
+    ) -> Path:
+        config = self.config(len(seeds), run, tracking)
         if len(seeds) not in self._templates:
             self._templates[len(seeds)] = Trainer(config).state_template()
         template = self._templates[len(seeds)]
@@ -339,6 +341,34 @@ def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckp
     assert {s.name for s in table.skipped} == {"ippo_cramped_s9", "lost"}
     # Both seats, 1 episode: classic (cramped_room) with 3 partners, the held-out kitchen with 2.
     assert len(table) == 2 * 3 + 2 * 2
+
+
+def test_scores_go_into_the_runs_tensorboard_events_at_the_checkpoints_env_steps(plane, ckpts, zoo, tmp_path):
+    from tests.unit.test_tracking import read_scalars
+
+    paths = [ckpts.write("cec-tb", update, [0, 1]) for update in (2, 5)]  # env steps 32 and 80
+    quiet = ckpts.write("cec-tb-off", 2, [0], tracking={"tensorboard": False})
+    events = [_publish(plane, p, "cec-tb") for p in paths] + [_publish(plane, quiet, "cec-tb-off")]
+    config = _config(plane, zoo, tmp_path / "results", level_sets=(CLASSIC,))
+    with Evaluator(config, plane) as ev:
+        outcomes = []
+        while len(outcomes) < len(events):
+            outcomes += ev.poll_once(block_s=0.5)
+        assert [o.status for o in outcomes] == ["scored"] * 3
+        again = ev.handle(CheckpointMessage("0-1", events[0], redelivered=True))  # nothing written again
+        assert again.status == "already_scored"
+    tb = ckpts.root / "cec-tb" / "tb"
+    assert len(list(tb.glob("*tfevents*.evaluator"))) == 1, "one writer for the run's checkpoints"
+    got = read_scalars(tb)
+    assert {f"eval/{g}/classic/{m}" for g in GROUPS for m in ("return", "score", "deliveries")} <= set(got)
+    for event in events[:2]:
+        for result in plane.get_results(event.checkpoint_id):
+            for key, name in TRACKED_METRICS.items():
+                points = dict(got[f"eval/{result.partner_group}/{result.level_set}/{name}"])
+                assert points[event.env_steps] == pytest.approx(result.metrics[key], rel=1e-6), (key, event)
+    assert [step for step, _ in got["eval/fcp/classic/return"]] == [32, 80]
+    assert any(dict(series)[32] != dict(series)[80] for series in got.values()), "two checkpoints' own scores"
+    assert not (ckpts.root / "cec-tb-off" / "tb").exists(), "the run's tracking.tensorboard=false is kept"
 
 
 def test_cli_errors_are_one_line(tmp_path, capsys):
