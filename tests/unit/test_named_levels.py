@@ -81,6 +81,14 @@ def test_play_and_the_resolver_read_the_same_kitchen(kitchens: Path) -> None:
     assert name == "odd" and _same(level, load_kitchens(kitchens / "odd.txt")["odd"])
 
 
+def test_the_jaxmarl_adapter_takes_a_folder_as_its_kitchens(kitchens: Path) -> None:
+    from cec.envs.overcooked.jaxmarl_api import OvercookedMultiAgentEnv
+
+    env = OvercookedMultiAgentEnv(str(kitchens))
+    batch = np.asarray(env.levels.grid)
+    assert batch.shape[0] == 2 and np.array_equal(batch[1], np.asarray(classic_level("cramped_room").grid))
+
+
 def test_training_draws_its_levels_from_the_folder_only(kitchens: Path) -> None:
     env = EnvConfig(levels=str(kitchens))
     assert env.procedural and env.levels_label == "my_kitchens"

@@ -31,13 +31,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cec.config import ConfigError
 from cec.envs.overcooked.dynamics import reset as oc_reset
 from cec.envs.overcooked.dynamics import step as oc_step
 from cec.envs.overcooked.observation import get_obs as oc_get_obs
 from cec.envs.overcooked.state import NUM_ACTIONS, NUM_CHANNELS, EnvParams, EnvState
-from cec.levels import GRID_SIZE, Level, LevelError, unstack_levels, validate_level
+from cec.levels import GRID_SIZE, Level, LevelError, stack_levels, unstack_levels, validate_level
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate
+from cec.levels.named import resolve_levels
 
 AGENTS = ("agent_0", "agent_1")
 
@@ -95,13 +97,15 @@ def _resolve(levels: LevelSource) -> Level | GeneratorConfig:
     if isinstance(levels, str):
         if levels == "generator":
             return GeneratorConfig()
-        if levels not in CLASSIC_ASCII:
-            names = ", ".join(sorted(CLASSIC_ASCII))
+        if levels in CLASSIC_ASCII:
+            return classic_level(levels)
+        try:  # names, sets, kitchen files and folders, as everywhere (`cec.levels.named`)
+            found = list(resolve_levels(levels).values())
+        except ConfigError as err:
             raise ValueError(
-                f"unknown level source {levels!r}; give a classic layout name ({names}), 'generator', "
-                "a Level or a GeneratorConfig"
-            )
-        return classic_level(levels)
+                f"level source {levels!r}: {err}; or give 'generator', a Level or a GeneratorConfig"
+            ) from None
+        return found[0] if len(found) == 1 else stack_levels(found)
     if isinstance(levels, Level):
         level = jax.tree.map(jnp.asarray, levels)
         ndim = np.ndim(level.grid)
