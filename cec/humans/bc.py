@@ -104,11 +104,23 @@ def _levels() -> Any:
 
 @jax.jit
 def _observe(levels, kitchen, length, *state):  # type: ignore[no-untyped-def]
-    def one(k, length, *state):  # type: ignore[no-untyped-def]
-        level = jax.tree.map(lambda x: x[k], levels)
-        return get_obs(EnvState(level, *state), EnvParams(max_steps=length))
+    level = jax.tree.map(lambda x: x[kitchen], levels)
+    return _observe_states(EnvState(level, *state), length)
 
-    return jax.vmap(one)(kitchen, length, *state)
+
+def seat_observations(states: EnvState, length: np.ndarray) -> np.ndarray:
+    """Both seats' observations, uint8[N, 2, 9, 9, 26], of a batch of states (every leaf, the level's
+    included, with a leading axis N), each as in play with `length[i]` its episode length: the
+    observations `samples` computes, for states recorded elsewhere (`cec play`'s rounds)."""
+    return np.asarray(_observe_states(states, np.asarray(length, np.int32)))
+
+
+@jax.jit
+def _observe_states(states, length):  # type: ignore[no-untyped-def]
+    def one(state, length):  # type: ignore[no-untyped-def]
+        return get_obs(state, EnvParams(max_steps=length))
+
+    return jax.vmap(one)(states, length)
 
 
 @dataclass(frozen=True)

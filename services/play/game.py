@@ -16,7 +16,8 @@ Compact state (what the browser draws and what the records keep for every step),
 
 with `dir` the `Direction` codes (0 N, 1 S, 2 E, 3 W), `inv`/`item` the `Item` codes (0 none, 1 onion,
 2 plate, 3 dish) and `status` the pot status of `cec.envs.overcooked.state` (23 empty .. 20 full, counting
-down to 0 ready). Together with the round's level (ASCII in the records) it determines the `EnvState`.
+down to 0 ready). Together with the round's level (ASCII in the records) it determines the `EnvState`
+(`expand_state`, its inverse).
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from cec.agents.network import ActorCritic, LSTMState, NetworkConfig, empty_hist
 from cec.config import ConfigError
 from cec.envs import overcooked as oc
 from cec.evaluation.zoo import Policy, ZooEntry, load_policies, load_policy, load_zoo, random_policy
-from cec.levels import Level, Tile, unstack_levels
+from cec.levels import GRID_SIZE, Direction, Item, Level, Tile, unstack_levels
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch
 from cec.levels.heldout import heldout_levels
@@ -315,6 +316,62 @@ def compact_state(state: Any, pots: np.ndarray, index: int | None = None) -> dic
     }
 
 
+def expand_state(compact: dict[str, Any], level: Level) -> oc.EnvState:
+    """The host (NumPy) `EnvState` a compact state describes on `level`: the inverse of `compact_state`
+    (`episode` 0). `ValueError` naming the field if the compact state does not fit the kitchen."""
+    try:
+        pos = np.asarray(compact["pos"], np.int32)
+        direction = np.asarray(compact["dir"], np.int32)
+        inv = np.asarray(compact["inv"], np.int32)
+        t = int(compact["t"])
+        items_list, pots_list = list(compact["items"]), list(compact["pots"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise ValueError(f"not a compact state ({type(err).__name__}: {err})") from err
+    n = GRID_SIZE
+    if pos.shape != (2, 2) or not ((pos >= 0) & (pos < n)).all():
+        raise ValueError(f"pos {compact['pos']!r} is not two (row, col) cells of the {n}x{n} frame")
+    if direction.shape != (2,) or not ((direction >= 0) & (direction < len(Direction))).all():
+        raise ValueError(f"dir {compact['dir']!r} is not two facings (0..{len(Direction) - 1})")
+    if inv.shape != (2,) or not ((inv >= 0) & (inv < len(Item))).all():
+        raise ValueError(f"inv {compact['inv']!r} is not two held items (0..{len(Item) - 1})")
+    if t < 0:
+        raise ValueError(f"t {t} is negative")
+    items = np.zeros((n, n), np.uint8)
+    for entry in items_list:
+        r, c, item = _triple("item", entry)
+        if not (0 <= r < n and 0 <= c < n and 0 < item < len(Item)):
+            raise ValueError(f"item {entry!r} is not [row, col, item 1..{len(Item) - 1}] in the frame")
+        items[r, c] = item
+    pot = np.zeros((n, n), np.uint8)
+    cells = {(int(r), int(c)) for r, c in pot_cells(level)}
+    seen = set()
+    for entry in pots_list:
+        r, c, status = _triple("pot", entry)
+        if (r, c) not in cells or not 0 <= status <= oc.POT_EMPTY:
+            raise ValueError(f"pot {entry!r} is not [row, col, status 0..{oc.POT_EMPTY}] of a pot cell")
+        pot[r, c] = status
+        seen.add((r, c))
+    if seen != cells:
+        raise ValueError(f"pots {sorted(seen)} are not the kitchen's pot cells {sorted(cells)}")
+    host_level: Level = jax.tree.map(np.asarray, level)
+    host: dict[str, Any] = {  # NumPy leaves, as `jax.device_get` gives an env state
+        "agent_pos": pos,
+        "agent_dir": direction,
+        "agent_inv": inv,
+        "items": items,
+        "pot": pot,
+        "time": np.int32(t),
+        "episode": np.int32(0),
+    }
+    return oc.EnvState(level=host_level, **host)
+
+
+def _triple(kind: str, entry: Any) -> tuple[int, int, int]:
+    if not isinstance(entry, list) or len(entry) != 3 or not all(isinstance(v, int) for v in entry):
+        raise ValueError(f"{kind} {entry!r} is not three integers [row, col, code]")
+    return entry[0], entry[1], entry[2]
+
+
 # ---------------------------------------------------------------------------------------------------------
 # ROUNDS
 # ---------------------------------------------------------------------------------------------------------
@@ -470,6 +527,7 @@ __all__ = [
     "check_level_spec",
     "compact_state",
     "compiled",
+    "expand_state",
     "level_json",
     "load_partner",
     "resolve_level",
