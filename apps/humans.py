@@ -3,6 +3,7 @@
     cec humans import [--out data/humans]          read overcooked-ai's games once, write the safe format
     cec humans replay [--data data/humans]         replay every recorded step through our dynamics
     cec humans bc [--data data/humans] [--out DIR]  behaviour-cloned human proxies -> DIR/zoo.yaml
+    cec humans bc --from-play RECORDS [--out DIR]   one proxy from a study's `cec play` records
 
 `import` is the only place the games' pickles are read: they are pandas pickles inside the trusted
 `overcooked-ai` package (the `peers` extra: `pip install -e '.[peers]'`), and they are opened only after
@@ -18,6 +19,7 @@ import dataclasses
 import hashlib
 import importlib.util
 import json
+import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -187,13 +189,7 @@ def train_proxies(
     """Trains a `bc` and an `hp` proxy per kitchen (`all`: one across the five), saves each as a one-seed
     parameter checkpoint, writes `out/zoo.yaml` (algorithm `human_proxy`; per-kitchen proxies restricted
     to their kitchen) and `out/bc.json` (figures per proxy). Returns the manifest."""
-    from apps.zoo_build import MANIFEST, merge_manifest
-    from cec import checkpoints
-    from cec.evaluation.zoo import Policy, save_policy
-    from cec.humans.bc import PROXY_NETWORK, samples, train_bc
-    from cec.training.config import TrainConfig
-    from cec.training.tasks import EnvConfig
-    from cec.training.trainer import config_dict
+    from cec.humans.bc import samples, train_bc
 
     config = config or BCConfig()
     unknown = sorted(set(kitchens) - {"all", *KITCHENS})
@@ -210,41 +206,73 @@ def train_proxies(
                 code = KITCHENS.index(kitchen)
                 fit, stop = fit.select(fit.kitchen == code), stop.select(stop.kitchen == code)
             result = train_bc(fit, stop, config, log=log, label=name)
-            carrier = TrainConfig(
-                algorithm="ippo",
-                env=EnvConfig(levels=KITCHENS[0] if kitchen == "all" else kitchen),
-                network_overrides=PROXY_NETWORK,
-                seed=config.seed,
-            )  # the network and game the parameters belong to
-            policy = Policy(name, "human_proxy", config.seed, result.params, PROXY_NETWORK, carrier.env)
-            saved = save_policy(
-                policy, out / name, config=config_dict(carrier), env_steps=0, update=result.best_epoch
-            )
-            entry: dict[str, Any] = {
-                "name": name,
-                "algorithm": "human_proxy",
-                "seed": config.seed,
-                "checkpoint": name,
-                "sha256": checkpoints.read_meta(saved)["sha256"],
-            }
-            if kitchen != "all":
-                entry["levels"] = [kitchen]
-            entries.append(entry)
+            entries.append(_save_proxy(out, name, result, config, None if kitchen == "all" else kitchen))
             figures[name] = {
                 "kitchen": kitchen,
                 "trained_on": fit_on,
                 "early_stopped_on": stop_on,
-                "samples": len(fit),
-                "best_epoch": result.best_epoch,
-                "cross_entropy": round(result.test_cross_entropy, 4),
-                "accuracy": round(result.test_accuracy, 4),
-                **_frequency_baseline(fit, stop),
-                "history": result.history,
+                **_proxy_figures(fit, stop, result),
             }
             acc, ce = result.test_accuracy, result.test_cross_entropy
             log_line(
                 log, "humans", f"{name}: on the {stop_on} games accuracy {acc:.3f}, cross-entropy {ce:.3f}"
             )
+    return _write_proxies(out, entries, figures, config)
+
+
+def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: str | None) -> dict[str, Any]:
+    """Saves a trained proxy as `out/name` (a one-seed parameter checkpoint, algorithm `human_proxy`);
+    returns its zoo entry (restricted to `kitchen` when one is given)."""
+    from cec import checkpoints
+    from cec.evaluation.zoo import Policy, save_policy
+    from cec.humans.bc import PROXY_NETWORK
+    from cec.training.config import TrainConfig
+    from cec.training.tasks import EnvConfig
+    from cec.training.trainer import config_dict
+
+    carrier = TrainConfig(
+        algorithm="ippo",
+        env=EnvConfig(levels=kitchen or KITCHENS[0]),
+        network_overrides=PROXY_NETWORK,
+        seed=config.seed,
+    )  # the network and game the parameters belong to
+    policy = Policy(name, "human_proxy", config.seed, result.params, PROXY_NETWORK, carrier.env)
+    saved = save_policy(
+        policy, out / name, config=config_dict(carrier), env_steps=0, update=result.best_epoch
+    )
+    entry: dict[str, Any] = {
+        "name": name,
+        "algorithm": "human_proxy",
+        "seed": config.seed,
+        "checkpoint": name,
+        "sha256": checkpoints.read_meta(saved)["sha256"],
+    }
+    if kitchen is not None:
+        entry["levels"] = [kitchen]
+    return entry
+
+
+def _proxy_figures(fit: Any, stop: Any, result: Any) -> dict[str, Any]:
+    """A trained proxy's figures: sample counts, the kept epoch, its held-out accuracy and cross-entropy
+    beside the frequency-only baseline's, and the per-epoch history."""
+    return {
+        "samples": len(fit),
+        "early_stop_samples": len(stop),
+        "best_epoch": result.best_epoch,
+        "cross_entropy": round(result.test_cross_entropy, 4),
+        "accuracy": round(result.test_accuracy, 4),
+        **_frequency_baseline(fit, stop),
+        "history": result.history,
+    }
+
+
+def _write_proxies(
+    out: Path, entries: list[dict[str, Any]], figures: dict[str, Any], config: BCConfig
+) -> Path:
+    """Adds proxies' figures to `out/bc.json` and their entries to `out/zoo.yaml` (proxies saved there
+    earlier under other names stay); returns the manifest."""
+    from apps.zoo_build import MANIFEST, merge_manifest
+
     figures_file = out / "bc.json"
     if figures_file.is_file():  # proxies of other kitchens trained earlier stay
         figures = {**json.loads(figures_file.read_text())["proxies"], **figures}
@@ -253,6 +281,75 @@ def train_proxies(
     return merge_manifest(
         out / MANIFEST, "Written by `cec humans bc`: behaviour-cloned human proxies.", entries
     )
+
+
+def play_proxy(
+    records: str | Path, out: str | Path, *, config: BCConfig | None = None, log: TextIO = sys.stderr
+) -> Path:
+    """Clones one proxy, `play_<study>`, from a study's `cec play` records (`records`: the study's records
+    folder, `<storage dir>/<study name>`): every step of every finished round (practice included) gives
+    the human seat's observation and action (`services.play.human_samples`). It is fitted on the first
+    half of the participants (sorted by id) and early-stopped on the others; with a single participant,
+    on the first half of their rounds and early-stopped on the rest. Saved and entered in `out/zoo.yaml`
+    and `out/bc.json` as `train_proxies` does. Returns the manifest."""
+    from cec.humans.bc import train_bc
+    from services.play.human_samples import human_samples, read_play_records
+
+    config = config or BCConfig()
+    out = Path(out)
+    recs = read_play_records(records)
+    participants = sorted(recs.rounds)
+    name = "play_" + re.sub(r"[^A-Za-z0-9_-]", "_", recs.study)
+    rounds = [r for p in participants for r in recs.rounds[p]]
+    log_line(
+        log,
+        "humans",
+        f"{recs.folder}: {len(participants)} participant(s) with {len(rounds)} finished round(s), "
+        f"{recs.steps} human steps (practice included; {recs.participants_without_rounds} participant(s) "
+        "without a finished round)",
+    )
+    if len(participants) >= 2:
+        half = (len(participants) + 1) // 2
+        fit_rounds = [r for p in participants[:half] for r in recs.rounds[p]]
+        stop_rounds = [r for p in participants[half:] for r in recs.rounds[p]]
+        split = "participants"
+        trained_on, stopped_on = _count(half, "participant"), _count(len(participants) - half, "participant")
+    else:
+        if len(rounds) < 2:
+            raise ConfigError(
+                f"{recs.folder}: one participant with one finished round; a proxy needs two participants, "
+                "or two finished rounds of one, to fit on one part and early-stop on the other"
+            )
+        half = (len(rounds) + 1) // 2
+        fit_rounds, stop_rounds = rounds[:half], rounds[half:]
+        split = "rounds"
+        trained_on, stopped_on = _count(half, "round"), _count(len(rounds) - half, "round")
+        log_line(
+            log,
+            "humans",
+            f"a single participant ({participants[0]}): split by rounds instead of participants, fitted on "
+            f"their first {half} finished round(s), early-stopped on the last {len(rounds) - half}",
+        )
+    fit, stop = human_samples(fit_rounds, participants), human_samples(stop_rounds, participants)
+    result = train_bc(fit, stop, config, log=log, label=name)
+    entry = _save_proxy(out, name, result, config, None)
+    figures = {
+        name: {
+            "kitchen": "play",
+            "source": str(recs.folder),
+            "study": recs.study,
+            "levels": sorted({str(r.start["level"]) for r in rounds}),
+            "split": split,
+            "trained_on": trained_on,
+            "early_stopped_on": stopped_on,
+            "fit_participants": sorted({r.participant for r in fit_rounds}),
+            "early_stop_participants": sorted({r.participant for r in stop_rounds}),
+            **_proxy_figures(fit, stop, result),
+        }
+    }
+    acc, ce = result.test_accuracy, result.test_cross_entropy
+    log_line(log, "humans", f"{name}: on the {stopped_on} accuracy {acc:.3f}, cross-entropy {ce:.3f}")
+    return _write_proxies(out, [entry], figures, config)
 
 
 def _frequency_baseline(fit: Any, stop: Any) -> dict[str, float]:
@@ -264,9 +361,24 @@ def _frequency_baseline(fit: Any, stop: Any) -> dict[str, float]:
     }
 
 
+def _count(n: int, noun: str) -> str:
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def _cmd_bc(args: argparse.Namespace) -> int:
     config = BCConfig(epochs=args.epochs, seed=args.seed)
-    manifest = train_proxies(args.data, args.out, kitchens=args.kitchens or ("all", *KITCHENS), config=config)
+    if args.from_play is not None:
+        from services.play.recording import RecordError
+
+        if args.kitchens:
+            return _bc_error("--kitchens applies to --data (the published games), not to --from-play")
+        try:
+            manifest = play_proxy(args.from_play, args.out, config=config)
+        except (ConfigError, RecordError) as err:
+            return _bc_error(str(err))
+    else:
+        kitchens = args.kitchens or ("all", *KITCHENS)
+        manifest = train_proxies(args.data or DEFAULT_DATA, args.out, kitchens=kitchens, config=config)
     figures = json.loads((manifest.parent / "bc.json").read_text())["proxies"]
     print(f"wrote {manifest}")
     print(f"{'proxy':<22} {'held-out games':<15} {'accuracy':>8} {'CE':>6}   frequency-only: accuracy, CE")
@@ -274,6 +386,11 @@ def _cmd_bc(args: argparse.Namespace) -> int:
         print(f"{name:<22} {f['early_stopped_on']:<15} {f['accuracy']:>8.3f} {f['cross_entropy']:>6.3f}"
               f"   {f['frequency_accuracy']:.3f}, {f['frequency_cross_entropy']:.3f}")  # fmt: skip
     return 0
+
+
+def _bc_error(message: str) -> int:
+    print(f"cec humans bc: error: {message}", file=sys.stderr)
+    return 2
 
 
 def add_subcommands(sub: Any) -> None:
@@ -291,8 +408,18 @@ def add_subcommands(sub: Any) -> None:
     )
     rep.add_argument("--data", default=DEFAULT_DATA, help=f"imported folder (default {DEFAULT_DATA})")
     rep.set_defaults(func=_cmd_replay)
-    bc = humans_sub.add_parser("bc", help="behaviour-clone human proxies (bc: train games, hp: test games)")
-    bc.add_argument("--data", default=DEFAULT_DATA, help=f"imported folder (default {DEFAULT_DATA})")
+    bc = humans_sub.add_parser(
+        "bc",
+        help="behaviour-clone human proxies (bc: train games, hp: test games; or one from cec play records)",
+    )
+    source = bc.add_mutually_exclusive_group()
+    source.add_argument("--data", help=f"imported folder (default {DEFAULT_DATA})")
+    source.add_argument(
+        "--from-play",
+        metavar="DIR",
+        help="a study's `cec play` records folder (<storage dir>/<study name>): one proxy, play_<study>, "
+        "from the human seat of every finished round",
+    )
     bc.add_argument(
         "--out", default=DEFAULT_PROXIES, help=f"proxies and zoo.yaml (default {DEFAULT_PROXIES})"
     )
