@@ -127,7 +127,8 @@ class OvercookedMultiAgentEnv:
 
     Args:
         levels: the kitchens (see the module docstring): a classic layout name, ``"generator"``, a `Level`
-            (one, or a batch to draw from), or a `GeneratorConfig`.
+            (one, or a batch to draw from), a `GeneratorConfig`, or any level spec of `cec.levels.named`
+            (held-out names and sets, ASCII kitchen files, folders of them).
         params: the dynamics settings (rewards, episode length, random start facings). The defaults are
             the paper's shaped rewards (10 / 15 / 3); JaxMARL 0.2.0's are
             ``EnvParams(onion_in_pot_reward=3, soup_pickup_reward=5, plate_pickup_reward=3)``.
