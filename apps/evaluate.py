@@ -43,7 +43,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     env = policies[0].env.name if policies else "overcooked"
     if own is not None and env != "overcooked":
         raise ConfigError(f"--levels names Overcooked kitchen files, but the zoo's policies play {env}")
-    levels = own or eval_levels(env, config.levels)
+    levels = own if own is not None else eval_levels(env, config.levels)
     games = plan_games(policies, levels.names, config.pairs) if policies else []
     log.info(
         "%d policies (%d skipped), %d levels, %d games x %d episodes",

@@ -166,9 +166,9 @@ class Task:
         if self.env == "overcooked" and self.levels in CLASSIC_ASCII:
             return _broadcast(classic_level(self.levels), (n, k))
         if self.env == "overcooked":  # the user's kitchen files, uniformly
-            stacked = kitchen_set(self.levels).levels
-            pick = jax.vmap(lambda kk: jax.random.randint(kk, (k,), 0, len(kitchen_set(self.levels).names)))
-            return jax.tree.map(lambda x: jnp.asarray(x)[pick(env_keys(key, env_ids))], stacked)
+            kitchens = kitchen_set(self.levels)
+            pick = jax.vmap(lambda kk: jax.random.randint(kk, (k,), 0, len(kitchens.names)))
+            return jax.tree.map(lambda x: jnp.asarray(x)[pick(env_keys(key, env_ids))], kitchens.levels)
         if self.levels in ("fixed", "multi_task"):
             return _broadcast(dd.fixed_level() if self.levels == "fixed" else dd.multi_task_level(), (n, k))
         multi = self.levels == "procedural_multi_task"
