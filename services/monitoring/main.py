@@ -1,0 +1,78 @@
+"""`python -m services.monitoring`: Prometheus (and Grafana, when installed) for a CEC stack until Ctrl-C."""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import signal
+import threading
+from collections.abc import Sequence
+
+from cec.config import ConfigError, load_config
+from services.monitoring.config import (
+    METRICS_PORTS,
+    MonitoringConfig,
+    MonitoringError,
+)
+from services.monitoring.servers import start_monitoring
+
+
+# --- python -m services.monitoring --------------------------------------------------------------------------
+def _parse_target(text: str) -> tuple[str, str]:
+    job, sep, address = text.partition("=")
+    if not sep:
+        raise argparse.ArgumentTypeError(f"expected job=host:port, got {text!r}")
+    return job, address
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="python -m services.monitoring",
+        description="Start Prometheus (and Grafana, when installed) for a CEC stack; Ctrl-C stops them.",
+    )
+    parser.add_argument(
+        "--target",
+        action="append",
+        type=_parse_target,
+        default=[],
+        metavar="JOB=HOST:PORT",
+        help="a /metrics endpoint to scrape (repeatable); default: the embedded stack's ports "
+        + ", ".join(f"{job}=127.0.0.1:{port}" for job, port in METRICS_PORTS.items()),
+    )
+    parser.add_argument(
+        "--prometheus-config", help="use this Prometheus config instead (e.g. cluster/prometheus-ray.yml)"
+    )
+    parser.add_argument("--run-dir", default="runs/monitoring", help="where data and logs go")
+    parser.add_argument(
+        "set", nargs="*", metavar="key=value", help="MonitoringConfig overrides, e.g. grafana=false"
+    )
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    if args.target and args.prometheus_config:
+        print("error: give --target or --prometheus-config, not both", flush=True)
+        return 2
+    try:
+        config = load_config(MonitoringConfig, None, args.set)
+    except ConfigError as err:
+        print(f"config error: {err}", flush=True)
+        return 2
+    targets: dict[str, list[str]] | None = None
+    if args.target:
+        targets = {}
+        for job, address in args.target:
+            targets.setdefault(job, []).append(address)
+    try:
+        monitoring = start_monitoring(args.run_dir, targets, config, config_file=args.prometheus_config)
+    except MonitoringError as err:
+        print(f"error: {err}", flush=True)
+        return 1
+    stop = threading.Event()
+    for sig in (signal.SIGTERM, signal.SIGINT):
+        signal.signal(sig, lambda *_: stop.set())
+    with monitoring:
+        print(monitoring.describe(), flush=True)
+        print("monitoring ready; Ctrl-C stops it", flush=True)
+        with contextlib.suppress(KeyboardInterrupt):
+            stop.wait()
+    return 0
