@@ -133,9 +133,10 @@ def _cmd_render(args: argparse.Namespace) -> int:
 def _render_partners(level: Level, args: argparse.Namespace) -> tuple[Path, float]:
     """`cec render --partners A B`: an episode of two trained policies (checkpoints, run directories or
     shipped policies' names) as a GIF."""
+    from cec.agents.policy import load_policy
+    from cec.agents.zoo import ZooEntry
     from cec.envs.overcooked.render import rollout_frames, save_gif
     from cec.evaluation.crossplay import episode_states
-    from cec.evaluation.zoo import ZooEntry, load_policy
 
     a, b = (load_policy(ZooEntry(spec, spec)) for spec in args.partners)
     states, team_return = episode_states(
@@ -175,7 +176,8 @@ def _cmd_levels_sample(args: argparse.Namespace) -> int:
 
 
 def _cmd_levels_validate(args: argparse.Namespace) -> int:
-    from cec.levels.heldout import content_hash, heldout_levels
+    from cec.levels.fingerprint import content_hash
+    from cec.levels.heldout import heldout_levels
     from cec.levels.solvability import validate_solvable
 
     level = _load_level(args.file)  # malformed: LevelError, exit 2

@@ -19,10 +19,11 @@ log = logging.getLogger("cec")
 
 
 def _cmd_eval(args: argparse.Namespace) -> int:
+    from cec.agents.policy import load_policies
+    from cec.agents.zoo import load_zoo
     from cec.config import ConfigError
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels, plan_games
     from cec.evaluation.results import write_csv
-    from cec.evaluation.zoo import load_policies, load_zoo
     from cec.levels.named import names_files
 
     config = EvalConfig(

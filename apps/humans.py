@@ -224,7 +224,7 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     """Saves a trained proxy as `out/name` (a one-seed parameter checkpoint, algorithm `human_proxy`);
     returns its zoo entry (restricted to `kitchen` when one is given)."""
     from cec import checkpoints
-    from cec.evaluation.zoo import Policy, save_policy
+    from cec.agents.policy import Policy, save_policy
     from cec.humans.bc import PROXY_NETWORK
     from cec.training.config import TrainConfig
     from cec.training.tasks import EnvConfig

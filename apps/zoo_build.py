@@ -22,7 +22,7 @@ neither on disk nor trained by an earlier entry, and finished runs whose config 
 A run that already finished is skipped, an interrupted one resumed, so running the same command again
 after an interruption continues the build.
 
-`ZOO_DIR/zoo.yaml` is a manifest in the format of `cec.evaluation.zoo` (one policy per run and seed, each
+`ZOO_DIR/zoo.yaml` is a manifest in the format of `cec.agents.zoo` (one policy per run and seed, each
 at its run's final checkpoint, paths relative to ZOO_DIR), extended with `env`, `layout` (the training
 level distribution), `env_steps` and `sha256` (of the checkpoint's state file, from its meta.json).
 Single-task Overcooked agents carry `levels: [<kitchen>]` (they meet others on their own kitchen only).
@@ -413,12 +413,13 @@ def export_zoo(
     manifest: str | Path, out_dir: str | Path, *, names: Sequence[str] = (), prefix: str = ""
 ) -> Path:
     """`cec zoo export`: copies a zoo's policies (all, or those named) as one-seed parameter checkpoints
-    (`cec.evaluation.zoo.save_policy`: no optimiser state, a few MB each) into `out_dir`, with a manifest
+    (`cec.agents.policy.save_policy`: no optimiser state, a few MB each) into `out_dir`, with a manifest
     `out_dir/zoo.yaml` (paths relative to it, SHA-256 pinned). Entries already in `out_dir/zoo.yaml` under
     other names are kept, so a folder can collect policies from several zoos. `prefix` is put before each
     exported policy's name. Nothing is written when an entry cannot be loaded."""
     from cec import checkpoints
-    from cec.evaluation.zoo import load_policy, load_zoo, resolve_checkpoint, save_policy
+    from cec.agents.policy import load_policy, resolve_checkpoint, save_policy
+    from cec.agents.zoo import load_zoo
 
     entries = load_zoo(manifest)
     unknown = sorted(set(names) - {e.name for e in entries})
@@ -449,7 +450,7 @@ def export_zoo(
                 **({"levels": list(policy.levels)} if policy.levels else {}),
             }
         )
-    header = "Written by `cec zoo export`: one-seed parameter checkpoints (cec.evaluation.zoo.save_policy)."
+    header = "Written by `cec zoo export`: one-seed parameter checkpoints (cec.agents.policy.save_policy)."
     return merge_manifest(out / MANIFEST, header, written)
 
 

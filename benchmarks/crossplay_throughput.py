@@ -28,9 +28,9 @@ from typing import Any
 import jax
 
 from cec.agents.network import network_preset
+from cec.agents.policy import Policy, random_policy
 from cec.envs import overcooked as oc
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels, plan_games
-from cec.evaluation.zoo import Policy, random_policy
 from cec.training.tasks import EnvConfig
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module

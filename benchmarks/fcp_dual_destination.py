@@ -31,9 +31,10 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from cec.agents.policy import load_policy
+from cec.agents.zoo import ZooEntry
 from cec.config import from_dict
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.evaluation.zoo import ZooEntry, load_policy
 from cec.training.config import TrainConfig
 from cec.training.trainer import train
 

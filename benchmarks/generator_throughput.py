@@ -49,8 +49,9 @@ import jax.numpy as jnp
 
 from cec.envs import overcooked as oc
 from cec.levels import Level
+from cec.levels.fingerprint import fingerprint
 from cec.levels.generator import GeneratorConfig, _sample, generate_batch
-from cec.levels.heldout import fingerprint, heldout_fingerprints
+from cec.levels.heldout import heldout_fingerprints
 from cec.levels.solvability import check
 
 try:  # run as a script (benchmarks/ on sys.path) or as `python -m benchmarks.generator_throughput`

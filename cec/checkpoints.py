@@ -192,9 +192,11 @@ def _meta_problem(meta: dict) -> str | None:
     return None
 
 
-def load(path: str | Path, template: T) -> tuple[T, dict]:
+def load(path: str | Path, template: T, *, part: str | None = None) -> tuple[T, dict]:
     """Loads the state at `path` into the structure of `template` and returns (state, meta).
 
+    `part` loads one top-level field of the stored state only (e.g. `"params"` of a training state, for
+    which `template` is then the parameters' structure); the whole file's checksum is still verified.
     Raises `CheckpointError` if the files are missing, the checksum does not match (corruption or
     tampering), or the stored tree does not have `template`'s structure, shapes and dtypes.
     """
@@ -213,6 +215,10 @@ def load(path: str | Path, template: T) -> tuple[T, dict]:
         )
     try:
         raw = serialization.msgpack_restore(data)
+        if part is not None:
+            if not isinstance(raw, dict) or part not in raw:
+                raise CheckpointError(f"checkpoint {path} holds no {part!r} (not a training state?)")
+            raw = raw[part]
         state = serialization.from_state_dict(template, raw)
     except (ValueError, KeyError, TypeError) as err:
         raise CheckpointError(

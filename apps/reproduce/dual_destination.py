@@ -334,10 +334,10 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
     apart (their networks may differ, and cross-algorithm pairs are not in the paper's figures); the
     oracle's self-play is kept once.
     """
+    from cec.agents.policy import load_policies, scripted_policy
+    from cec.agents.zoo import load_zoo
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
-    from cec.evaluation.scripted import scripted_policy
-    from cec.evaluation.zoo import load_policies, load_zoo
 
     policies, skipped = load_policies(load_zoo(manifest))
     if skipped:
@@ -367,7 +367,7 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
 def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
     """What a variant's results depend on: the evaluation settings and every zoo entry (its checkpoint and
     the state's SHA-256 that `cec zoo build` pinned)."""
-    from cec.evaluation.zoo import load_zoo
+    from cec.agents.zoo import load_zoo
 
     entries = [[e.name, e.seed, str(e.checkpoint), e.sha256] for e in load_zoo(manifest)]
     return {
@@ -380,8 +380,8 @@ def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
 
 def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> Any:
     """`evaluate_variant`, or the table an earlier invocation wrote (`vdir/results.csv`) when nothing it
-    depends on has changed (`evaluation_key`); see `apps.reproduce.cached_table`."""
-    from apps.reproduce import cached_table
+    depends on has changed (`evaluation_key`); see `apps.reproduce.common.cached_table`."""
+    from apps.reproduce.common import cached_table
 
     key = evaluation_key(mode, variant, manifest)
     play = lambda: evaluate_variant(mode, variant, manifest, log=log)  # noqa: E731

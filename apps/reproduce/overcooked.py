@@ -234,10 +234,10 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     """Per level set and algorithm: its seeds and the scripted cook, every pair (XP, SP, with the cook),
     both seat orders -> one `EpisodeTable`. On the held-out kitchens single-kitchen agents play every
     kitchen (the paper's baselines there)."""
+    from cec.agents.policy import load_policies, scripted_policy
+    from cec.agents.zoo import load_zoo
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
-    from cec.evaluation.scripted import scripted_policy
-    from cec.evaluation.zoo import load_policies, load_zoo
 
     policies, skipped = load_policies(load_zoo(manifest))
     if skipped:
@@ -269,9 +269,9 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
 
 def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) -> Any:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
-    SHA-256) nor the settings changed (`apps.reproduce.cached_table`)."""
-    from apps.reproduce import cached_table
-    from cec.evaluation.zoo import load_zoo
+    SHA-256) nor the settings changed (`apps.reproduce.common.cached_table`)."""
+    from apps.reproduce.common import cached_table
+    from cec.agents.zoo import load_zoo
 
     zoo = sorted([e.name, e.seed, e.checkpoint, e.sha256] for e in load_zoo(manifest))
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
@@ -442,10 +442,11 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, poli
     best cross-play episode (said so in its caption)."""
     import jax
 
+    from cec.agents.policy import load_policies
+    from cec.agents.zoo import load_zoo
     from cec.envs.overcooked.render import rollout_frames, save_gif
     from cec.evaluation.crossplay import episode_states, eval_levels
     from cec.evaluation.curves import plot_learning_curves
-    from cec.evaluation.zoo import load_policies, load_zoo
 
     figures = {}
     runs = {d.name: d for d in sorted((work / "zoo" / "runs").glob("*")) if (d / "metrics.csv").exists()}

@@ -10,6 +10,8 @@ theory and reports (docs/evaluation.md).
 Plotting (`cec.evaluation.report`) imports matplotlib on use; alpha-rank needs the `egta` extra.
 """
 
+from cec.agents.policy import Policy, load_policies, load_policy, random_policy
+from cec.agents.zoo import ZooEntry, load_zoo, parse_zoo
 from cec.evaluation.crossplay import (
     EvalConfig,
     EvalLevels,
@@ -20,15 +22,6 @@ from cec.evaluation.crossplay import (
     plan_games,
 )
 from cec.evaluation.results import EpisodeTable, ResultsError, SkippedEntry, read_csv, write_csv
-from cec.evaluation.zoo import (
-    Policy,
-    ZooEntry,
-    load_policies,
-    load_policy,
-    load_zoo,
-    parse_zoo,
-    random_policy,
-)
 
 __all__ = [
     "EpisodeTable",

@@ -35,10 +35,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from cec.agents.network import ActorCritic, NetworkConfig, embed_partner_model
+from cec.agents.policy import Policy
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
-from cec.evaluation.zoo import Policy
 from cec.levels.level import stack_levels
 from cec.levels.named import resolve_levels
 from cec.training.rollout import init_carry, rollout
@@ -232,7 +232,7 @@ def _module(network: NetworkConfig, task: Task, scripted: tuple[str, ...]) -> An
     """The network both seats run: the policies' own, or with scripted kinds `WithScripted` around it."""
     if not scripted:
         return ActorCritic(network, task.num_actions)
-    from cec.evaluation.scripted import WithScripted
+    from cec.agents.scripted import WithScripted
 
     return WithScripted(network, task.num_actions, scripted=scripted)
 
@@ -267,7 +267,7 @@ def play_fn(
 
     (pair_params: leaves [G, 2, ...], levels: [E, ...], keys: [E, 2], env_params) -> `EpisodeOutcome`
     with [G, E] leaves: every game plays one episode of `num_steps` steps on every env. With `scripted`
-    kinds the network is `cec.evaluation.scripted.WithScripted` (parameters from `with_scripted_params`):
+    kinds the network is `cec.agents.scripted.WithScripted` (parameters from `with_scripted_params`):
     each seat's parameter set says whether it plays the network or one of the kinds.
     """
     net = _module(network, task, scripted)
@@ -354,7 +354,7 @@ def _seat_params(policy: Policy, network: NetworkConfig, task: Task, kinds: tupl
     """The parameter set a policy brings to a seat of the evaluation's network (see `play_fn`)."""
     if not kinds:
         return embed_partner_model(policy.params, policy.network, network, task.num_actions)
-    from cec.evaluation.scripted import placeholder_params, with_scripted_params
+    from cec.agents.scripted import placeholder_params, with_scripted_params
 
     if policy.scripted is None:
         own = embed_partner_model(policy.params, policy.network, network, task.num_actions)
@@ -380,7 +380,7 @@ def crossplay(
     The first network policy leads (its network and env settings; a scripted one only when every policy
     is scripted). Policies that cannot join (another game, network or observation settings, or none of
     their levels in the set) are added to the table's skipped entries with the reason, like the `skipped`
-    entries passed in (zoo entries that failed to load). Scripted policies (`cec.evaluation.scripted`)
+    entries passed in (zoo entries that failed to load). Scripted policies (`cec.agents.scripted`)
     play in the same jitted calls as the networks, in both seats.
     """
     skipped_out = list(skipped)

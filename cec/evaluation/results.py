@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cec.agents.zoo import SkippedEntry
+
 COLUMNS = (
     "policy_a",
     "algorithm_a",
@@ -56,16 +58,6 @@ _FLOAT = ("return", "deliveries", "collisions", "shaped_return")
 
 class ResultsError(ValueError):
     """A results file is missing, malformed or mixes incompatible runs."""
-
-
-@dataclass(frozen=True)
-class SkippedEntry:
-    """A zoo entry that was not evaluated, and why (recorded in the table, never silently dropped)."""
-
-    name: str
-    algorithm: str
-    seed: int
-    reason: str
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ It trains on the train games and keeps the parameters of the epoch with the lowe
 test games (early stopping). Both seats of every step are samples; an observation is computed exactly as
 in play, with the game's own length as the episode length (the urgency channel).
 
-A proxy is saved as a one-seed parameter checkpoint (`cec.evaluation.zoo.save_policy`), algorithm
+A proxy is saved as a one-seed parameter checkpoint (`cec.agents.policy.save_policy`), algorithm
 `human_proxy`, so it loads as a zoo entry like any trained agent (`cec eval --zoo`, `cec play`).
 """
 

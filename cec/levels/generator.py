@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from cec.config import ConfigError
+from cec.levels.fingerprint import fingerprint
+from cec.levels.heldout import heldout_fingerprints
 from cec.levels.level import Level, Tile
 from cec.levels.solvability import check
 from cec.levels.structures import CELLS, NUM_TRANSFORMS, StructureTables, base_structures, build_tables
@@ -211,8 +213,6 @@ def _sample(key: jax.Array, config: GeneratorConfig) -> tuple[Level, jax.Array, 
 
 
 def _exclusions(config: GeneratorConfig, exclude: jax.Array | None) -> jax.Array:
-    from cec.levels.heldout import heldout_fingerprints
-
     if exclude is not None:
         return exclude
     with jax.ensure_compile_time_eval():
@@ -222,8 +222,6 @@ def _exclusions(config: GeneratorConfig, exclude: jax.Array | None) -> jax.Array
 
 def _rejected(level: Level, config: GeneratorConfig, exclude: jax.Array) -> jax.Array:
     """Unsolvable (never, by construction) or one of the excluded (held-out) kitchens."""
-    from cec.levels.heldout import fingerprint
-
     excluded = jnp.any(jnp.all(fingerprint(level)[None, :] == exclude, axis=-1))
     return excluded | ~check(level, config.allow_decoys).solvable
 
@@ -251,7 +249,7 @@ def generate_with_info(
     """`generate`, also returning how the level was drawn (for tests and statistics).
 
     Args:
-        exclude: uint32[E, 2] fingerprints (`cec.levels.heldout.fingerprint`) never to emit; default: the
+        exclude: uint32[E, 2] fingerprints (`cec.levels.fingerprint.fingerprint`) never to emit; default: the
             held-out set when `config.exclude_heldout`, else nothing.
     """
     return _draw(key, config, _exclusions(config, exclude))

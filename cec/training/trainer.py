@@ -32,8 +32,11 @@ import yaml
 
 from cec import checkpoints
 from cec.agents.network import ActorCritic, init_params
+from cec.agents.policy import load_policy
+from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
 from cec.training.config import TrainConfig
+from cec.training.population import load_population
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
 from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
 from cec.training.tasks import Task
@@ -102,8 +105,6 @@ class Trainer:
 
     def load_partners(self) -> None:
         """Loads FCP's population (a `ConfigError` listing every unusable entry; a no-op otherwise)."""
-        from cec.training.partners import load_population
-
         if self.config.partner.kind == "fcp" and self.population is None:
             pop = load_population(
                 self.config.partner, self.config.env, self.config.network_config, self.task.obs_shape
@@ -226,8 +227,6 @@ class Trainer:
 
     def initial_params(self) -> Any:
         """The parameters of `init_from` (checked against this run's game, observations and network)."""
-        from cec.evaluation.zoo import ZooEntry, load_policy
-
         cfg = self.config
         seed = None if cfg.init_from_seed < 0 else cfg.init_from_seed
         try:

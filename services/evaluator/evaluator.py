@@ -43,6 +43,8 @@ import jax
 import numpy as np
 
 from cec import checkpoints
+from cec.agents.policy import Policy, load_policy, resolve_checkpoint
+from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError, from_dict
 from cec.evaluation.analysis import pair_level_scores, pair_scores
 from cec.evaluation.crossplay import EvalConfig, EvalLevels, crossplay, eval_levels
@@ -55,7 +57,6 @@ from cec.evaluation.results import (
     write_csv,
 )
 from cec.evaluation.stats import sem
-from cec.evaluation.zoo import Policy, ZooEntry, load_policy, resolve_checkpoint
 from cec.training.tracking import Tracker, TrackingConfig
 from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
 from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in

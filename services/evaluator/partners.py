@@ -16,9 +16,10 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 from cec import checkpoints
+from cec.agents.policy import Policy, load_policy, resolve_checkpoint
+from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.evaluation.results import SkippedEntry
-from cec.evaluation.zoo import Policy, ZooEntry, load_policy, load_zoo, resolve_checkpoint
 from cec.levels.classic import CLASSIC_ASCII
 from services.evaluator.config import EvaluatorConfig
 from services.store import ControlPlane, PartnerRecord

@@ -1,6 +1,6 @@
 """Prioritized level replay (Jiang et al., 2021) over levels whose learning scores consumers report.
 
-Levels are identified by content (`cec.levels.heldout.fingerprint_host`); a reported level's score
+Levels are identified by content (`cec.levels.fingerprint.fingerprint_host`); a reported level's score
 replaces its previous one. Sampling mixes rank prioritisation of the scores with a staleness term:
 
     P(i) = (1 - rho) * h_i^(1/T) / sum_j h_j^(1/T) + rho * (t - t_i) / sum_j (t - t_j),   h_i = 1 / rank_i
@@ -21,7 +21,7 @@ from collections import deque
 
 import numpy as np
 
-from cec.levels.heldout import fingerprint_host
+from cec.levels.fingerprint import fingerprint_host
 from cec.levels.level import GRID_SIZE, NUM_AGENTS, Level
 from services.level_server.config import CurriculumConfig
 

@@ -21,8 +21,9 @@ import numpy as np
 
 from cec.levels.ascii import from_ascii
 from cec.levels.counting import count_layouts
+from cec.levels.fingerprint import content_hash, fingerprint_host
 from cec.levels.generator import GeneratorConfig, generate_batch_with_info
-from cec.levels.heldout import content_hash, fingerprint_host, heldout_fingerprints, heldout_levels
+from cec.levels.heldout import heldout_fingerprints, heldout_levels
 from cec.levels.level import Level, stack_levels, validate_level
 from cec.levels.membership import in_space
 from cec.levels.solvability import validate_solvable

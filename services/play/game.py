@@ -36,9 +36,10 @@ import numpy as np
 
 from cec import checkpoints
 from cec.agents.network import ActorCritic, LSTMState, NetworkConfig, empty_history, forward, network_preset
+from cec.agents.policy import Policy, load_policies, load_policy, random_policy
+from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.envs import overcooked as oc
-from cec.evaluation.zoo import Policy, ZooEntry, load_policies, load_policy, load_zoo, random_policy
 from cec.levels import GRID_SIZE, Direction, Item, Level, Tile, unstack_levels
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch

@@ -19,8 +19,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
-from cec.evaluation.zoo import SHIPPED
 from services.play.config import MODES, StudyConfig, load_study
 from services.store import StoreError
 

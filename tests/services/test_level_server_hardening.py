@@ -19,7 +19,8 @@ from hypothesis import strategies as st
 
 from cec.config import ConfigError, load_config
 from cec.levels import from_ascii, stack_levels
-from cec.levels.heldout import fingerprint_host, heldout_levels
+from cec.levels.fingerprint import fingerprint_host
+from cec.levels.heldout import heldout_levels
 from cec.levels.solvability import validate_solvable
 from cec.levels.v1 import level_service_pb2 as pb
 from cec.levels.wire import encode

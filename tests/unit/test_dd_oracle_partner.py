@@ -10,12 +10,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from cec.agents.policy import load_policies, random_policy, scripted_policy
+from cec.agents.zoo import parse_zoo
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.envs.dual_destination.partner import MEMORY_SIZE, oracle_partner_step
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.evaluation.scripted import scripted_policy
-from cec.evaluation.zoo import load_policies, parse_zoo, random_policy
 from cec.training.tasks import EnvConfig
 
 KEY = jax.random.PRNGKey(0)

@@ -16,13 +16,14 @@ import pytest
 from apps.cli import main
 from cec import checkpoints
 from cec.agents.network import ActorCritic, network_preset
+from cec.agents.policy import Policy, load_policies, random_policy
+from cec.agents.zoo import load_zoo, parse_zoo
 from cec.config import ConfigError, from_dict
 from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc
 from cec.evaluation.analysis import pair_level_scores, pair_scores, policies_of
 from cec.evaluation.crossplay import EvalConfig, crossplay, episode_key, eval_levels, plan_games
 from cec.evaluation.results import EpisodeTable, read_csv, write_csv
-from cec.evaluation.zoo import Policy, load_policies, load_zoo, parse_zoo, random_policy
 from cec.levels.classic import CLASSIC_ASCII
 from cec.training.config import TrainConfig
 from cec.training.rollout import init_carry, rollout

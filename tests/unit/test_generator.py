@@ -11,8 +11,9 @@ from scipy import stats
 from cec.config import ConfigError, load_config
 from cec.envs import overcooked as oc
 from cec.levels import Tile, unstack_levels, validate_level
+from cec.levels.fingerprint import fingerprint
 from cec.levels.generator import GeneratorConfig, generate, generate_batch, generate_with_info
-from cec.levels.heldout import fingerprint, heldout_fingerprints
+from cec.levels.heldout import heldout_fingerprints
 from cec.levels.membership import in_space
 from cec.levels.solvability import check, flood
 from cec.levels.structures import NUM_TRANSFORMS

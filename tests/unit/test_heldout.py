@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 from cec.envs import overcooked as oc
-from cec.levels import heldout
+from cec.levels import heldout, heldout_build
+from cec.levels.fingerprint import content_hash, fingerprint
 from cec.levels.solvability import validate_solvable
 
 
@@ -18,21 +19,19 @@ def test_set_has_the_classics_then_100_generated_distinct_solvable_levels() -> N
     names = [n for n, _ in levels]
     assert names[:5] == list(oc.CLASSIC_ASCII) and len(levels) == 105
     assert names[5:] == [f"generated_{i:03d}" for i in range(100)]
-    hashes = {heldout.content_hash(lv) for _, lv in levels}
+    hashes = {content_hash(lv) for _, lv in levels}
     assert len(hashes) == 105
     for _, lv in levels:
         assert validate_solvable(lv) == []
 
 
 def test_file_matches_its_seeds() -> None:
-    assert heldout.render_file(heldout.build_generated()) == heldout.DATA.read_text()
+    assert heldout_build.render_file(heldout_build.build_generated()) == heldout.DATA.read_text()
 
 
 def test_host_and_jax_fingerprints_agree() -> None:
     batch = heldout.heldout_batch()
-    np.testing.assert_array_equal(
-        np.asarray(jax.vmap(heldout.fingerprint)(batch)), heldout.heldout_fingerprints()
-    )
+    np.testing.assert_array_equal(np.asarray(jax.vmap(fingerprint)(batch)), heldout.heldout_fingerprints())
     assert len({tuple(r) for r in heldout.heldout_fingerprints().tolist()}) == 105
 
 

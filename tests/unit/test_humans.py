@@ -83,8 +83,9 @@ def test_proxies_are_zoo_entries_that_play(imported, tmp_path):
     """`cec humans bc` on one kitchen: bc and hp proxies, their figures, a manifest that loads and plays."""
     import yaml
 
+    from cec.agents.policy import load_policies
+    from cec.agents.zoo import load_zoo
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-    from cec.evaluation.zoo import load_policies, load_zoo
     from cec.humans.bc import BCConfig
 
     out = tmp_path / "proxies"

@@ -111,7 +111,7 @@ def test_replay_prefers_high_scores_and_keeps_the_best_at_capacity():
     # at capacity: a higher score replaces the lowest (0.1), a lower one is dropped
     assert plr.update(jax.tree.map(lambda x: x[4:], levels), np.array([1.0, 0.05])) == 1 and len(plr) == 4
     sample = plr.sample(2000)
-    from cec.levels.heldout import fingerprint_host
+    from cec.levels.fingerprint import fingerprint_host
 
     fps = [fp.tobytes() for fp in fingerprint_host(sample)]
     top = fingerprint_host(jax.tree.map(lambda x: x[1], levels)).tobytes()

@@ -7,10 +7,12 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from cec.agents.policy import load_policy
+from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError, from_dict
-from cec.evaluation.zoo import ZooEntry, load_policy
 from cec.training.config import TrainConfig
-from cec.training.partners import PartnerConfig, PopulationEntry, load_population, mixture_log_probs
+from cec.training.partners import PartnerConfig, PopulationEntry, mixture_log_probs
+from cec.training.population import load_population
 from cec.training.ppo import PPOConfig, make_batch, ppo_loss
 from cec.training.rollout import rollout
 from cec.training.trainer import Trainer, train
@@ -248,8 +250,8 @@ def test_networks_with_and_without_a_partner_model_cross_play_exactly():
     import dataclasses
 
     from cec.agents.network import ActorCritic, embed_partner_model, forward_partner, network_preset
+    from cec.agents.policy import random_policy
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-    from cec.evaluation.zoo import random_policy
     from cec.training.tasks import EnvConfig
 
     base = network_preset("small", "dual_destination")

@@ -15,9 +15,10 @@ import yaml
 
 from apps.cli import main
 from apps.humans import play_proxy
+from cec.agents.policy import load_policies
+from cec.agents.zoo import load_zoo
 from cec.config import from_dict
 from cec.envs import overcooked as oc
-from cec.evaluation.zoo import load_policies, load_zoo
 from cec.humans.bc import BCConfig
 from cec.levels.classic import classic_level
 from services.play.config import StudyConfig

@@ -9,10 +9,10 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from cec.agents.policy import scripted_policy
 from cec.envs import overcooked as oc
 from cec.envs.overcooked.scripted import _seat_action, scripted_actions, state_from_obs
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.evaluation.scripted import scripted_policy
 from cec.levels.heldout import heldout_levels
 from cec.training.tasks import EnvConfig
 

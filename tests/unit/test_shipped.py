@@ -11,10 +11,10 @@ import pytest
 
 from apps.cli import build_parser, parse_args
 from cec import checkpoints
+from cec.agents.policy import load_policy, resolve_checkpoint, scripted_policy
+from cec.agents.zoo import SHIPPED, SHIPPED_ZOO, ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.evaluation.scripted import scripted_policy
-from cec.evaluation.zoo import SHIPPED, SHIPPED_ZOO, ZooEntry, load_policy, load_zoo, resolve_checkpoint
 from services.play.main import free_play_config, prepare
 
 SHIPPED_NAMES = [e.name for e in load_zoo(SHIPPED)]

@@ -13,8 +13,9 @@ import yaml
 
 from apps.zoo_build import build_zoo, export_zoo, plan_zoo
 from cec import checkpoints
+from cec.agents.policy import load_policies, load_policy
+from cec.agents.zoo import load_zoo
 from cec.config import ConfigError
-from cec.evaluation.zoo import load_policies, load_policy, load_zoo
 from cec.training import trainer
 
 PRESETS = Path(__file__).resolve().parents[2] / "configs" / "train"

@@ -1,4 +1,4 @@
-"""Scripted policies in cross-play: zoo entries without a checkpoint, played through the one rollout.
+"""Scripted policies: zoo entries without a checkpoint, played through the one rollout.
 
 A scripted policy is a pure step function `(memory float32[M], obs) -> (memory, action)` of what one seat
 observes. To batch it with networks in the same jitted cross-play call (`cec.evaluation.crossplay`),
@@ -24,12 +24,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec.agents.network import ActorCritic, LSTMState, network_preset
+from cec.agents.network import ActorCritic, LSTMState, init_params
 from cec.config import ConfigError
 from cec.envs.dual_destination import partner as dd_partner
 from cec.envs.overcooked import scripted as oc_scripted
-from cec.evaluation.zoo import Policy
-from cec.training.tasks import EnvConfig
 
 #: The log-probability given to every action but the scripted one (a deterministic policy).
 NEVER = -1e9
@@ -72,41 +70,6 @@ def scripted_kind(kind: str) -> ScriptedKind:
     if kind not in SCRIPTED:
         raise ConfigError(f"unknown scripted policy {kind!r}; choose one of {sorted(SCRIPTED)}")
     return SCRIPTED[kind]
-
-
-def scripted_policy(
-    kind: str,
-    name: str | None = None,
-    *,
-    env: EnvConfig | None = None,
-    algorithm: str | None = None,
-    seed: int = 0,
-    levels: tuple[str, ...] | None = None,
-) -> Policy:
-    """A `Policy` that plays the scripted `kind` (no parameters; its `network` is only a placeholder).
-
-    Args:
-        kind: a key of `SCRIPTED`.
-        name, algorithm: labels in the result table (default: the kind).
-        env: the env settings it plays when it leads an evaluation (only scripted policies in it); with
-            networks in the evaluation it plays theirs. Default: the kind's game with default settings.
-        seed, levels: as for any zoo entry.
-    """
-    spec = scripted_kind(kind)
-    if env is None:
-        env = EnvConfig(name=spec.env, levels="fixed" if spec.env == "dual_destination" else "generator")
-    if env.name != spec.env:
-        raise ConfigError(f"scripted policy {kind!r} plays {spec.env}, not {env.name}")
-    return Policy(
-        name or kind,
-        algorithm or kind,
-        seed,
-        None,
-        network_preset("small", spec.env),
-        env,
-        levels,
-        scripted=kind,
-    )
 
 
 class WithScripted(ActorCritic):
@@ -175,7 +138,5 @@ def with_scripted_params(params: Any, kind_index: int) -> dict:
 
 def placeholder_params(network: ActorCritic, obs_shape: tuple[int, ...]) -> Any:
     """Zero parameters of `network`'s shapes (a scripted seat's unused network part)."""
-    from cec.agents.network import init_params
-
     shapes = jax.eval_shape(lambda k: init_params(network, k, obs_shape), jax.random.PRNGKey(0))
     return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shapes)

@@ -1,0 +1,164 @@
+"""The partner zoo's manifest: the policies it names (name, algorithm, seed, checkpoint or scripted kind).
+
+A zoo manifest is YAML or JSON (docs/evaluation.md):
+
+    policies:
+      - {name: cec_s0, algorithm: cec, seed: 0, checkpoint: runs/cec-s0/checkpoints/update_000001000}
+      - {name: ippo_cramped_s0, algorithm: ippo, seed: 0, checkpoint: runs/ippo-cr-s0, levels: [cramped_room]}
+    - {name: oracle, scripted: dd_oracle}      # a scripted policy (`cec.agents.scripted`), no checkpoint
+
+`checkpoint` is a checkpoint directory or a run directory (its latest checkpoint); relative paths are
+relative to the manifest's folder. `algorithm` and `seed` default to the checkpoint's metadata; `seed`
+picks the seed out of a multi-seed checkpoint. `levels` (optional) restricts the entry to those levels
+(single-task agents): a pairing is played on the levels both partners accept. `sha256` (optional, written
+by `cec zoo build`) pins the checkpoint's state; `env`, `layout` and `env_steps` are descriptive only.
+
+A malformed manifest is a `ConfigError` (nothing is evaluated). An entry whose checkpoint is missing,
+corrupt or does not fit the evaluation is *skipped with its reason recorded* (`SkippedEntry`), never
+silently dropped.
+
+The package ships trained policies (`cec/shipped/zoo.yaml`, written by `cec zoo export`): the zoo name
+`shipped` is that manifest wherever a zoo is taken (`cec eval --zoo shipped`, the evaluator, `cec play`),
+and an entry's name stands for its checkpoint wherever a checkpoint is taken (`cec play serve --checkpoint
+cec_cpu_s200`). A shipped checkpoint holds one seed's parameters only (`save_policy`), a few MB.
+
+Turning entries into runnable policies is `cec.agents.policy` (`load_policy`, `load_policies`).
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from cec.agents.scripted import scripted_kind
+from cec.config import ConfigError
+
+#: The zoo name that stands for the manifest of the policies shipped with the package.
+SHIPPED = "shipped"
+SHIPPED_ZOO = Path(__file__).resolve().parents[1] / "shipped" / "zoo.yaml"
+_ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "scripted", "levels", "sha256")
+#: Descriptive keys `cec zoo build` also writes (not used to load the policy).
+_INFO_KEYS = ("env", "layout", "env_steps")
+
+
+@dataclass(frozen=True)
+class ZooEntry:
+    """One policy of the zoo as the manifest names it.
+
+    Attributes:
+        name: unique label (used in the result table).
+        checkpoint: checkpoint or run directory (absolute, or relative to the current directory); empty
+            for a scripted entry.
+        algorithm: algorithm label (`cec`, `ippo`, `fcp`, ...); None: the checkpoint's metadata.
+        seed: which seed (also picks it out of a multi-seed checkpoint); None: the checkpoint's only seed.
+        levels: level names this policy plays; None: every level of the evaluation.
+        sha256: the checkpoint state's SHA-256 when the zoo was built; a checkpoint that no longer
+            matches is skipped (it was replaced since).
+        scripted: a scripted policy kind (`cec.agents.scripted.SCRIPTED`, e.g. `dd_oracle`) played
+            instead of a checkpoint; `algorithm` defaults to the kind, `seed` to 0.
+    """
+
+    name: str
+    checkpoint: str
+    algorithm: str | None = None
+    seed: int | None = None
+    levels: tuple[str, ...] | None = None
+    sha256: str | None = None
+    scripted: str | None = None
+
+
+@dataclass(frozen=True)
+class SkippedEntry:
+    """A zoo entry that could not be loaded, and why (`cec.agents.policy.load_policies`; recorded in result
+    tables, never silently dropped)."""
+
+    name: str
+    algorithm: str
+    seed: int
+    reason: str
+
+
+def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> list[ZooEntry]:
+    """Entries from manifest data: a list of entries, or a mapping with a `policies` list."""
+    if isinstance(data, Mapping):
+        extra = sorted(set(data) - {"policies"})
+        if extra:
+            raise ConfigError(f"{where}: unknown top-level key(s) {extra}; a zoo has one key, `policies`")
+        data = data.get("policies")
+    if not isinstance(data, list) or not data:
+        raise ConfigError(f"{where}: expected a non-empty list of policies (see docs/evaluation.md)")
+    entries: list[ZooEntry] = []
+    for i, item in enumerate(data):
+        at = f"{where}: policies[{i}]"
+        if not isinstance(item, Mapping):
+            raise ConfigError(f"{at} must be a mapping with keys {list(_ENTRY_KEYS)}, got {item!r}")
+        unknown = sorted(set(item) - set(_ENTRY_KEYS) - set(_INFO_KEYS))
+        if unknown:
+            raise ConfigError(f"{at}: unknown key(s) {unknown}; valid keys: {list(_ENTRY_KEYS + _INFO_KEYS)}")
+        if not isinstance(item.get("name"), str) or not item["name"]:
+            raise ConfigError(f"{at}: `name` is required and must be a non-empty string")
+        scripted = item.get("scripted")
+        if scripted is not None:
+            if not isinstance(scripted, str):
+                raise ConfigError(f"{at}: `scripted` must be a scripted policy kind, got {scripted!r}")
+            try:
+                scripted_kind(scripted)
+            except ConfigError as err:
+                raise ConfigError(f"{at}: {err}") from err
+            if "checkpoint" in item or "sha256" in item:
+                raise ConfigError(
+                    f"{at}: a `scripted` entry has no `checkpoint` or `sha256`; give one or the other"
+                )
+        elif not isinstance(item.get("checkpoint"), str) or not item["checkpoint"]:
+            raise ConfigError(
+                f"{at}: `checkpoint` is required and must be a non-empty string (or give `scripted`)"
+            )
+        algorithm = item.get("algorithm")
+        if algorithm is not None and (not isinstance(algorithm, str) or not algorithm):
+            raise ConfigError(f"{at}: `algorithm` must be a non-empty string, got {algorithm!r}")
+        seed = item.get("seed")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise ConfigError(f"{at}: `seed` must be an integer, got {seed!r}")
+        levels = item.get("levels")
+        if levels is not None:
+            if not isinstance(levels, list) or not levels or not all(isinstance(x, str) for x in levels):
+                raise ConfigError(f"{at}: `levels` must be a non-empty list of level names, got {levels!r}")
+            levels = tuple(levels)
+        sha256 = item.get("sha256")
+        if sha256 is not None and (not isinstance(sha256, str) or len(sha256) != 64):
+            raise ConfigError(f"{at}: `sha256` must be a 64-digit hex string, got {sha256!r}")
+        if scripted is not None:
+            entries.append(ZooEntry(item["name"], "", algorithm, seed, levels, None, scripted))
+            continue
+        path = Path(item["checkpoint"])
+        if not path.is_absolute():
+            path = Path(base_dir) / path
+        entries.append(ZooEntry(item["name"], str(path), algorithm, seed, levels, sha256))
+    names = [e.name for e in entries]
+    dupes = sorted({n for n in names if names.count(n) > 1})
+    if dupes:
+        raise ConfigError(f"{where}: policy names must be unique; repeated: {dupes}")
+    return entries
+
+
+def load_zoo(path: str | Path) -> list[ZooEntry]:
+    """Reads a zoo manifest (YAML or JSON); relative checkpoint paths are relative to its folder. The name
+    `shipped` (`SHIPPED`) is the manifest of the policies shipped with the package."""
+    p = SHIPPED_ZOO if str(path) == SHIPPED else Path(path)
+    if not p.is_file():
+        raise ConfigError(f"zoo manifest {str(p)!r} does not exist (see docs/evaluation.md for the format)")
+    try:
+        data = json.loads(p.read_text()) if p.suffix == ".json" else yaml.safe_load(p.read_text())
+    except (yaml.YAMLError, json.JSONDecodeError) as err:
+        raise ConfigError(f"zoo manifest {str(p)!r} is not valid YAML/JSON: {err}") from err
+    return parse_zoo(data, p.parent, where=str(p))
+
+
+def shipped_entries() -> list[ZooEntry]:
+    """The policies shipped with the package (empty when none are)."""
+    return load_zoo(SHIPPED_ZOO) if SHIPPED_ZOO.is_file() else []

@@ -1,0 +1,57 @@
+"""The import structure a contributor relies on: no module import cycles, and every code folder a package.
+
+The layer contract itself (cec <- services <- apps) is import-linter's, in `make lint`. What it cannot see
+is checked here: a cycle between two modules (held together by function-local imports, it breaks as soon
+as one of them is imported first from a new place), and a folder without `__init__.py`, which the import
+graph silently leaves out.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import grimp
+import networkx as nx
+
+ROOT = Path(__file__).resolve().parents[2]
+PACKAGES = ("cec", "services", "apps")
+
+
+def _graph() -> nx.DiGraph:
+    imports = grimp.build_graph(*PACKAGES)  # every import statement, function-local ones included
+    graph = nx.DiGraph()
+    for module in imports.modules:
+        graph.add_node(module)
+        for target in imports.find_modules_directly_imported_by(module):
+            graph.add_edge(module, target)
+    return graph
+
+
+def cycles(graph: nx.DiGraph) -> list[list[str]]:
+    return sorted(sorted(c) for c in nx.strongly_connected_components(graph) if len(c) > 1)
+
+
+def test_no_import_cycles_between_modules() -> None:
+    graph = _graph()
+    assert "cec.training.trainer" in graph and "services.stack" in graph  # the graph sees the whole tree
+    assert cycles(graph) == []
+
+
+def test_the_cycle_check_finds_a_cycle() -> None:
+    graph = _graph()
+    graph.add_edge("cec.levels.level", "cec.levels.generator")  # the generator imports level.py
+    assert any("cec.levels.level" in c and "cec.levels.generator" in c for c in cycles(graph))
+
+
+def test_every_code_folder_is_a_package() -> None:
+    skip = {"__pycache__", "data", "shipped", "static"}
+    missing = [
+        str(folder.relative_to(ROOT))
+        for name in PACKAGES
+        for folder in [ROOT / name, *(ROOT / name).rglob("*")]
+        if folder.is_dir()
+        and not skip & set(folder.relative_to(ROOT).parts)
+        and any(folder.glob("*.py"))
+        and not (folder / "__init__.py").is_file()
+    ]
+    assert missing == []
