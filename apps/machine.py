@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import os
 import platform
-import subprocess
-from pathlib import Path
 from typing import Any
 
 
@@ -33,25 +31,6 @@ def machine_info(load_average: bool = False) -> dict[str, Any]:
             info["load_average_1_5_15min"] = []
     info.update(python=platform.python_version(), jax=jax.__version__)
     return info
-
-
-REPO = Path(__file__).resolve().parents[1]
-
-
-def git_rev(root: Path = REPO) -> str:
-    """The checkout's short commit, marked when the working tree has uncommitted changes; in a copy without
-    its `.git` (a lent GPU machine gets the tree alone), `$CEC_GIT_REV` as the sender set it, else unknown."""
-    copied = os.environ.get("CEC_GIT_REV") or "unknown"
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=root
-        )
-        if out.returncode != 0:
-            return copied
-        dirty = subprocess.run(["git", "status", "--porcelain"], capture_output=True, text=True, cwd=root)
-        return (out.stdout.strip() or "unknown") + (" (uncommitted changes)" if dirty.stdout.strip() else "")
-    except OSError:
-        return copied
 
 
 def log_line(log: Any, who: str, msg: str) -> None:

@@ -157,9 +157,9 @@ def machine() -> dict[str, Any]:
 
 
 def git_rev() -> str:
-    from apps.machine import git_rev as rev
+    from cec.checkpoints import code_version
 
-    return rev()
+    return code_version(short=True)
 
 
 def main(argv: list[str] | None = None) -> int:

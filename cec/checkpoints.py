@@ -91,23 +91,22 @@ class RunLock:
         self.release()
 
 
-def code_version() -> str:
-    """The git commit of the code (with `+dirty` if the tree has changes), or `unknown`."""
+def code_version(*, short: bool = False) -> str:
+    """The git commit of the code, `+dirty` when tracked files have uncommitted changes (the one revision
+    helper: checkpoints, the level server, reports and benchmarks). In a copy without its `.git` (a lent
+    GPU machine gets the tree alone): `$CEC_GIT_REV` as the sender set it, else `unknown`."""
     root = Path(__file__).resolve().parent.parent
+
+    def git(*args: str) -> str:
+        return subprocess.run(
+            ["git", *args], cwd=root, capture_output=True, text=True, timeout=5, check=True
+        ).stdout.strip()
+
     try:
-        rev = subprocess.run(
-            ["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5, check=True
-        ).stdout.strip()
-        dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no"],
-            cwd=root,
-            capture_output=True,
-            text=True,
-            timeout=5,
-            check=True,
-        ).stdout.strip()
+        rev = git("rev-parse", *(["--short"] if short else []), "HEAD")
+        dirty = git("status", "--porcelain", "--untracked-files=no")
     except (OSError, subprocess.SubprocessError):
-        return "unknown"
+        return os.environ.get("CEC_GIT_REV") or "unknown"
     return rev + ("+dirty" if dirty else "")
 
 

@@ -42,8 +42,9 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
-from apps.machine import duration, git_rev, log_line
+from apps.machine import duration, log_line
 from apps.machine import machine_info as _machine_info
+from cec.checkpoints import code_version
 from cec.config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -939,7 +940,7 @@ def reproduce_dual_destination(
     meta = {
         "command": command or command_of(mode),
         "date": datetime.date.today().isoformat(),
-        "git": git_rev(),
+        "git": code_version(short=True),
         "machine": machine,
         "wall_s": time.perf_counter() - t_start,
         "train_s": train_s,

@@ -41,7 +41,8 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
-from apps.machine import duration, git_rev, log_line, machine_info
+from apps.machine import duration, log_line, machine_info
+from cec.checkpoints import code_version
 from cec.config import ConfigError
 from cec.levels.classic import CLASSIC_ASCII
 
@@ -496,7 +497,7 @@ def reproduce_overcooked(
     the zoo's (the exported CEC seeds)."""
     from apps.zoo_build import build_zoo
 
-    commit = git_rev()  # before this command writes anything into the checkout
+    commit = code_version(short=True)  # before this command writes anything into the checkout
     spec = _write_spec(mode, work)
     plan = plan_lines(mode, work)
     if report_only:

@@ -12,17 +12,14 @@ run interrupted between calls and resumed produces the same parameters as an uni
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import dataclasses
 import json
 import math
 import os
-import signal
 import sys
 import time
 from pathlib import Path
-from types import FrameType
 from typing import Any, NamedTuple, TextIO
 
 import jax
@@ -35,6 +32,7 @@ from cec.agents.network import ActorCritic, init_params
 from cec.agents.policy import load_policy
 from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
+from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
 from cec.training.population import load_population
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
@@ -406,35 +404,6 @@ def _duration(seconds: float) -> str:
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
-class _StopFlag:
-    """Turns SIGINT/SIGTERM into a flag checked between compiled calls (a second signal aborts)."""
-
-    def __init__(self) -> None:
-        self.stop = False
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> _StopFlag:
-        for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(ValueError):  # not the main thread: no signal handling
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        if self.stop:
-            raise KeyboardInterrupt
-        self.stop = True
-        print(
-            f"\n{signal.Signals(signum).name}: finishing the current call, then saving a checkpoint "
-            "(send again to abort without saving)",
-            file=sys.stderr,
-            flush=True,
-        )
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._old.items():
-            signal.signal(sig, handler)
-
-
 class RunFiles:
     """A run directory's files: config, metrics rows, checkpoints (shared by the trainer and the learner).
 
@@ -579,7 +548,7 @@ def _train_loop(
     if done == 0 and 0 in files.milestones:
         files.save(state, 0, milestone=True)
     interrupted = False
-    with _StopFlag() as flag:
+    with GracefulStop("finishing the current call, then saving a checkpoint") as flag:
         while done < stop_at:
             n = min(per_call, stop_at - done)
             if progress and n not in trainer._calls:

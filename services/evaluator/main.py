@@ -12,13 +12,11 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
-from types import FrameType
 from typing import Any
 
 from cec.config import ConfigError, load_config
+from cec.signals import GracefulStop
 from services.evaluator.config import EvaluatorConfig
 
 log = logging.getLogger("cec.evaluator")
@@ -29,19 +27,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "set", nargs="*", metavar="key=value", help="config overrides, e.g. store.url=redis://host:6379/0"
     )
-
-
-def _install_signals(stop: threading.Event) -> None:
-    def handler(signum: int, _frame: FrameType | None) -> None:
-        name = signal.Signals(signum).name
-        if stop.is_set():
-            print(f"{name} again: exiting now", file=sys.stderr, flush=True)
-            raise SystemExit(130)
-        log.info("%s: stopping after the current compiled call (send it again to exit at once)", name)
-        stop.set()
-
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, handler)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -81,15 +66,15 @@ def run(args: argparse.Namespace) -> int:
                 log.info("gauges restored from the newest scored checkpoint, %s", newest)
         except StoreError as err:
             log.warning("gauges not restored: %s", err)
-        stop = threading.Event()
-        _install_signals(stop)
+        stopping = GracefulStop("stopping after the current compiled call", abort_status=130)
         where = endpoint.url if endpoint is not None else "off"
         print(
             f"evaluator ready: consuming {evaluator.plane.stream_key} at {config.store.display_url} as "
             f"{config.consumer_group}/{config.consumer_name}; metrics {where}",
             flush=True,
         )
-        evaluator.serve(stop)
+        with stopping:
+            evaluator.serve(stopping.event)
     finally:
         if endpoint is not None:
             endpoint.close()

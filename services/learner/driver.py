@@ -13,16 +13,15 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import signal
 import sys
 import threading
 import time
 from pathlib import Path
-from types import FrameType
 from typing import Any, TextIO
 
 from cec import checkpoints
 from cec.config import ConfigError
+from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
 from cec.training.tracking import describe
 from cec.training.trainer import RunFiles, config_dict, trains_as
@@ -90,37 +89,6 @@ def check_level_server(address: str, token: str = "", timeout: float = 10.0) -> 
         client.close()
 
 
-class _Signals:
-    """First SIGINT/SIGTERM: ask the learner to stop after its update; second: stop now."""
-
-    def __init__(self, on_first: Any) -> None:
-        self.count = 0
-        self.on_first = on_first
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> _Signals:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, signum: int, frame: FrameType | None) -> None:
-        self.count += 1
-        if self.count > 1:
-            raise KeyboardInterrupt
-        print(
-            f"\n{signal.Signals(signum).name}: the learner finishes its update and checkpoints "
-            "(send again to stop at once)",
-            file=sys.stderr,
-            flush=True,
-        )
-        self.on_first()
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, handler in self._old.items():
-            signal.signal(sig, handler)
-
-
 def run_distributed(
     train: TrainConfig,
     dist: DistributedConfig,
@@ -155,7 +123,7 @@ def run_distributed(
             learner.stop.remote()
 
     restarts = 0
-    with _Signals(stop):
+    with GracefulStop("the learner finishes its update and checkpoints", on_first=stop):
         while True:
             ref = learner.run.remote(
                 resume=resume or restarts > 0, max_updates=max_updates, restarts=restarts
