@@ -7,6 +7,10 @@ recorded so that a later start can name any that outlived it.
   runs between fork and exec (no `preexec_fn`), so starting a child from a process where JAX's threads
   already run is safe.
 - `terminate(proc)`: SIGTERM, a grace period, then SIGKILL.
+- `Child`: the one supervisor of the services' children (Redis, Prometheus, Grafana, the services of
+  `cec up`): started through `with_parent_death` with its output appended to a log file, ready when the
+  caller's check passes (`NotReadyError`, with its output, when it exits or times out first), stopped with
+  `terminate`.
 - `ChildRecord`: a JSON file listing the children of one `cec up` (pid and command line), so that the
   next `cec up` of the same run finds and names leftovers instead of colliding with them.
 - `free_port(host)`: a port that was free a moment ago.
@@ -21,6 +25,9 @@ import shutil
 import signal
 import socket
 import subprocess
+import time
+import weakref
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 from cec.config import ConfigError
@@ -55,6 +62,150 @@ def terminate(proc: subprocess.Popen, grace_s: float = 10.0) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+class NotReadyError(Exception):
+    """A child did not become ready: it exited first (`returncode`), or `timeout_s` ran out (`returncode`
+    None, the child still runs). `output`: what it wrote to its log since it started."""
+
+    def __init__(self, name: str, returncode: int | None, output: str, timeout_s: float) -> None:
+        self.name = name
+        self.returncode = returncode
+        self.output = output
+        self.timeout_s = timeout_s
+        what = f"exited with status {returncode}" if returncode is not None else f"not ready in {timeout_s} s"
+        super().__init__(f"{name} {what}")
+
+    @property
+    def exited(self) -> bool:
+        return self.returncode is not None
+
+
+class Child:
+    """One child process of a service: output appended to a log file, killed with its parent
+    (`with_parent_death`), ready when a check passes, stopped with a grace period (`terminate`).
+
+        child = Child("prometheus", argv, log_path=run_dir / "prometheus.log").start()
+        try:
+            child.wait_ready(lambda: http_ok(ready_url), timeout_s=60)
+        except NotReadyError as err:  # exited (err.returncode) or timed out; err.output: its log since start
+            child.stop()
+            ...
+
+    A child still running when its `Child` is garbage-collected, or at interpreter exit, is stopped too.
+    `start()` again after it stopped (or died) starts a new process with the same command.
+
+    Args:
+        name: what it is, for messages.
+        argv: the command.
+        log_path: file its stdout and stderr are appended to (its parent directory is created); None: both
+            are discarded.
+        env: its whole environment (None: this process's).
+        cwd: its working directory (None: this process's).
+        new_session: start it in a session of its own, so that a Ctrl-C in the terminal reaches only this
+            process, which then stops it in order.
+        grace_s: time `stop()` allows between SIGTERM and SIGKILL.
+    """
+
+    def __init__(
+        self,
+        name: str,
+        argv: Sequence[str],
+        *,
+        log_path: Path | None = None,
+        env: Mapping[str, str] | None = None,
+        cwd: Path | None = None,
+        new_session: bool = False,
+        grace_s: float = 10.0,
+    ) -> None:
+        self.name = name
+        self.argv = list(argv)
+        self.log_path = log_path
+        self.env = dict(env) if env is not None else None
+        self.cwd = cwd
+        self.new_session = new_session
+        self.grace_s = grace_s
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._finalizer: weakref.finalize | None = None
+        self._offset = 0  # size of the log when the process started
+
+    @property
+    def proc(self) -> subprocess.Popen[bytes]:
+        """The process of the last `start()` (also after it ended)."""
+        if self._proc is None:
+            raise RuntimeError(f"{self.name} was never started")
+        return self._proc
+
+    @property
+    def running(self) -> bool:
+        return self._proc is not None and self._proc.poll() is None
+
+    @property
+    def pid(self) -> int | None:
+        """The process id while it runs."""
+        return self._proc.pid if self._proc is not None and self.running else None
+
+    def start(self) -> Child:
+        """Starts the process (nothing if it runs); returns at once: `wait_ready` waits for it."""
+        if self.running:
+            return self
+        self.stop()  # an earlier process that ended: reaped, its finalizer dropped
+        log_file = None
+        if self.log_path is not None:
+            self.log_path.parent.mkdir(parents=True, exist_ok=True)
+            self._offset = self.log_path.stat().st_size if self.log_path.exists() else 0
+            log_file = self.log_path.open("ab")
+        try:
+            self._proc = subprocess.Popen(
+                with_parent_death(self.argv),
+                stdin=subprocess.DEVNULL,
+                stdout=log_file if log_file is not None else subprocess.DEVNULL,
+                stderr=subprocess.STDOUT,
+                env=self.env,
+                cwd=self.cwd,
+                start_new_session=self.new_session,
+            )
+        finally:
+            if log_file is not None:
+                log_file.close()  # the child holds its own descriptor
+        # never leave a stray process behind
+        self._finalizer = weakref.finalize(self, terminate, self._proc, self.grace_s)
+        return self
+
+    def output(self) -> str:
+        """What the process wrote to its log since it started ('' without a log)."""
+        if self.log_path is None or not self.log_path.exists():
+            return ""
+        with self.log_path.open("rb") as f:
+            f.seek(self._offset)
+            return f.read().decode(errors="replace")
+
+    def wait_ready(self, ready: Callable[[], bool], timeout_s: float, poll_s: float = 0.1) -> None:
+        """Returns once `ready()` is true while the process runs (checked every `poll_s`). NotReadyError if
+        the process exits first or `timeout_s` runs out; the process is left as it is (`stop()` it)."""
+        proc = self.proc
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if proc.poll() is not None:
+                raise NotReadyError(self.name, proc.returncode, self.output(), timeout_s)
+            if ready():
+                return
+            time.sleep(poll_s)
+        raise NotReadyError(self.name, None, self.output(), timeout_s)
+
+    def stop(self, *, kill: bool = False, grace_s: float | None = None) -> None:
+        """Stops the process: SIGTERM, up to `grace_s` (default: the child's) to exit, then SIGKILL; with
+        `kill`, SIGKILL at once (a crash). Idempotent."""
+        if self._proc is not None:
+            if kill:
+                if self._proc.poll() is None:
+                    self._proc.kill()
+                self._proc.wait()
+            else:
+                terminate(self._proc, self.grace_s if grace_s is None else grace_s)
+        if self._finalizer is not None:
+            self._finalizer.detach()
+            self._finalizer = None
 
 
 def _cmdline(pid: int) -> str | None:

@@ -22,11 +22,7 @@ import contextlib
 import dataclasses
 import logging
 import os
-import queue
-import subprocess
 import sys
-import threading
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -35,7 +31,7 @@ from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
-from services.processes import ChildRecord, free_port, terminate, with_parent_death
+from services.processes import Child, ChildRecord, NotReadyError, free_port
 from services.status import write_stack_file
 from services.store import StoreConfig
 
@@ -108,62 +104,50 @@ def _forget_ray_address(port: int) -> None:
 
 
 class ServiceProcess:
-    """A service in a child process (`python -m <module> ...`): waits for its ready line, then copies its
-    output to a log file in the run directory."""
+    """A service in a child process (`python -m <module> ...`, a `Child`), its output appended to a log
+    file in the run directory: ready once it prints a line with `ready` (`ready_line`)."""
 
     def __init__(
         self, name: str, args: list[str], log_path: Path, ready: str, timeout: float, env: dict | None = None
     ) -> None:
         self.name = name
-        log_path.parent.mkdir(parents=True, exist_ok=True)
         self.log_path = log_path
-        self._log = open(log_path, "ab")  # noqa: SIM115 - closed in stop()
-        self.proc = subprocess.Popen(
-            with_parent_death([sys.executable, "-u", *args]),
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
+        self.child = Child(
+            name,
+            [sys.executable, "-u", *args],
+            log_path=log_path,
             env={"JAX_PLATFORMS": "cpu", **os.environ, **(env or {})},
-        )
+            grace_s=30.0,
+        ).start()
+        self.proc = self.child.proc
         self.ready_line = self._wait_for(ready, timeout)
 
     def _wait_for(self, marker: str, timeout: float) -> str:
-        """Copies the child's output to the log (a thread, for its whole life) until `marker` appears."""
-        lines: queue.Queue[str | None] = queue.Queue()
+        """The first whole line of the child's output holding `marker`; ConfigError (with the end of its
+        output) if it exits or `timeout` runs out first."""
+        found: list[str] = []
 
-        def copy() -> None:
-            assert self.proc.stdout is not None
-            for line in self.proc.stdout:
-                self._log.write(line)
-                self._log.flush()
-                lines.put(line.decode(errors="replace").rstrip())
-            lines.put(None)  # the child closed its output (exited)
+        def printed() -> bool:
+            lines = self.child.output().split("\n")[:-1]  # whole lines only: the last may be half written
+            found.extend(line.rstrip() for line in lines if marker in line)
+            return bool(found)
 
-        threading.Thread(target=copy, name=f"{self.name}-log", daemon=True).start()
-        deadline = time.monotonic() + timeout
-        tail: list[str] = []
-        while (left := deadline - time.monotonic()) > 0:
-            try:
-                text = lines.get(timeout=left)
-            except queue.Empty:
-                break
-            if text is None:
-                break
-            tail = (tail + [text])[-15:]
-            if marker in text:
-                return text
-        self.stop()
-        raise ConfigError(
-            f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
-            + "\n  ".join(tail)
-        )
+        try:
+            self.child.wait_ready(printed, timeout, poll_s=0.05)
+        except NotReadyError as err:
+            self.stop()
+            tail = [line.rstrip() for line in err.output.splitlines()[-15:]]
+            raise ConfigError(
+                f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
+                + "\n  ".join(tail)
+            ) from None
+        return found[0]
 
     def alive(self) -> bool:
-        return self.proc.poll() is None
+        return self.child.running
 
     def stop(self, timeout: float = 30.0) -> None:
-        terminate(self.proc, timeout)
-        with contextlib.suppress(Exception):
-            self._log.close()
+        self.child.stop(grace_s=timeout)
 
 
 class Stack:

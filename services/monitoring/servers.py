@@ -8,12 +8,9 @@ import logging
 import os
 import shutil
 import socket
-import subprocess
-import time
 import urllib.error
 import urllib.parse
 import urllib.request
-import weakref
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,7 +32,7 @@ from services.monitoring.config import (
     _is_loopback,
 )
 from services.monitoring.scrape import _check_targets, prometheus_config
-from services.processes import free_port, terminate, with_parent_death
+from services.processes import Child, NotReadyError, free_port
 
 log = logging.getLogger("services.monitoring")
 
@@ -70,14 +67,6 @@ def _http_get(url: str, timeout_s: float = 2.0) -> tuple[int, bytes]:
         return 0, b""
 
 
-def _log_tail(path: Path, offset: int, chars: int = 1500) -> str:
-    if not path.exists():
-        return ""
-    with path.open("rb") as f:
-        f.seek(offset)
-        return f.read().decode(errors="replace").strip()[-chars:]
-
-
 class _Server:
     """A loopback HTTP server run as a subprocess: start, wait until `ready_path` answers 200, stop."""
 
@@ -90,8 +79,7 @@ class _Server:
         self.requested_port = port
         self.port = port
         self.start_timeout_s = start_timeout_s
-        self._proc: subprocess.Popen[bytes] | None = None
-        self._finalizer: weakref.finalize | None = None
+        self._child: Child | None = None
 
     @property
     def url(self) -> str:
@@ -100,12 +88,12 @@ class _Server:
 
     @property
     def running(self) -> bool:
-        return self._proc is not None and self._proc.poll() is None
+        return self._child is not None and self._child.running
 
     @property
     def pid(self) -> int | None:
         """The server's process id while it runs."""
-        return self._proc.pid if self._proc is not None and self.running else None
+        return self._child.pid if self._child is not None else None
 
     @property
     def log_path(self) -> Path:
@@ -139,40 +127,32 @@ class _Server:
 
     def _start_once(self) -> str | None:
         command, env = self._command()
-        offset = self.log_path.stat().st_size if self.log_path.exists() else 0
-        with self.log_path.open("ab") as log_file:
-            proc = subprocess.Popen(
-                with_parent_death(command),
-                stdin=subprocess.DEVNULL,
-                stdout=log_file,
-                stderr=subprocess.STDOUT,
-                env={**os.environ, **env},
-                cwd=self.run_dir,
-                start_new_session=True,  # a Ctrl-C in the terminal reaches us; we stop it in order
+        child = Child(
+            self.name,
+            command,
+            log_path=self.log_path,
+            env={**os.environ, **env},
+            cwd=self.run_dir,
+            new_session=True,  # a Ctrl-C in the terminal reaches us; we stop it in order
+        )
+        self._child = child.start()
+        try:
+            child.wait_ready(
+                lambda: _http_get(self.url + self.ready_path, timeout_s=1.0)[0] == 200, self.start_timeout_s
             )
-        self._proc = proc
-        self._finalizer = weakref.finalize(self, terminate, proc)  # never leave a stray server behind
-        deadline = time.monotonic() + self.start_timeout_s
-        while time.monotonic() < deadline:
-            if proc.poll() is not None:
-                self._proc = None
-                tail = _log_tail(self.log_path, offset)
-                return f"exit status {proc.returncode}: {tail or '(no output)'} (log: {self.log_path})"
-            status, _ = _http_get(self.url + self.ready_path, timeout_s=1.0)
-            if status == 200:
-                return None
-            time.sleep(0.1)
-        self.stop()
-        return f"not ready within {self.start_timeout_s} s (log: {self.log_path})"
+        except NotReadyError as err:
+            self.stop()
+            if err.exited:
+                tail = err.output.strip()[-1500:]
+                return f"exit status {err.returncode}: {tail or '(no output)'} (log: {self.log_path})"
+            return f"not ready within {self.start_timeout_s} s (log: {self.log_path})"
+        return None
 
     def stop(self) -> None:
         """Stops the server (SIGTERM, then SIGKILL after 10 s). Idempotent."""
-        if self._proc is not None:
-            terminate(self._proc)
-            self._proc = None
-        if self._finalizer is not None:
-            self._finalizer.detach()
-            self._finalizer = None
+        child, self._child = self._child, None
+        if child is not None:
+            child.stop()
 
     def __enter__(self) -> _Server:
         return self.start()

@@ -4,17 +4,13 @@ Redis URL is given)."""
 from __future__ import annotations
 
 import shutil
-import signal
-import subprocess
 import tempfile
-import time
-import weakref
 from pathlib import Path
 from typing import Any
 
 import redis
 
-from services.processes import free_port, terminate, with_parent_death
+from services.processes import Child, NotReadyError, free_port
 from services.store.config import ENV_URL, INSTALL_HINT, StoreConfig, StoreError
 
 
@@ -55,8 +51,7 @@ class LocalRedis:
         self.host = host
         self.executable = executable
         self.start_timeout_s = start_timeout_s
-        self._proc: subprocess.Popen[bytes] | None = None
-        self._finalizer: weakref.finalize | None = None
+        self._child: Child | None = None
 
     @property
     def url(self) -> str:
@@ -64,7 +59,7 @@ class LocalRedis:
 
     @property
     def running(self) -> bool:
-        return self._proc is not None and self._proc.poll() is None
+        return self._child is not None and self._child.running
 
     def config(self, **overrides: Any) -> StoreConfig:
         """A StoreConfig pointing at this server (fields overridable)."""
@@ -109,63 +104,45 @@ class LocalRedis:
         conf.touch(mode=0o600)
         conf.write_text("\n".join(lines) + "\n")
         log = self.data_dir / "redis.log"
-        offset = log.stat().st_size if log.exists() else 0
-        proc = subprocess.Popen(
-            with_parent_death([binary, str(conf)]),
-            stdin=subprocess.DEVNULL,
-            stdout=subprocess.DEVNULL,
-            stderr=subprocess.PIPE,
-        )
-        self._proc = proc
-        self._finalizer = weakref.finalize(self, terminate, proc, 0.0)  # never leave a stray server behind
+        # its own log lines and anything it prints before opening that file (stderr) go to redis.log
+        child = Child("redis-server", [binary, str(conf)], log_path=log)
+        self._child = child.start()
         client = redis.Redis(
             host=self.host, port=self.port, password=self.password or None, socket_connect_timeout=0.5
         )
-        deadline = time.monotonic() + self.start_timeout_s
+
+        def answers() -> bool:
+            try:
+                return bool(client.ping())
+            except redis.BusyLoadingError:
+                return False  # replaying the append-only file
+            except redis.ConnectionError:
+                return False
+
         try:
-            while time.monotonic() < deadline:
-                if proc.poll() is not None:
-                    stderr = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
-                    tail = log.read_text(errors="replace")[offset:] if log.exists() else ""
-                    self._proc = None
-                    return (stderr + tail).strip()[-2000:] or f"exit status {proc.returncode}"
-                try:
-                    if client.ping():
-                        return None
-                except redis.BusyLoadingError:
-                    pass  # replaying the append-only file
-                except redis.ConnectionError:
-                    pass
-                time.sleep(0.02)
+            child.wait_ready(answers, self.start_timeout_s, poll_s=0.02)
+        except NotReadyError as err:
+            self.stop(kill=True)
+            if err.exited:
+                return err.output.strip()[-2000:] or f"exit status {err.returncode}"
+            return f"it did not answer within {self.start_timeout_s} s (log: {log})"
         finally:
             client.close()
-        self.stop(kill=True)
-        return f"it did not answer within {self.start_timeout_s} s (log: {log})"
+        return None
 
     @property
     def pid(self) -> int:
         """The running server's process id."""
-        if self._proc is None:
+        pid = self._child.pid if self._child is not None else None
+        if pid is None:
             raise StoreError("the local redis-server is not running")
-        return self._proc.pid
+        return pid
 
     def stop(self, *, kill: bool = False) -> None:
         """Stops the server: SIGTERM (a clean shutdown) or, with `kill`, SIGKILL (a crash)."""
-        proc, self._proc = self._proc, None
-        if proc is None:
-            return
-        if proc.poll() is None:
-            proc.send_signal(signal.SIGKILL if kill else signal.SIGTERM)
-            try:
-                proc.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                proc.kill()
-                proc.wait()
-        if proc.stderr is not None:
-            proc.stderr.close()
-        if self._finalizer is not None:
-            self._finalizer.detach()
-            self._finalizer = None
+        child, self._child = self._child, None
+        if child is not None:
+            child.stop(kill=kill)
 
     def restart(self, *, kill: bool = False) -> None:
         """Stops and starts the server on the same port and directory (its data survives)."""

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from cec.config import ConfigError
-from services.processes import ChildRecord
+from services.processes import Child, ChildRecord, NotReadyError
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -110,3 +110,58 @@ def test_cec_up_refuses_to_start_beside_leftovers_before_starting_anything(tmp_p
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert f"level server (pid {sleeper.pid}) still run" in proc.stderr
     assert not (run_dir / "redis").exists(), "nothing was started"
+
+
+def _script(code: str) -> list[str]:
+    return [sys.executable, "-u", "-c", code]
+
+
+def test_a_child_is_ready_when_its_check_passes_and_stops_with_a_grace_period(tmp_path: Path) -> None:
+    log = tmp_path / "logs" / "child.log"
+    log.parent.mkdir()
+    log.write_text("an earlier run\n")
+    code = "import time\nprint('ready', flush=True)\ntime.sleep(600)\n"
+    child = Child("sleeper", _script(code), log_path=log, grace_s=5.0).start()
+    try:
+        child.wait_ready(lambda: "ready" in child.output(), timeout_s=30, poll_s=0.02)
+        assert child.running and child.pid == child.proc.pid
+        assert child.output() == "ready\n", "only what this start wrote"
+        assert log.read_text() == "an earlier run\nready\n", "appended to the log"
+    finally:
+        child.stop()
+    assert not child.running and child.pid is None and child.proc.returncode == -signal.SIGTERM
+    child.stop()  # idempotent
+
+
+def test_a_child_that_ignores_sigterm_is_killed_after_the_grace_period(tmp_path: Path) -> None:
+    code = (
+        "import signal, time\nsignal.signal(signal.SIGTERM, signal.SIG_IGN)\n"
+        "print('up', flush=True)\ntime.sleep(600)\n"
+    )
+    child = Child("stubborn", _script(code), log_path=tmp_path / "c.log", grace_s=0.3).start()
+    child.wait_ready(lambda: "up" in child.output(), timeout_s=30, poll_s=0.02)
+    started = time.monotonic()
+    child.stop()
+    assert child.proc.returncode == -signal.SIGKILL and time.monotonic() - started < 10
+    again = child.start()  # a new process, same command
+    assert again is child and child.running
+    child.stop(kill=True)
+    assert child.proc.returncode == -signal.SIGKILL
+
+
+def test_a_child_that_exits_or_is_too_slow_is_not_ready_with_its_output(tmp_path: Path) -> None:
+    log = tmp_path / "c.log"
+    dead = Child(
+        "failing", _script("import sys\nprint('bad config', file=sys.stderr)\nsys.exit(3)"), log_path=log
+    )
+    with pytest.raises(NotReadyError, match="failing exited with status 3") as err:
+        dead.start().wait_ready(lambda: False, timeout_s=30)
+    assert err.value.exited and err.value.returncode == 3 and err.value.output == "bad config\n"
+    slow = Child("slow", ["sleep", "600"]).start()
+    try:
+        with pytest.raises(NotReadyError, match="slow not ready in 0.2 s") as err:
+            slow.wait_ready(lambda: False, timeout_s=0.2)
+        assert not err.value.exited and slow.running, "left running: the caller stops it"
+    finally:
+        slow.stop()
+    assert not slow.running
