@@ -5,11 +5,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
-import signal
-import threading
+import sys
 from collections.abc import Sequence
 
 from cec.config import ConfigError, load_config
+from cec.signals import GracefulStop
 from services.monitoring.config import (
     METRICS_PORTS,
     MonitoringConfig,
@@ -67,12 +67,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except MonitoringError as err:
         print(f"error: {err}", flush=True)
         return 1
-    stop = threading.Event()
-    for sig in (signal.SIGTERM, signal.SIGINT):
-        signal.signal(sig, lambda *_: stop.set())
-    with monitoring:
+    with monitoring, GracefulStop("stopping Prometheus and Grafana", out=sys.stdout) as stopping:
         print(monitoring.describe(), flush=True)
         print("monitoring ready; Ctrl-C stops it", flush=True)
         with contextlib.suppress(KeyboardInterrupt):
-            stop.wait()
+            stopping.event.wait()
     return 0
