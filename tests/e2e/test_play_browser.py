@@ -65,12 +65,6 @@ def _browser_paths() -> tuple[str, str]:
 
 
 @pytest.fixture(scope="module")
-def redis_server() -> Iterator[LocalRedis]:
-    with LocalRedis() as server:
-        yield server
-
-
-@pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory, redis_server: LocalRedis) -> Iterator[dict[str, Any]]:
     """`python -m services.play serve` on a free port, recording to files and Redis."""
     _browser_paths()

@@ -102,16 +102,9 @@ def zoo(ckpts):
     return path
 
 
-@pytest.fixture(scope="module")
-def server():
-    with LocalRedis() as s:
-        yield s
-
-
 @pytest.fixture
-def plane(server, tmp_path):
-    config = server.config(key_prefix=f"t{uuid.uuid4().hex[:8]}", retries=1)
-    with ControlPlane.connect(config) as p:
+def plane(redis_config):
+    with ControlPlane.connect(redis_config) as p:
         yield p
 
 
@@ -458,14 +451,14 @@ def _metrics(url: str) -> dict[str, dict[tuple, float]]:
     return out
 
 
-def test_service_scores_each_checkpoint_exactly_once_across_a_sigkill(server, ckpts, zoo, tmp_path):
+def test_service_scores_each_checkpoint_exactly_once_across_a_sigkill(redis_server, ckpts, zoo, tmp_path):
     prefix = f"e2e{uuid.uuid4().hex[:6]}"
-    plane = ControlPlane.connect(server.config(key_prefix=prefix))
+    plane = ControlPlane.connect(redis_server.config(key_prefix=prefix))
     results_dir = tmp_path / "results"
     # Level sets of 2 and 3 levels: two compiled shapes; the second compile (seconds) happens while the
     # first checkpoint's classic parts are stored and its held-out parts are not: there the kill lands.
     args = [
-        f"store.url={server.url}", f"store.key_prefix={prefix}", f"zoo={zoo}", "redis_zoo=false",
+        f"store.url={redis_server.url}", f"store.key_prefix={prefix}", f"zoo={zoo}", "redis_zoo=false",
         f"results_dir={results_dir}", "metrics_port=0", "episodes=1", f"max_steps={STEPS}", "poll_s=0.2",
         "level_sets=[{name: classic, levels: 'cramped_room,coord_ring'}, "
         "{name: heldout, levels: generated, max_levels: 3}]",

@@ -1,0 +1,75 @@
+"""What every test layer shares: one JAX compilation cache per session, and a local Redis.
+
+The suite compiles the same training and evaluation calls many times over: in process (each test builds
+its own `Trainer`, whose jitted functions are new objects) and in the `cec` commands the CLI and e2e tests
+start as child processes. JAX's persistent compilation cache, pointed at one fresh folder for the session
+(its path exported, so children inherit it), compiles each program once; a test that sets its own
+`JAX_COMPILATION_CACHE_DIR` keeps it. Set `CEC_TEST_JAX_CACHE=<dir>` to keep the cache between sessions
+(everyday work), or `CEC_TEST_JAX_CACHE=off` to compile everything afresh.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import shutil
+import sys
+import tempfile
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+_CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    chosen = os.environ.get("CEC_TEST_JAX_CACHE", "")
+    if chosen == "off" or _CACHE_ENV in os.environ:
+        return
+    if chosen:
+        Path(chosen).mkdir(parents=True, exist_ok=True)
+        folder = chosen
+    else:
+        folder = tempfile.mkdtemp(prefix="cec-tests-jax-cache-")
+        config.stash[_own_cache] = folder  # removed at the end of the session
+    os.environ[_CACHE_ENV] = folder
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.2")
+    if importlib.util.find_spec("filelock") is not None:
+        # A size bound turns on JAX's file lock: the many processes of the e2e tests (Ray actors, the
+        # evaluator) then never read an entry another one is still writing.
+        os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
+    if "jax" in sys.modules:  # imported by a plugin before this ran: its config is already read
+        import jax
+
+        jax.config.update("jax_compilation_cache_dir", folder)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+
+
+_own_cache = pytest.StashKey[str]()
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    folder = config.stash.get(_own_cache, None)
+    if folder is not None:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def redis_server() -> Iterator[Any]:
+    """One real `redis-server` on a free loopback port for the session (`services.store.LocalRedis`).
+
+    Tests that share it keep apart by key prefix (`redis_config`); a test that stops or restarts Redis
+    starts its own instead."""
+    from services.store import LocalRedis
+
+    with LocalRedis() as server:
+        yield server
+
+
+@pytest.fixture
+def redis_config(redis_server: Any) -> Any:
+    """A `StoreConfig` on the session's Redis under a key prefix of this test's own."""
+    return redis_server.config(key_prefix=f"t{uuid.uuid4().hex[:8]}", retries=1)
