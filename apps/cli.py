@@ -456,7 +456,8 @@ def _add_optional(
 def _missing_package(package: str, args: argparse.Namespace) -> int:
     print(
         f"cec {args.command}: error: needs the package {package!r}, which is not installed here "
-        "(the `cec` core trains, evaluates and reports without it); install the services: pip install -e .",
+        "(the `cec` core trains, evaluates and reports without it); install the services: "
+        "pip install -e '.[services]'",
         file=sys.stderr,
     )
     return 2
