@@ -23,6 +23,9 @@
 
 The work directory (`--work`, default `runs/reproduce/overcooked-<mode>`) holds the zoo (`zoo/`), its spec
 and the result tables; the report goes to `--out` (default `benchmarks/results/overcooked/<mode>`).
+
+Size: one command's pipeline (plan, train, evaluate, summarise, report) in the order it runs; the
+numbers it compares with are data (`paper_overcooked.yaml`).
 """
 
 from __future__ import annotations

@@ -25,6 +25,9 @@ read) is a failure: logged, counted (`cec_evaluator_failures_total`), recorded a
 (`failed`, `checkpoint`) with the reason, and acknowledged, so the stream moves on. Any other error leaves
 the event unacknowledged: it is delivered again after `store.claim_idle_s`, and given up on (dead-lettered
 by the consumer group) after `store.max_deliveries` deliveries.
+
+Size: the `Evaluator` is one consume-score-acknowledge loop whose restart and exactly-once rules read
+best in one place; the level sets, summaries and result files it alone uses sit above it.
 """
 
 from __future__ import annotations

@@ -23,6 +23,9 @@ policy lag of the update's batches, the batches dropped while gathering them, an
 Faults: a dead actor (its call raises) is restarted by Ray; the learner gives it a new incarnation and a
 fresh carry and resubmits the rollout (batches stamped with an older incarnation are dropped and counted).
 Redis being down queues checkpoint events in the run's outbox; they are published when it returns.
+
+Size: one Ray actor, `Learner`, whose sync and async paths share the actor slots, incarnations and
+the weight publication they must keep consistent.
 """
 
 from __future__ import annotations

@@ -9,6 +9,9 @@ messages are clipped (`clip`), so an echoed input never outgrows what gRPC can c
 prefetch one batch and yield under gRPC flow control: a slow client makes the server wait, never buffer.
 The standard health service and server reflection are registered; a bearer token (if configured) guards
 everything but health checks; TLS when configured.
+
+Size: the gRPC servicer and the server around it (auth, TLS, limits, health, reflection) are one
+unit of configuration; the level sources are `source.py`.
 """
 
 from __future__ import annotations

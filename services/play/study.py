@@ -10,6 +10,9 @@ method returns.
 The round plan of participant i (their partners in order, the human's seat, the zoo draws, the kitchen and
 the round seeds) comes from `numpy.random.default_rng([study.seed, i])`, so a study is reproducible; a
 round replayed after a dropped connection is the same round again.
+
+Size: one class, `Study`, whose methods share one lock and one participant table (join, plan, record,
+survey, export); splitting it would spread that invariant over files.
 """
 
 from __future__ import annotations

@@ -1,6 +1,10 @@
 """`ControlPlane`: the run registry, checkpoint events (published once by a Lua script, queued in a local
 outbox while Redis is unreachable), the partner zoo and evaluation results in one Redis (key schema in the
-package docstring, `services.store`)."""
+package docstring, `services.store`).
+
+Size: one class, `ControlPlane`, every method one Redis operation under the same key schema and retry
+wrapper; the consumer group and records are their own modules.
+"""
 
 from __future__ import annotations
 

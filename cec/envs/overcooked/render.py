@@ -11,6 +11,8 @@ state and tile size always give the same pixels.
     rollout_frames(states)     a time-stacked state (leading axis T, as `lax.scan` stacks) -> frames
     save_png / save_gif        write frames to disk
     render_episode_gif(level)  roll out one episode (random or scripted policy), save it as a GIF
+
+Size: sprite drawing for every tile, object and agent state; one table of pictures, no logic to split.
 """
 
 from __future__ import annotations
