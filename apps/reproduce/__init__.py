@@ -1,7 +1,11 @@
-"""`cec reproduce`: the paper's results end to end, one module per game.
+"""`cec reproduce`: the paper's results end to end, one command per game.
 
-dual_destination.py   `cec reproduce dual-destination` (docs/reproduce.md)
-overcooked.py         `cec reproduce overcooked` (docs/reproduce_overcooked.md)
+dual_destination.py   `cec reproduce dual-destination` (docs/reproduce.md): its modes, plan, training,
+                      evaluation and the command
+dd_paper.py           the paper's Dual Destination numbers and orderings (paper_dual_destination.yaml)
+dd_summary.py         the scores and ordering tests computed from the runs
+dd_report.py          its report (report.md, summary.json, bar plots)
+overcooked.py         `cec reproduce overcooked` (docs/reproduce_overcooked.md; paper_overcooked.yaml)
 common.py             what both share (`cached_table`)
 """
 

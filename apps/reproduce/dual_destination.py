@@ -15,7 +15,8 @@ For each variant of the game (fully observable, partially observable 3x3 view, m
    fixed task and on the 100 held-out generated tasks: every pair of different seeds of one algorithm
    (zero-shot coordination with unseen partners, the paper's measure), self-play, and every policy with
    the scripted oracle partner (`dd_oracle`) as a reference point.
-3. **Report** `report.md` (+ `summary.json`, bar plots) beside the paper's numbers: per variant, task set
+3. **Report** (`dd_summary.py`, `dd_report.py`) `report.md` (+ `summary.json`, bar plots) beside the
+   paper's numbers (`paper_dual_destination.yaml`, through `dd_paper.py`): per variant, task set
    and algorithm the normalised cross-play score (return / 200) with its standard error over seeds (each
    seed's mean with the other seeds); the paper's orderings with Welch t-tests and bootstrap intervals over
    those per-seed means (seeds are the independent units; pairs share seeds); and, where a number
@@ -30,7 +31,6 @@ from __future__ import annotations
 
 import argparse
 import datetime
-import json
 import math
 import sys
 import time
@@ -39,94 +39,39 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
 
-import numpy as np
 import yaml
 
 from apps.machine import duration, log_line
 from apps.machine import machine_info as _machine_info
+from apps.reproduce.dd_paper import (
+    ALGORITHMS,
+    LEVEL_SET_TITLES,
+    LEVEL_SETS,
+    ORACLE,
+    VARIANTS,
+    fixed_level_name,
+)
+
+# Defined by the modules below since the split; still importable from here under their old names
+from apps.reproduce.dd_paper import CLAIMS as CLAIMS
+from apps.reproduce.dd_paper import ORACLE_FIXED as ORACLE_FIXED
+from apps.reproduce.dd_paper import PAPER as PAPER
+from apps.reproduce.dd_paper import VARIANT_TITLES as VARIANT_TITLES
+from apps.reproduce.dd_paper import PaperNumber as PaperNumber
+from apps.reproduce.dd_paper import paper_number as paper_number
+from apps.reproduce.dd_report import TOLERANCE as TOLERANCE
+from apps.reproduce.dd_report import bar_plot as bar_plot
+from apps.reproduce.dd_report import write_report
+from apps.reproduce.dd_summary import ALPHA as ALPHA
+from apps.reproduce.dd_summary import ClaimResult as ClaimResult
+from apps.reproduce.dd_summary import Score as Score
+from apps.reproduce.dd_summary import TrainingStats as TrainingStats
+from apps.reproduce.dd_summary import check_claims as check_claims
+from apps.reproduce.dd_summary import summarise, training_stats
 from cec.checkpoints import code_version
 from cec.config import ConfigError
 
 ROOT = Path(__file__).resolve().parents[2]
-VARIANTS = ("full_obs", "partial_obs", "multi_task")
-VARIANT_TITLES = {
-    "full_obs": "Fully observable",
-    "partial_obs": "Partially observable (3x3 view)",
-    "multi_task": "Multi-task (green and pink pairs)",
-}
-ALGORITHMS = ("ippo", "fcp", "cec")
-ORACLE = "oracle"
-LEVEL_SETS = ("fixed", "generated")  # the fixed task (multi_task layout in that variant); 100 generated tasks
-LEVEL_SET_TITLES = {"fixed": "fixed task", "generated": "held-out generated tasks"}
-ORACLE_FIXED = 0.955  # the oracle's normalised score on the fixed task (the paper's ceiling)
-TOLERANCE = 0.05  # "within 0.05 of the paper's"
-ALPHA = 0.05  # significance level of the ordering tests
-
-
-# ---------------------------------------------------------------------------------------------------------
-# THE PAPER'S NUMBERS
-# ---------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class PaperNumber:
-    """One number the paper reports: normalised cross-play with unseen partners.
-
-    Attributes:
-        variant, level_set, algorithm: where it belongs.
-        mean: the paper's value, or None where the paper shows it only in a figure.
-        sem: its standard error where the paper gives one.
-        text: how the paper states it.
-    """
-
-    variant: str
-    level_set: str
-    algorithm: str
-    mean: float | None
-    sem: float | None
-    text: str
-
-
-PAPER: tuple[PaperNumber, ...] = (
-    PaperNumber("full_obs", "fixed", "cec", 0.931, 0.013, "CEC scored 0.931 normalized reward (SE 0.013)"),
-    PaperNumber("full_obs", "generated", "cec", 0.966, None, "CEC = 0.966 on procedurally generated tasks"),
-    PaperNumber("full_obs", "fixed", "fcp", None, None, "figure only: FCP does better than IPPO"),
-    PaperNumber("full_obs", "fixed", "ippo", None, None, "figure only: IPPO fails with novel partners"),
-    PaperNumber("full_obs", "generated", "fcp", None, None, "figure only: fails on novel tasks (near 0)"),
-    PaperNumber("full_obs", "generated", "ippo", None, None, "figure only: fails on novel tasks (near 0)"),
-    PaperNumber("partial_obs", "generated", "cec", 0.74, None, "CEC 0.74 on novel environments"),
-    PaperNumber("partial_obs", "generated", "fcp", 0.61, None, "population based methods 0.61"),
-    PaperNumber("partial_obs", "generated", "ippo", 0.03, None, "naive self-play 0.03"),
-    PaperNumber("multi_task", "fixed", "cec", 0.404, None, "CEC agents (0.404)"),
-    PaperNumber("multi_task", "fixed", "fcp", 0.251, None, "PBT methods (0.251)"),
-    PaperNumber("multi_task", "fixed", "ippo", 0.083, None, "naive self-play (0.083)"),
-    PaperNumber("multi_task", "generated", "cec", 0.446, None, "CEC can (0.446)"),
-    PaperNumber("multi_task", "generated", "fcp", 0.005, None, "PBT (0.005)"),
-    PaperNumber("multi_task", "generated", "ippo", 0.004, None, "naive self-play (0.004)"),
-)
-
-#: (variant, level set, better, worse): the orderings the paper states.
-CLAIMS: tuple[tuple[str, str, str, str], ...] = (
-    ("full_obs", "fixed", "cec", "fcp"),
-    ("full_obs", "fixed", "cec", "ippo"),
-    ("full_obs", "fixed", "fcp", "ippo"),
-    ("full_obs", "generated", "cec", "fcp"),
-    ("full_obs", "generated", "cec", "ippo"),
-    ("partial_obs", "generated", "cec", "fcp"),
-    ("partial_obs", "generated", "cec", "ippo"),
-    ("partial_obs", "generated", "fcp", "ippo"),
-    ("multi_task", "fixed", "cec", "fcp"),
-    ("multi_task", "fixed", "cec", "ippo"),
-    ("multi_task", "fixed", "fcp", "ippo"),
-    ("multi_task", "generated", "cec", "fcp"),
-    ("multi_task", "generated", "cec", "ippo"),
-)
-
-
-def paper_number(variant: str, level_set: str, algorithm: str) -> PaperNumber | None:
-    return next(
-        (p for p in PAPER if (p.variant, p.level_set, p.algorithm) == (variant, level_set, algorithm)), None
-    )
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -151,6 +96,9 @@ class Mode:
         overrides: `key=value` overrides applied to every training run (e.g. a smaller network in tests).
         generated_levels: how many of the 100 held-out generated tasks to play (fewer only in tests).
         variants: the variants run when `--variants` is not given.
+        why: the report's paragraph after the differences from the paper's numbers: what this version is
+            (its sizes against the paper's budgets), so what its differences can and cannot show; none
+            when empty.
     """
 
     name: str
@@ -163,6 +111,7 @@ class Mode:
     overrides: tuple[str, ...] = ()
     generated_levels: int = 100
     variants: tuple[str, ...] = VARIANTS
+    why: str = ""
 
 
 QUICK = Mode(
@@ -180,6 +129,12 @@ QUICK = Mode(
     seconds_per_update={"ippo": 1.7, "fcp": 1.3, "cec": 7.1},
     measured_on="the project's 2-core AMD EPYC CPU, 3 seeds vmapped, other jobs running (load 4-9), "
     "2026-11-21",
+    why="Why: this is the reduced version, sized to finish within 30 minutes on a 2-core CPU: per seed "
+    "2.56e5 (IPPO, FCP) and 7.68e5 (CEC) env steps with small networks, against the paper's 1e8-3e8 "
+    "steps with its larger network, and 3 seeds per algorithm (3 XP pairs). The Training section "
+    "shows how far each algorithm got: where CEC's training return at the end is still low, its "
+    "policy has not yet learned the generated tasks, and its XP numbers measure an untrained policy. The "
+    "quick version checks the pipeline, not the paper's values.",
 )
 
 FULL = Mode(
@@ -197,6 +152,10 @@ FULL = Mode(
     # the cores with a second run, IPPO and FCP ran at the same speed, 2.5k env steps/s)
     seconds_per_update={"ippo": 2.7, "fcp": 3.0, "cec": 2.7},
     measured_on="the project's 2-core AMD EPYC CPU (no GPU), one seed, 2026-11-21",
+    why="Why, in general: this version is sized for a CPU (docs/reproduce.md): one CNN without an LSTM "
+    "for all three algorithms and 5e5-2e6 env steps per seed, against the paper's CNN + LSTM and "
+    "1e8-3e8 steps. Each line above says what the same seeds' self-play and oracle-partner scores "
+    "show.",
 )
 
 PAPER_SCALE = Mode(
@@ -217,6 +176,8 @@ PAPER_SCALE = Mode(
     seconds_per_update={"ippo": 92.0, "fcp": 150.0, "cec": 78.0},
     measured_on="the project's 2-core AMD EPYC CPU (no GPU), one seed, other jobs running (load 4-5), "
     "2026-11-21",
+    why="Why: this version has the paper's networks and budgets, so a difference is in what the seeds "
+    "learned; each line above says what their self-play and oracle-partner scores show.",
 )
 
 MODES = {"quick": QUICK, "full": FULL, "paper": PAPER_SCALE}
@@ -229,11 +190,6 @@ def _variant_overrides(variant: str, algorithm: str) -> list[str]:
         levels = "procedural_multi_task" if algorithm == "cec" else "multi_task"
         return ["env.dual_destination.multi_task=true", f"env.levels={levels}"]
     return []
-
-
-def fixed_level_name(variant: str) -> str:
-    """The variant's fixed task: the paper's fixed task, or its multi-task layout."""
-    return "multi_task" if variant == "multi_task" else "fixed"
 
 
 def zoo_spec(mode: Mode, variant: str) -> dict[str, Any]:
@@ -389,514 +345,9 @@ def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, l
     return cached_table(vdir, key, play, label=f"{variant}: ", log=log)
 
 
-@dataclass(frozen=True)
-class TrainingStats:
-    """What an algorithm's training run of one variant recorded in its metrics.
-
-    Attributes:
-        seeds: seeds trained; env_steps: per seed.
-        seconds: training time of the run (its updates' env steps over their env steps/s; compilation and
-            checkpointing not included), also when this invocation skipped the finished run.
-        final_return: normalised training return at the end (mean over seeds of the last 5 updates), with
-            the partner it trained with (itself; FCP: its population).
-    """
-
-    seeds: int
-    env_steps: int
-    seconds: float
-    final_return: float
-
-
-def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
-    """Per algorithm, from `zoo_dir/runs/<algorithm>-s<first seed>/metrics.jsonl`."""
-    out = {}
-    for metrics in sorted(zoo_dir.glob("runs/*/metrics.jsonl")):
-        algo = metrics.parent.name.rsplit("-s", 1)[0]
-        rows = [json.loads(line) for line in metrics.read_text().splitlines() if line.strip()]
-        if algo not in ALGORITHMS or not rows:
-            continue
-        seeds = sorted({r["seed"] for r in rows})
-        per_update = {r["update"]: r for r in rows}
-        steps = [r["env_steps"] for r in sorted(per_update.values(), key=lambda r: r["update"])]
-        step_sizes = np.diff([0, *steps])
-        seconds = sum(
-            len(seeds) * size / max(r.get("env_steps_per_s") or math.inf, 1e-9)
-            for size, r in zip(
-                step_sizes, sorted(per_update.values(), key=lambda r: r["update"]), strict=True
-            )
-        )
-        last = sorted(per_update)[-5:]
-        final = [r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r]
-        out[algo] = TrainingStats(
-            len(seeds), int(steps[-1]), float(seconds), float(np.mean(final)) if final else math.nan
-        )
-    return out
-
-
-# ---------------------------------------------------------------------------------------------------------
-# SUMMARY
-# ---------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class Score:
-    """One algorithm's score of one kind on one level set of one variant.
-
-    Attributes:
-        mean, sem: over the samples (NaN when there are none / fewer than 2).
-        n_seeds: the algorithm's seeds; n: the samples, one per seed (`xp`: the seed's mean with the other
-            seeds, `cec.evaluation.stats.seed_means`; `sp`: with itself; `oracle`: with the oracle).
-        samples: the samples themselves (normalised scores); tests compare them, seeds being the units.
-    """
-
-    mean: float
-    sem: float
-    n_seeds: int
-    n: int
-    samples: tuple[float, ...]
-
-
-def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]]:
-    """{level set: {kind: {algorithm: Score}}} with kinds `xp` (per seed, its mean with the algorithm's
-    other seeds: the paper's measure, with seeds as the units), `sp` (each seed with itself) and `oracle`
-    (each seed with the oracle partner); the oracle partner's own self-play is under `sp` as `oracle`."""
-    from cec.evaluation import analysis as an
-    from cec.evaluation.stats import seed_means, sem
-
-    out: dict[str, dict[str, dict[str, Score]]] = {}
-    for level_set in LEVEL_SETS:
-        names = sorted(
-            {str(n) for n in table.level if (n == fixed_level_name(variant)) == (level_set == "fixed")}
-        )
-        if not names:
-            continue
-        pl = an.pair_level_scores(table, names)
-        m = an.pair_scores(pl)
-        seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ALGORITHMS, ORACLE)}
-        kinds: dict[str, dict[str, Score]] = {"xp": {}, "sp": {}, "oracle": {}}
-        for algo, idx in seeds.items():
-            if not idx:
-                continue
-            xp = [x for x in seed_means(m[np.ix_(idx, idx)]) if not math.isnan(x)]  # seeds: the units
-            sp = [m[i, i] for i in idx if not math.isnan(m[i, i])]
-            with_oracle = [m[i, o] for i in idx for o in seeds[ORACLE] if not math.isnan(m[i, o])]
-            for kind, vals in (("xp", xp), ("sp", sp), ("oracle", with_oracle)):
-                if vals and not (kind == "oracle" and algo == ORACLE):
-                    arr = np.asarray(vals, np.float64)
-                    kinds[kind][algo] = Score(
-                        float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist())
-                    )
-        out[level_set] = kinds
-    return out
-
-
-@dataclass(frozen=True)
-class ClaimResult:
-    """One of the paper's orderings tested on our numbers (Welch t-test on per-seed XP)."""
-
-    variant: str
-    level_set: str
-    better: str
-    worse: str
-    diff: float
-    ci_low: float
-    ci_high: float
-    p: float
-    holds: bool
-    significant: bool
-
-
-def check_claims(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[ClaimResult]:
-    """Every `CLAIMS` ordering present in `summaries`: holds = better's mean > worse's mean; significant =
-    holds and two-sided p < ALPHA."""
-    from cec.evaluation.stats import compare
-
-    out = []
-    for variant, level_set, better, worse in CLAIMS:
-        xp = summaries.get(variant, {}).get(level_set, {}).get("xp", {})
-        if better not in xp or worse not in xp:
-            continue
-        c = compare(np.asarray(xp[better].samples), np.asarray(xp[worse].samples))
-        holds = c.diff > 0
-        out.append(
-            ClaimResult(
-                variant, level_set, better, worse, c.diff, c.ci_low, c.ci_high, c.p, holds,
-                bool(holds and not math.isnan(c.p) and c.p < ALPHA),
-            )
-        )  # fmt: skip
-    return out
-
-
-# ---------------------------------------------------------------------------------------------------------
-# REPORT
-# ---------------------------------------------------------------------------------------------------------
-
-
 def machine_info() -> dict[str, Any]:
     """The machine the command ran on: host, CPU model, cores, JAX device, load average."""
     return _machine_info(load_average=True)
-
-
-def _pm(s: Score | None) -> str:
-    if s is None:
-        return "—"
-    err = "" if math.isnan(s.sem) else f" ± {s.sem:.3f}"
-    return f"{s.mean:.3f}{err}"
-
-
-def _paper_cell(p: PaperNumber | None) -> str:
-    if p is None:
-        return "not reported"
-    if p.mean is None:
-        return f"({p.text})"
-    return f"{p.mean:.3f}" + (f" ± {p.sem:.3f}" if p.sem is not None else "")
-
-
-def _verdict(ours: Score | None, p: PaperNumber | None) -> str:
-    if ours is None or p is None or p.mean is None:
-        return ""
-    d = ours.mean - p.mean
-    return f"{d:+.3f}" + ("" if abs(d) <= TOLERANCE else f" (differs by {abs(d):.3f} > {TOLERANCE})")
-
-
-def bar_plot(summary: dict[str, dict[str, dict[str, Score]]], variant: str, path: Path) -> Path:
-    """The paper's bar figure for one variant: XP per algorithm on both task sets, standard error bars,
-    the paper's values as black markers, the oracle's ceiling on the fixed task dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    width = 0.26
-    for k, algo in enumerate(ALGORITHMS):
-        xs, means, errs = [], [], []
-        for i, level_set in enumerate(LEVEL_SETS):
-            s = summary.get(level_set, {}).get("xp", {}).get(algo)
-            if s is None:
-                continue
-            xs.append(i + (k - 1) * width)
-            means.append(s.mean)
-            errs.append(0.0 if math.isnan(s.sem) else s.sem)
-            p = paper_number(variant, level_set, algo)
-            if p is not None and p.mean is not None:
-                ax.plot([i + (k - 1) * width], [p.mean], "k_", markersize=18, mew=2)
-        ax.bar(xs, means, width, yerr=errs, capsize=3, label=algo.upper())
-    ax.axhline(ORACLE_FIXED, xmin=0.02, xmax=0.48, ls="--", color="grey", lw=1)
-    ax.plot([], [], "k_", markersize=12, mew=2, label="paper")
-    ax.set_xticks(range(len(LEVEL_SETS)), [LEVEL_SET_TITLES[s] for s in LEVEL_SETS])
-    ax.set_ylabel("normalised cross-play (unseen seeds)")
-    ax.set_title(f"Dual Destination, {VARIANT_TITLES[variant].lower()}")
-    ax.set_ylim(min(-0.1, ax.get_ylim()[0]), 1.05)
-    ax.axhline(0, color="k", lw=0.5)
-    ax.plot([], [], ls="--", color="grey", lw=1, label="oracle")
-    ax.legend(fontsize=8, ncols=5, loc="upper center", bbox_to_anchor=(0.5, -0.1), frameon=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def write_report(
-    out: Path,
-    mode: Mode,
-    summaries: dict[str, dict[str, dict[str, dict[str, Score]]]],
-    meta: dict[str, Any],
-) -> Path:
-    """Writes `report.md`, `summary.json` and one bar plot per variant into `out`; returns the report."""
-    out.mkdir(parents=True, exist_ok=True)
-    claims = check_claims(summaries)
-    md: list[str] = [f"# Dual Destination: the paper's results reproduced ({mode.name} version)\n"]
-    m = meta["machine"]
-    md.append(
-        f"Command: `{meta['command']}`. Machine: {m['cpu']} ({m['cpu_count']} cores, {m['device']}), host "
-        f"`{m['host']}`, load average at the start {m.get('load_average_start')} and at the end "
-        f"{m.get('load_average_1_5_15min')} (1/5/15 min). Date {meta['date']}, git {meta['git']}, "
-        f"JAX {m['jax']}. Wall time {meta['wall_s'] / 60:.1f} min "
-        f"(training {meta['train_s'] / 60:.1f}, evaluation {meta['eval_s'] / 60:.1f}).\n"
-    )
-    if meta.get("skipped_runs"):
-        md.append(
-            f"Training runs found finished by an earlier invocation and not trained again: "
-            f"{', '.join(meta['skipped_runs'])} (their training time is in the Training section).\n"
-        )
-    md.append(
-        "Score: the paper's normalised score, return / (2 x 100 steps); the oracle reaches 0.955 on the "
-        "fixed task. **XP** (the paper's measure, zero-shot coordination): per seed, the mean score with "
-        "each other seed of its algorithm (both seat orders, all episodes, all levels of the set), then the "
-        "mean over seeds; ± is the standard error over seeds (the independent units: pairs share seeds). "
-        "The multi-task variant's fixed task is its two-pair layout. CEC never trains on either task set "
-        "(both fixed tasks and the 100 generated evaluation tasks are excluded from its generator).\n"
-    )
-    budget = ", ".join(
-        f"{a.upper()} {len(mode.seeds[a])} seeds x {mode.steps['full_obs'][a]:,} steps ({mode.presets[a]})"
-        for a in ALGORITHMS
-    )
-    md.append(
-        f"Budget per variant: {budget}; partial-obs and multi-task steps: "
-        + "; ".join(
-            f"{v}: " + ", ".join(f"{a} {mode.steps[v][a]:,}" for a in ALGORITHMS) for v in VARIANTS[1:]
-        )
-        + f". Episodes per pair, seat order and level: {mode.episodes['fixed']} on the fixed task, "
-        f"{mode.episodes['generated']} on each of {min(mode.generated_levels, 100)} held-out generated "
-        "tasks. FCP's population: every IPPO seed at its first, middle and last milestone.\n"
-    )
-    md.append("## Our numbers beside the paper's\n")
-    missing = [VARIANT_TITLES[v] for v in VARIANTS if v not in summaries]
-    if missing:
-        md.append(f"Not run for this report: {', '.join(missing)} (`--variants`).\n")
-    md.append("| variant | task set | algorithm | ours: XP mean ± SE | seeds | paper | ours − paper |")
-    md.append("|---|---|---|---|---|---|---|")
-    for variant in [v for v in VARIANTS if v in summaries]:
-        for level_set in LEVEL_SETS:
-            for algo in ALGORITHMS:
-                s = summaries.get(variant, {}).get(level_set, {}).get("xp", {}).get(algo)
-                p = paper_number(variant, level_set, algo)
-                n = "—" if s is None else str(s.n)
-                where = f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo.upper()} |"
-                md.append(f"{where} {_pm(s)} | {n} | {_paper_cell(p)} | {_verdict(s, p)} |")
-    md.append("")
-    md.append("## The paper's orderings\n")
-    md.append(
-        f"Welch two-sided t-test on the per-seed XP and a 95% bootstrap interval of the difference; "
-        f"*significant* = the ordering holds and p < {ALPHA}.\n"
-    )
-    md.append("| variant | task set | ordering | difference [95% CI] | p | holds | significant |")
-    md.append("|---|---|---|---|---|---|---|")
-    for c in claims:
-        p_text = "—" if math.isnan(c.p) else f"{c.p:.2g}"
-        ci = "—" if math.isnan(c.ci_low) else f"[{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
-        md.append(
-            f"| {VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]} | {c.better.upper()} > "
-            f"{c.worse.upper()} | {c.diff:+.3f} {ci} | {p_text} | {'yes' if c.holds else '**no**'} | "
-            f"{'yes' if c.significant else 'no'} |"
-        )
-    md.append("")
-    held = sum(c.holds for c in claims)
-    sig = sum(c.significant for c in claims)
-    md.append(f"{held} of {len(claims)} orderings hold, {sig} of them significantly.\n")
-    failed = [ordering_reason(c, summaries[c.variant][c.level_set]) for c in claims if not c.holds]
-    if failed:
-        md.append("Where an ordering does not hold, what the same seeds' self-play (SP) shows:\n")
-        md.extend(failed)
-        md.append("")
-    cec_full = [
-        (
-            ls,
-            summaries.get("full_obs", {}).get(ls, {}).get("xp", {}).get("cec"),
-            paper_number("full_obs", ls, "cec"),
-        )
-        for ls in LEVEL_SETS
-    ]
-    lines = []
-    for ls, s, p in cec_full:
-        if s is not None and p is not None and p.mean is not None:
-            ok = abs(s.mean - p.mean) <= TOLERANCE
-            lines.append(
-                f"- CEC, fully observable, {LEVEL_SET_TITLES[ls]}: {s.mean:.3f} vs the paper's {p.mean:.3f}: "
-                + ("within" if ok else f"**not within** (by {abs(s.mean - p.mean):.3f})")
-                + f" {TOLERANCE}."
-            )
-    if lines:
-        md.append("## CEC, fully observable, against the paper's values\n")
-        md.extend(lines)
-        md.append("")
-    md.append("## Where our numbers differ from the paper's by more than 0.05\n")
-    diffs = []
-    for variant in VARIANTS:
-        for level_set in LEVEL_SETS:
-            for algo in ALGORITHMS:
-                s = summaries.get(variant, {}).get(level_set, {}).get("xp", {}).get(algo)
-                p = paper_number(variant, level_set, algo)
-                if (
-                    s is not None
-                    and p is not None
-                    and p.mean is not None
-                    and abs(s.mean - p.mean) > TOLERANCE
-                ):
-                    kinds = summaries[variant][level_set]
-                    diffs.append(
-                        f"- {VARIANT_TITLES[variant]}, {LEVEL_SET_TITLES[level_set]}, {algo.upper()}: "
-                        f"{s.mean:.3f} vs {p.mean:.3f} ({s.mean - p.mean:+.3f}). "
-                        + difference_reason(
-                            s,
-                            p.mean,
-                            kinds.get("sp", {}).get(algo),
-                            kinds.get("oracle", {}).get(algo),
-                            trained_on_set=algo == "cec" or level_set == "fixed",
-                        )
-                    )
-    md.extend(diffs or ["None."])
-    md.append("")
-    if diffs:
-        md.append(meta.get("why", _default_why(mode)))
-        md.append("")
-    if meta.get("training"):
-        md.append("## Training\n")
-        md.append(
-            "From each run's metrics (also for runs this invocation found finished and skipped): the "
-            "training time (env steps over env steps/s of each update, without compilation) and the "
-            "normalised training return at the end (last 5 updates, mean over seeds; IPPO and CEC in "
-            "self-play, on the fixed task and on generated tasks; FCP with its population, untrained "
-            "first milestones included).\n"
-        )
-        md.append("| variant | algorithm | seeds | env steps per seed | training time | return at the end |")
-        md.append("|---|---|---|---|---|---|")
-        for variant, per in meta["training"].items():
-            for algo in ALGORITHMS:
-                t = per.get(algo)
-                if t is not None:
-                    md.append(
-                        f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {t['seeds']} | {t['env_steps']:,} | "
-                        f"{t['seconds'] / 60:.1f} min | {t['final_return']:.3f} |"
-                    )
-        md.append("")
-    md.append("## Reference points: self-play and the oracle partner\n")
-    md.append(
-        "SP: each seed with itself. With oracle: each seed with the scripted oracle partner (`dd_oracle`: "
-        "the oracle's joint plan until the partner shows a choice, then a best response to it; docs/"
-        "dual_destination.md); mean ± SE over seeds. The oracle partner with itself scores the oracle's "
-        "return with the full view.\n"
-    )
-    md.append("| variant | task set | algorithm | SP | with oracle partner |")
-    md.append("|---|---|---|---|---|")
-    for variant in VARIANTS:
-        for level_set in LEVEL_SETS:
-            kinds = summaries.get(variant, {}).get(level_set, {})
-            for algo in (*ALGORITHMS, ORACLE):
-                sp, wo = kinds.get("sp", {}).get(algo), kinds.get("oracle", {}).get(algo)
-                if sp is None and wo is None:
-                    continue
-                md.append(
-                    f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo} | {_pm(sp)} | "
-                    f"{'—' if algo == ORACLE else _pm(wo)} |"
-                )
-    md.append("")
-    md.append("## Bar plots\n")
-    for variant in VARIANTS:
-        if variant in summaries:
-            name = f"bars_{variant}.png"
-            bar_plot(summaries[variant], variant, out / name)
-            md.append(f"![{VARIANT_TITLES[variant]}]({name})\n")
-    md.append("## Timings\n")
-    md.append("| stage | seconds |")
-    md.append("|---|---|")
-    md.extend(f"| {k} | {v:.0f} |" for k, v in meta.get("stages", {}).items())
-    md.append("")
-    path = out / "report.md"
-    path.write_text("\n".join(md) + "\n")
-    (out / "summary.json").write_text(
-        json.dumps(
-            {
-                "meta": meta,
-                "mode": {
-                    "name": mode.name,
-                    "seeds": mode.seeds,
-                    "steps": mode.steps,
-                    "episodes": mode.episodes,
-                },
-                "summaries": {
-                    v: {
-                        ls: {k: {a: s.__dict__ for a, s in d.items()} for k, d in kinds.items()}
-                        for ls, kinds in per.items()
-                    }
-                    for v, per in summaries.items()
-                },  # fmt: skip
-                "claims": [c.__dict__ for c in claims],
-                "paper": [p.__dict__ for p in PAPER],
-            },
-            indent=1,
-            default=float,
-        )
-        + "\n"
-    )
-    return path
-
-
-#: SP above XP by more than this: the seeds learned the task but do not play one convention.
-CONVENTION_GAP = 0.1
-
-
-def difference_reason(
-    xp: Score, paper: float, sp: Score | None, oracle: Score | None, *, trained_on_set: bool = True
-) -> str:
-    """What the other measures of the same seeds say about an XP score that differs from the paper's:
-    whether the seeds learned the task at all (SP), whether they fail only with each other (SP well above
-    XP), and how they play with the oracle partner (a best response to whatever they do)."""
-    facts = []
-    if sp is not None:
-        facts.append(f"with themselves (SP) its seeds score {sp.mean:.3f}")
-    if oracle is not None:
-        facts.append(f"with the oracle partner {oracle.mean:.3f}")
-    said = ("Reading: " + " and ".join(facts) + "; ") if facts else "Reading: "
-    if not trained_on_set:
-        return said + (
-            "it never trained on these tasks and fails on them, as in the paper; a policy that never "
-            "reaches a goal pair scores -0.5 on our scale (return / 200 with a step cost of -1), where the "
-            "paper reports about 0 for the same failure, so this gap looks like one of scale."
-        )
-    if sp is not None and sp.mean - xp.mean > CONVENTION_GAP:
-        return said + (
-            "the seeds learned the task but settled on conventions that do not match across seeds, so "
-            "the gap is in coordination with unseen partners, not in skill."
-        )
-    if sp is not None and sp.mean < paper - TOLERANCE:
-        return said + (
-            "they play about as badly with themselves, so at this budget the policy has not learned the "
-            "task set to the paper's level (see the Training section)."
-        )
-    if xp.mean > paper:
-        return said + "ours is higher: these seeds coordinate with each other better than the paper's did."
-    return said + "the seeds play well with themselves and each other but below the paper's value."
-
-
-def ordering_reason(claim: ClaimResult, kinds: dict[str, dict[str, Score]]) -> str:
-    """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
-    as well as with itself (the coordination failure the ordering rests on did not occur) and whether
-    `better` learned the task as well as `worse` did (SP)."""
-    xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
-    b, w = claim.better, claim.worse
-    head = (
-        f"- {VARIANT_TITLES[claim.variant]}, {LEVEL_SET_TITLES[claim.level_set]}, {b.upper()} > {w.upper()}: "
-    )
-    if b not in sp or w not in sp:
-        return head + "no self-play scores to compare."
-    parts = [
-        f"{w.upper()} XP {xp[w].mean:.3f} vs SP {sp[w].mean:.3f}, {b.upper()} XP {xp[b].mean:.3f} vs SP "
-        f"{sp[b].mean:.3f}"
-    ]
-    if sp[w].mean - xp[w].mean <= CONVENTION_GAP:
-        parts.append(
-            f"{w.upper()}'s seeds coordinate with each other about as well as with themselves, so the "
-            "failure with unseen partners that the paper's ordering rests on did not occur"
-        )
-    if sp[b].mean < sp[w].mean - TOLERANCE:
-        parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
-    return head + "; ".join(parts) + "."
-
-
-def _default_why(mode: Mode) -> str:
-    if mode.name == "quick":
-        return (
-            "Why: this is the reduced version, sized to finish within 30 minutes on a 2-core CPU: per seed "
-            "2.56e5 (IPPO, FCP) and 7.68e5 (CEC) env steps with small networks, against the paper's 1e8-3e8 "
-            "steps with its larger network, and 3 seeds per algorithm (3 XP pairs). The Training section "
-            "shows how far each algorithm got: where CEC's training return at the end is still low, its "
-            "policy has not yet learned the generated tasks (its learning takes off between about 6e5 and "
-            "1.5e6 steps per seed on this setting), and its XP numbers measure an untrained policy. The "
-            "quick version checks the pipeline, not the paper's values."
-        )
-    if mode.name == "full":
-        return (
-            "Why, in general: this version is sized for a CPU (docs/reproduce.md): one CNN without an LSTM "
-            "for all three algorithms and 5e5-2e6 env steps per seed, against the paper's CNN + LSTM and "
-            "1e8-3e8 steps. Each line above says what the same seeds' self-play and oracle-partner scores "
-            "show."
-        )
-    return (
-        "Why: this version has the paper's networks and budgets, so a difference is in what the seeds "
-        "learned; each line above says what their self-play and oracle-partner scores show."
-    )
 
 
 # ---------------------------------------------------------------------------------------------------------

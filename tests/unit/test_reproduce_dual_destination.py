@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+import copy
 import io
 import json
 import math
+import re
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 import yaml
 
 from apps.cli import main
+from apps.reproduce import dd_paper
 from apps.reproduce import dual_destination as rp
 from apps.zoo_build import plan_zoo
+from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import read_csv
 
@@ -59,6 +65,38 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
     for mode in (rp.FULL, rp.PAPER_SCALE):
         lines = rp.plan_lines(mode)
         assert len(lines) == 9 and all(ln.estimate_s > 0 for ln in lines)
+
+
+def test_the_paper_numbers_are_data_and_a_malformed_file_names_the_file_and_the_key(tmp_path: Path) -> None:
+    paper = dd_paper.load_paper()
+    assert (paper.numbers, paper.claims, paper.oracle_fixed) == (rp.PAPER, rp.CLAIMS, rp.ORACLE_FIXED)
+    assert rp.paper_number("full_obs", "fixed", "cec") == rp.PaperNumber(
+        "full_obs", "fixed", "cec", 0.931, 0.013, "CEC scored 0.931 normalized reward (SE 0.013)"
+    )
+    figure_only = rp.paper_number("full_obs", "fixed", "ippo")
+    assert figure_only is not None and figure_only.mean is None and "figure only:" in figure_only.text
+    assert rp.ORACLE_FIXED == 0.955 and len(rp.PAPER) == 15 and len(rp.CLAIMS) == 13
+    good = yaml.safe_load(dd_paper.PAPER_FILE.read_text())
+
+    def broken(change: Callable[[dict[str, Any]], object]) -> dict[str, Any]:
+        data = copy.deepcopy(good)
+        change(data)
+        return data
+
+    cases = {
+        "numbers[0].mean": broken(lambda d: d["numbers"][0].update(mean="high")),
+        "numbers[1].variant": broken(lambda d: d["numbers"][1].update(variant="full")),
+        "numbers[2].text": broken(lambda d: d["numbers"][2].update(mean=0.5)),  # a figure-only entry
+        "numbers[3]": broken(lambda d: d["numbers"][3].pop("sem")),
+        "claims[0].worse": broken(lambda d: d["claims"][0].update(worse="cec")),
+        "oracle_fixed": broken(lambda d: d.update(oracle_fixed=None)),
+        "(top level)": broken(lambda d: d.pop("claims")),
+    }
+    for key, data in cases.items():
+        path = tmp_path / "paper.yaml"
+        path.write_text(yaml.safe_dump(data))
+        with pytest.raises(ConfigError, match=re.escape(f"{path}: {key}: ")):
+            dd_paper.load_paper(path)
 
 
 def test_the_plan_command_prints_every_run_and_the_expected_time(capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,0 +1,164 @@
+"""The numbers `cec reproduce dual-destination` reports, from what its runs wrote.
+
+`summarise`: per task set, kind (XP, SP, with the oracle partner) and algorithm, a variant's score over
+seeds, from its cross-play table (`dual_destination.evaluate_variant`). `check_claims`: the paper's
+orderings (`dd_paper.CLAIMS`) tested on per-seed XP. `training_stats`: each algorithm's training time and
+return at the end, from its runs' metrics. `dd_report.write_report` writes them beside the paper's numbers.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from apps.reproduce.dd_paper import ALGORITHMS, CLAIMS, LEVEL_SETS, ORACLE, fixed_level_name
+
+ALPHA = 0.05  # significance level of the ordering tests
+
+
+# ---------------------------------------------------------------------------------------------------------
+# CROSS-PLAY
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class Score:
+    """One algorithm's score of one kind on one level set of one variant.
+
+    Attributes:
+        mean, sem: over the samples (NaN when there are none / fewer than 2).
+        n_seeds: the algorithm's seeds; n: the samples, one per seed (`xp`: the seed's mean with the other
+            seeds, `cec.evaluation.stats.seed_means`; `sp`: with itself; `oracle`: with the oracle).
+        samples: the samples themselves (normalised scores); tests compare them, seeds being the units.
+    """
+
+    mean: float
+    sem: float
+    n_seeds: int
+    n: int
+    samples: tuple[float, ...]
+
+
+def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]]:
+    """{level set: {kind: {algorithm: Score}}} with kinds `xp` (per seed, its mean with the algorithm's
+    other seeds: the paper's measure, with seeds as the units), `sp` (each seed with itself) and `oracle`
+    (each seed with the oracle partner); the oracle partner's own self-play is under `sp` as `oracle`."""
+    from cec.evaluation import analysis as an
+    from cec.evaluation.stats import seed_means, sem
+
+    out: dict[str, dict[str, dict[str, Score]]] = {}
+    for level_set in LEVEL_SETS:
+        names = sorted(
+            {str(n) for n in table.level if (n == fixed_level_name(variant)) == (level_set == "fixed")}
+        )
+        if not names:
+            continue
+        pl = an.pair_level_scores(table, names)
+        m = an.pair_scores(pl)
+        seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ALGORITHMS, ORACLE)}
+        kinds: dict[str, dict[str, Score]] = {"xp": {}, "sp": {}, "oracle": {}}
+        for algo, idx in seeds.items():
+            if not idx:
+                continue
+            xp = [x for x in seed_means(m[np.ix_(idx, idx)]) if not math.isnan(x)]  # seeds: the units
+            sp = [m[i, i] for i in idx if not math.isnan(m[i, i])]
+            with_oracle = [m[i, o] for i in idx for o in seeds[ORACLE] if not math.isnan(m[i, o])]
+            for kind, vals in (("xp", xp), ("sp", sp), ("oracle", with_oracle)):
+                if vals and not (kind == "oracle" and algo == ORACLE):
+                    arr = np.asarray(vals, np.float64)
+                    kinds[kind][algo] = Score(
+                        float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist())
+                    )
+        out[level_set] = kinds
+    return out
+
+
+@dataclass(frozen=True)
+class ClaimResult:
+    """One of the paper's orderings tested on our numbers (Welch t-test on per-seed XP)."""
+
+    variant: str
+    level_set: str
+    better: str
+    worse: str
+    diff: float
+    ci_low: float
+    ci_high: float
+    p: float
+    holds: bool
+    significant: bool
+
+
+def check_claims(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[ClaimResult]:
+    """Every `CLAIMS` ordering present in `summaries`: holds = better's mean > worse's mean; significant =
+    holds and two-sided p < ALPHA."""
+    from cec.evaluation.stats import compare
+
+    out = []
+    for variant, level_set, better, worse in CLAIMS:
+        xp = summaries.get(variant, {}).get(level_set, {}).get("xp", {})
+        if better not in xp or worse not in xp:
+            continue
+        c = compare(np.asarray(xp[better].samples), np.asarray(xp[worse].samples))
+        holds = c.diff > 0
+        out.append(
+            ClaimResult(
+                variant, level_set, better, worse, c.diff, c.ci_low, c.ci_high, c.p, holds,
+                bool(holds and not math.isnan(c.p) and c.p < ALPHA),
+            )
+        )  # fmt: skip
+    return out
+
+
+# ---------------------------------------------------------------------------------------------------------
+# TRAINING
+# ---------------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class TrainingStats:
+    """What an algorithm's training run of one variant recorded in its metrics.
+
+    Attributes:
+        seeds: seeds trained; env_steps: per seed.
+        seconds: training time of the run (its updates' env steps over their env steps/s; compilation and
+            checkpointing not included), also when this invocation skipped the finished run.
+        final_return: normalised training return at the end (mean over seeds of the last 5 updates), with
+            the partner it trained with (itself; FCP: its population).
+    """
+
+    seeds: int
+    env_steps: int
+    seconds: float
+    final_return: float
+
+
+def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
+    """Per algorithm, from `zoo_dir/runs/<algorithm>-s<first seed>/metrics.jsonl`."""
+    out = {}
+    for metrics in sorted(zoo_dir.glob("runs/*/metrics.jsonl")):
+        algo = metrics.parent.name.rsplit("-s", 1)[0]
+        rows = [json.loads(line) for line in metrics.read_text().splitlines() if line.strip()]
+        if algo not in ALGORITHMS or not rows:
+            continue
+        seeds = sorted({r["seed"] for r in rows})
+        per_update = {r["update"]: r for r in rows}
+        steps = [r["env_steps"] for r in sorted(per_update.values(), key=lambda r: r["update"])]
+        step_sizes = np.diff([0, *steps])
+        seconds = sum(
+            len(seeds) * size / max(r.get("env_steps_per_s") or math.inf, 1e-9)
+            for size, r in zip(
+                step_sizes, sorted(per_update.values(), key=lambda r: r["update"]), strict=True
+            )
+        )
+        last = sorted(per_update)[-5:]
+        final = [r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r]
+        out[algo] = TrainingStats(
+            len(seeds), int(steps[-1]), float(seconds), float(np.mean(final)) if final else math.nan
+        )
+    return out
