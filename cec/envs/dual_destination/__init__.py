@@ -1,4 +1,5 @@
-"""Dual Destination (the paper's ToyCoop) as pure functions over levels: `reset`, `step`, `step_autoreset`."""
+"""Dual Destination (the paper's ToyCoop) as pure functions over levels: `reset`, `step`, `step_autoreset`;
+`GAME` is the game as a `cec.envs.base.Game`."""
 
 from cec.envs.dual_destination.env import (
     DEFAULT_PARAMS,
@@ -14,8 +15,8 @@ from cec.envs.dual_destination.env import (
     move,
     reset,
     step,
-    step_autoreset,
 )
+from cec.envs.dual_destination.game import GAME, step_autoreset
 from cec.envs.dual_destination.level import (
     DD_SIZE,
     NO_CELL,
@@ -35,6 +36,7 @@ __all__ = [
     "DD_SIZE",
     "DEFAULT_PARAMS",
     "FROM_REFERENCE_ACTION",
+    "GAME",
     "NO_CELL",
     "NUM_ACTIONS",
     "NUM_CHANNELS",

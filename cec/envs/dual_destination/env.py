@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from cec.envs.base import Transition
 from cec.envs.checks import check_actions, is_concrete
 from cec.envs.dual_destination.level import DD_SIZE, DDLevel, validate_dd_level
 from cec.levels import LevelError
@@ -164,7 +165,10 @@ def get_obs(state: DDState, params: DDParams = DEFAULT_PARAMS) -> jax.Array:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _initial_state(level: DDLevel) -> DDState:
+def initial_state(key: jax.Array, level: DDLevel, params: DDParams = DEFAULT_PARAMS) -> DDState:
+    """The first state of an episode on `level`, unchecked (what `reset` and the auto-reset share; the key
+    and the settings play no part)."""
+    del key, params
     return DDState(
         level=level,
         agent_pos=level.agent_pos.astype(jnp.int32),
@@ -184,9 +188,8 @@ def reset(key: jax.Array, level: DDLevel, params: DDParams = DEFAULT_PARAMS) -> 
     Returns:
         obs: float32[2, 5, 5, 4]; state: the initial `DDState`.
     """
-    del key
     _check_level(level, params)
-    state = _initial_state(level)
+    state = initial_state(key, level, params)
     return get_obs(state, params), state
 
 
@@ -221,6 +224,18 @@ def _transition(state: DDState, actions: jax.Array, params: DDParams) -> tuple[D
     return state.replace(agent_pos=new_pos, time=time), reward, time >= params.max_steps
 
 
+def transition(
+    key: jax.Array, state: DDState, actions: jax.Array, params: DDParams = DEFAULT_PARAMS
+) -> Transition:
+    """One joint step's dynamics, without observations or auto-reset (what `step` and `step_autoreset`
+    share): no shaped reward (zeros) and no collisions (False). Eager actions out of range raise
+    `ValueError`."""
+    del key
+    _check_actions(actions)
+    next_state, reward, done = _transition(state, actions, params)
+    return Transition(next_state, reward, jnp.zeros(2, jnp.float32), done, jnp.zeros((), bool))
+
+
 def step(
     key: jax.Array, state: DDState, actions: jax.Array, params: DDParams = DEFAULT_PARAMS
 ) -> DDStepOutput:
@@ -236,42 +251,5 @@ def step(
     Returns:
         `DDStepOutput` with obs float32[2, 5, 5, 4], reward float32[] and done bool[].
     """
-    del key
-    _check_actions(actions)
-    next_state, reward, done = _transition(state, actions, params)
-    return DDStepOutput(get_obs(next_state, params), next_state, reward, done)
-
-
-def step_autoreset(
-    key: jax.Array,
-    state: DDState,
-    actions: jax.Array,
-    levels: DDLevel,
-    params: DDParams = DEFAULT_PARAMS,
-) -> DDStepOutput:
-    """`step`, then, if the episode ended, starts the next one on `levels[(episode + 1) % K]`.
-
-    The reset is a select between two cheap states (no generator work on the step path); the returned
-    observation is that of the new episode's first state when `done`, while `reward` and `done` are
-    those of the step that ended the old one.
-
-    Args:
-        key: PRNG key (unused; kept for API symmetry).
-        state: current `DDState`.
-        actions: int[2] actions of seat 0 and seat 1.
-        levels: a batched `DDLevel` with leading axis K, this env's buffer of upcoming levels. Give each
-            env its own buffer (vmap over it) or share one (`in_axes=None`).
-        params: game settings.
-
-    Returns:
-        `DDStepOutput`.
-    """
-    del key
-    _check_actions(actions)
-    next_state, reward, done = _transition(state, actions, params)
-    n_levels = levels.agent_pos.shape[0]
-    episode = next_state.episode + 1
-    next_level = jax.tree.map(lambda x: x[0] if n_levels == 1 else x[episode % n_levels], levels)
-    fresh = _initial_state(next_level).replace(episode=episode)
-    new_state = jax.tree.map(lambda a, b: jnp.where(done, a, b), fresh, next_state)
-    return DDStepOutput(get_obs(new_state, params), new_state, reward, done)
+    t = transition(key, state, actions, params)
+    return DDStepOutput(get_obs(t.state, params), t.state, t.reward, t.done)

@@ -9,12 +9,11 @@ into a few loops; that is what makes `vmap(step)` fast on CPU and GPU alike.
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cec.envs.base import Transition
 from cec.envs.checks import check_actions, is_concrete
 from cec.envs.overcooked.observation import get_obs
 from cec.envs.overcooked.state import (
@@ -45,7 +44,8 @@ def _check_actions(actions: jax.Array) -> None:
 # ---------------------------------------------------------------------------------------------------
 
 
-def _initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
+def initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
+    """The first state of an episode on `level`, unchecked (what `reset` and the auto-reset share)."""
     # Two uniform facings from one 32-bit draw (cheaper than randint, which draws twice as many bits).
     bits = jax.random.bits(key, (), jnp.uint32)
     random_dir = (jnp.stack([bits, bits >> 2]) & 3).astype(jnp.int32)
@@ -74,23 +74,13 @@ def reset(key: jax.Array, level: Level, params: EnvParams = EnvParams()) -> tupl
         obs: uint8[2, 9, 9, 26]; state: the initial `EnvState`.
     """
     _check_level(level)
-    state = _initial_state(key, jax.tree.map(jnp.asarray, level), params)
+    state = initial_state(key, jax.tree.map(jnp.asarray, level), params)
     return get_obs(state, params), state
 
 
 # ---------------------------------------------------------------------------------------------------
 # STEP
 # ---------------------------------------------------------------------------------------------------
-
-
-class _Transition(NamedTuple):
-    """Result of the dynamics before observations are computed (internal)."""
-
-    state: EnvState
-    reward: jax.Array
-    shaped: jax.Array
-    done: jax.Array
-    collision: jax.Array
 
 
 def _at(grid: jax.Array, cell: jax.Array) -> jax.Array:
@@ -162,7 +152,7 @@ def _interact(
     return items, pot, inv.at[seat].set(new_held), reward, shaped
 
 
-def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> _Transition:
+def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Transition:
     acts = actions.astype(jnp.int32)
     grid = state.level.grid
     pos = state.agent_pos
@@ -196,7 +186,17 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> _Tran
     )
     reward = (r0 + r1).astype(jnp.float32)
     shaped = jnp.stack([s0, s1]).astype(jnp.float32)
-    return _Transition(next_state, reward, shaped, time >= params.max_steps, collision)
+    return Transition(next_state, reward, shaped, time >= params.max_steps, collision)
+
+
+def transition(
+    key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams = EnvParams()
+) -> Transition:
+    """One joint step's dynamics, without observations or auto-reset (what `step` and `step_autoreset`
+    share). Eager actions out of range raise `ValueError`."""
+    del key
+    _check_actions(actions)
+    return _transition(state, actions, params)
 
 
 def step(key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams = EnvParams()) -> StepOutput:
@@ -209,33 +209,5 @@ def step(key: jax.Array, state: EnvState, actions: jax.Array, params: EnvParams 
             `ValueError` when called eagerly; inside `jit` they must be in range.
         params: dynamics settings.
     """
-    del key
-    _check_actions(actions)
-    t = _transition(state, actions, params)
+    t = transition(key, state, actions, params)
     return StepOutput(get_obs(t.state, params), t.state, t.reward, t.shaped, t.done, t.collision)
-
-
-def step_autoreset(
-    key: jax.Array,
-    state: EnvState,
-    actions: jax.Array,
-    levels: Level,
-    params: EnvParams = EnvParams(),
-) -> StepOutput:
-    """`step`, then, if the episode ended, starts the next one on `levels[(episode + 1) % K]`.
-
-    The reset is a select between two cheap states (no generator work on the step path); the returned
-    observation is that of the new episode's first state when `done`.
-
-    Args:
-        levels: a batched `Level` with leading axis K, this env's buffer of upcoming levels. Give each
-            env its own buffer (vmap over it) or share one (`in_axes=None`).
-    """
-    _check_actions(actions)
-    t = _transition(state, actions, params)
-    n_levels = levels.grid.shape[0]
-    episode = t.state.episode + 1
-    next_level = jax.tree.map(lambda x: x[0] if n_levels == 1 else x[episode % n_levels], levels)
-    fresh = _initial_state(key, next_level, params).replace(episode=episode)
-    new_state = jax.tree.map(lambda a, b: jnp.where(t.done, a, b), fresh, t.state)
-    return StepOutput(get_obs(new_state, params), new_state, t.reward, t.shaped, t.done, t.collision)

@@ -1,0 +1,77 @@
+"""Overcooked as a `cec.envs.base.Game`, and its auto-reset step (the one in `cec.envs.base`)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import jax
+import numpy as np
+
+from cec.envs import base
+from cec.envs.overcooked.dynamics import initial_state, reset, transition
+from cec.envs.overcooked.observation import get_obs
+from cec.envs.overcooked.state import NUM_ACTIONS, NUM_CHANNELS, EnvParams, EnvState, StepOutput
+from cec.levels import GRID_SIZE, Level
+from cec.levels.classic import CLASSIC_ASCII
+from cec.levels.level import stack_levels
+from cec.levels.named import resolve_levels
+
+
+def _check_levels(levels: str, params: Any) -> None:
+    del levels, params  # every Overcooked setting plays every kitchen
+
+
+def _obs_settings(params: Any) -> tuple:
+    del params  # the observation is the same under every setting
+    return ()
+
+
+def _deliveries(returns: np.ndarray, steps: int, params: Any) -> np.ndarray:
+    """Soups delivered: the sparse return in units of the delivery reward (NaN when it is not positive)."""
+    del steps
+    per_soup = float(params.delivery_reward)
+    return np.round(returns / per_soup) if per_soup > 0 else np.full_like(returns, np.nan)
+
+
+GAME = base.Game(
+    name="overcooked",
+    num_actions=NUM_ACTIONS,
+    obs_shape=(GRID_SIZE, GRID_SIZE, NUM_CHANNELS),
+    reset=reset,
+    initial_state=initial_state,
+    transition=transition,
+    get_obs=get_obs,
+    level_specs=("generator", *CLASSIC_ASCII),
+    default_levels="generator",
+    procedural_levels=("generator",),
+    level_files=True,
+    check_levels=_check_levels,
+    named_levels=resolve_levels,
+    stack_levels=stack_levels,
+    egocentric=True,
+    normalised_score=False,
+    obs_settings=_obs_settings,
+    deliveries=_deliveries,
+    single_task_own_level=True,
+)
+
+
+def step_autoreset(
+    key: jax.Array,
+    state: EnvState,
+    actions: jax.Array,
+    levels: Level,
+    params: EnvParams = EnvParams(),
+) -> StepOutput:
+    """`step`, then, if the episode ended, starts the next one on `levels[(episode + 1) % K]`
+    (`cec.envs.base.step_autoreset` on Overcooked).
+
+    The reset is a select between two cheap states (no generator work on the step path); the returned
+    observation is that of the new episode's first state when `done`.
+
+    Args:
+        levels: a batched `Level` with leading axis K, this env's buffer of upcoming levels. Give each
+            env its own buffer (vmap over it) or share one (`in_axes=None`).
+    """
+    out = base.step_autoreset(GAME, key, state, actions, levels, params)
+    return StepOutput(out.obs, out.state, out.reward, out.shaped, out.done, out.collision)
