@@ -15,6 +15,7 @@ and `sample_levels`, which fills the level buffers for one rollout:
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -25,34 +26,17 @@ import jax.numpy as jnp
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc
+from cec.envs.base import EnvStep, Game, step_autoreset
+from cec.envs.registry import GAMES, game
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch
 from cec.levels.level import stack_levels
 from cec.levels.named import absolute_paths, names_files, resolve_levels
 
-ENV_NAMES = ("overcooked", "dual_destination")
-DD_LEVELS = ("fixed", "multi_task", "procedural", "procedural_multi_task")
-PROCEDURAL_LEVELS = ("generator", "procedural", "procedural_multi_task")
-
-
-class EnvStep(NamedTuple):
-    """One env's step, the same for both games.
-
-    Attributes:
-        obs: [2, ...] each seat's observation (uint8 for Overcooked, float32 for Dual Destination).
-        state: the next env state (after auto-reset when `done`).
-        reward: float32[] team reward of the step (sparse; the same for both seats).
-        shaped: float32[2] per-seat shaped reward (zeros for Dual Destination).
-        done: bool[] the episode ended with this step.
-        collision: bool[] a move was cancelled by the other agent (always False in Dual Destination).
-    """
-
-    obs: jax.Array
-    state: Any
-    reward: jax.Array
-    shaped: jax.Array
-    done: jax.Array
-    collision: jax.Array
+ENV_NAMES = tuple(GAMES)
+DD_LEVELS = dd.GAME.level_specs
+PROCEDURAL_LEVELS = tuple(spec for g in GAMES.values() for spec in g.procedural_levels)
+_LEVEL_SPECS = tuple(spec for g in GAMES.values() for spec in g.level_specs)  # never a file name
 
 
 @dataclass(frozen=True)
@@ -78,8 +62,8 @@ class EnvConfig:
     def __post_init__(self) -> None:
         if self.name not in ENV_NAMES:
             raise ConfigError(f"env.name {self.name!r} is unknown; choose one of {list(ENV_NAMES)}")
-        valid = ("generator", *CLASSIC_ASCII) if self.name == "overcooked" else DD_LEVELS
-        if self.name == "overcooked" and self.levels not in valid and _names_files(self.levels):
+        valid = self.game.level_specs
+        if self.game.level_files and self.levels not in valid and _names_files(self.levels):
             # Absolute paths, so that Ray workers and resumed runs read the same files wherever they run.
             object.__setattr__(self, "levels", absolute_paths(self.levels))
             kitchen_set(self.levels)  # read and checked now: a bad file is refused before any work
@@ -87,34 +71,34 @@ class EnvConfig:
             raise ConfigError(
                 f"env.levels {self.levels!r} is not valid for {self.name}; choose one of {list(valid)}"
             )
-        if self.name == "dual_destination" and self.dual_destination.multi_task != (
-            "multi_task" in self.levels
-        ):
-            raise ConfigError(
-                f"env.levels {self.levels!r} needs env.dual_destination.multi_task="
-                f"{str('multi_task' in self.levels).lower()} (the pink goals pay only in the multi-task game)"
-            )
+        self.game.check_levels(self.levels, self.params)
         if self.params.max_steps <= 0:
             raise ConfigError(f"env.{self.name}.max_steps must be positive, got {self.params.max_steps}")
 
     @property
+    def game(self) -> Game:
+        """The chosen game (`cec.envs.registry`)."""
+        return game(self.name)
+
+    @property
     def procedural(self) -> bool:
         """The levels come from a distribution (a generator, several kitchen files), not one fixed level."""
-        if self.name == "overcooked" and _names_files(self.levels):
+        if self.game.level_files and _names_files(self.levels):
             return len(kitchen_set(self.levels).names) > 1
         return self.levels in PROCEDURAL_LEVELS
 
     @property
     def levels_label(self) -> str:
         """`levels` as a file-name part: kitchen files and folders by their stems."""
-        if self.name == "overcooked" and _names_files(self.levels):
+        if self.game.level_files and _names_files(self.levels):
             return "+".join(Path(t).stem for t in self.levels.split(","))
         return self.levels
 
     @property
     def params(self) -> Any:
-        """The settings of the chosen game (a traced pytree: `EnvParams` or `DDParams`)."""
-        return self.overcooked if self.name == "overcooked" else self.dual_destination
+        """The settings of the chosen game (a traced pytree: `EnvParams` or `DDParams`): the field named
+        after the game."""
+        return getattr(self, self.name)
 
 
 @dataclass(frozen=True)
@@ -130,29 +114,26 @@ class Task:
         return Task(config.name, config.levels, config.generator)
 
     @property
+    def game(self) -> Game:
+        """The game (`cec.envs.registry`)."""
+        return game(self.env)
+
+    @property
     def num_actions(self) -> int:
-        return oc.NUM_ACTIONS if self.env == "overcooked" else dd.NUM_ACTIONS
+        return self.game.num_actions
 
     @property
     def obs_shape(self) -> tuple[int, ...]:
         """One seat's observation shape."""
-        if self.env == "overcooked":
-            return (9, 9, oc.NUM_CHANNELS)
-        return (dd.DD_SIZE, dd.DD_SIZE, dd.NUM_CHANNELS)
+        return self.game.obs_shape
 
     def reset(self, key: jax.Array, level: Any, params: Any) -> tuple[jax.Array, Any]:
         """(obs [2, ...], state) of a new episode on one level."""
-        if self.env == "overcooked":
-            return oc.reset(key, level, params)
-        return dd.reset(key, level, params)
+        return self.game.reset(key, level, params)
 
     def step(self, key: jax.Array, state: Any, actions: jax.Array, levels: Any, params: Any) -> EnvStep:
         """One env's step with auto-reset onto `levels[(episode + 1) % K]` (a buffer with leading axis K)."""
-        if self.env == "overcooked":
-            out = oc.step_autoreset(key, state, actions, levels, params)
-            return EnvStep(out.obs, out.state, out.reward, out.shaped_reward, out.done, out.collision)
-        o = dd.step_autoreset(key, state, actions, levels, params)
-        return EnvStep(o.obs, o.state, o.reward, jnp.zeros(2, jnp.float32), o.done, jnp.zeros((), bool))
+        return step_autoreset(self.game, key, state, actions, levels, params)
 
     def sample_levels(self, key: jax.Array, env_ids: jax.Array, k: int) -> Any:
         """Level buffers for the envs `env_ids` (int32[E]), `k` levels each (leading axes [E, k]).
@@ -160,21 +141,7 @@ class Task:
         Env i's levels come from `fold_in(key, i)` alone, so a slice of the envs (a Ray actor's share)
         gets the levels those envs get in the full batch. Fixed tasks are broadcast.
         """
-        n = env_ids.shape[0]
-        if self.levels == "generator":
-            return jax.vmap(lambda kk: generate_batch(kk, k, self.generator))(env_keys(key, env_ids))
-        if self.env == "overcooked" and self.levels in CLASSIC_ASCII:
-            return _broadcast(classic_level(self.levels), (n, k))
-        if self.env == "overcooked":  # the user's kitchen files, uniformly
-            kitchens = kitchen_set(self.levels)
-            pick = jax.vmap(lambda kk: jax.random.randint(kk, (k,), 0, len(kitchens.names)))
-            return jax.tree.map(lambda x: jnp.asarray(x)[pick(env_keys(key, env_ids))], kitchens.levels)
-        if self.levels in ("fixed", "multi_task"):
-            return _broadcast(dd.fixed_level() if self.levels == "fixed" else dd.multi_task_level(), (n, k))
-        multi = self.levels == "procedural_multi_task"
-        exclude = dd.held_out_dd_levels()
-        one = lambda kk: dd.generate_dd_level(kk, multi, exclude)  # noqa: E731
-        return jax.vmap(lambda kk: jax.vmap(one)(jax.random.split(kk, k)))(env_keys(key, env_ids))
+        return _LEVEL_SAMPLERS[self.env](self, key, env_ids, k)
 
     def without_level(self, state: Any) -> Any:
         """An env state without its level (what changes step to step; `observe` puts the level back)."""
@@ -182,8 +149,34 @@ class Task:
 
     def observe(self, state: Any, level: Any, params: Any) -> jax.Array:
         """[2, ...] both seats' observations of a level-less `state` (`without_level`) on `level`."""
-        full = state.replace(level=level)
-        return oc.get_obs(full, params) if self.env == "overcooked" else dd.get_obs(full, params)
+        return self.game.get_obs(state.replace(level=level), params)
+
+
+def _overcooked_levels(task: Task, key: jax.Array, env_ids: jax.Array, k: int) -> Any:
+    if task.levels == "generator":
+        return jax.vmap(lambda kk: generate_batch(kk, k, task.generator))(env_keys(key, env_ids))
+    if task.levels in CLASSIC_ASCII:
+        return _broadcast(classic_level(task.levels), (env_ids.shape[0], k))
+    kitchens = kitchen_set(task.levels)  # the user's kitchen files, uniformly
+    pick = jax.vmap(lambda kk: jax.random.randint(kk, (k,), 0, len(kitchens.names)))
+    return jax.tree.map(lambda x: jnp.asarray(x)[pick(env_keys(key, env_ids))], kitchens.levels)
+
+
+def _dual_destination_levels(task: Task, key: jax.Array, env_ids: jax.Array, k: int) -> Any:
+    if task.levels in ("fixed", "multi_task"):
+        level = dd.fixed_level() if task.levels == "fixed" else dd.multi_task_level()
+        return _broadcast(level, (env_ids.shape[0], k))
+    multi = task.levels == "procedural_multi_task"
+    exclude = dd.held_out_dd_levels()
+    one = lambda kk: dd.generate_dd_level(kk, multi, exclude)  # noqa: E731
+    return jax.vmap(lambda kk: jax.vmap(one)(jax.random.split(kk, k)))(env_keys(key, env_ids))
+
+
+#: Each game's training level buffers (`Task.sample_levels`), by game name.
+_LEVEL_SAMPLERS: dict[str, Callable[[Task, jax.Array, jax.Array, int], Any]] = {
+    oc.GAME.name: _overcooked_levels,
+    dd.GAME.name: _dual_destination_levels,
+}
 
 
 class KitchenSet(NamedTuple):
@@ -194,7 +187,7 @@ class KitchenSet(NamedTuple):
 
 
 def _names_files(levels: str) -> bool:
-    if levels in ("generator", *CLASSIC_ASCII, *DD_LEVELS):
+    if levels in _LEVEL_SPECS:
         return False
     return names_files(levels)
 
