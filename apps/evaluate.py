@@ -22,6 +22,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     from cec.agents.policy import load_policies
     from cec.agents.zoo import load_zoo
     from cec.config import ConfigError
+    from cec.envs.registry import game
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels, plan_games
     from cec.evaluation.results import write_csv
     from cec.levels.named import names_files
@@ -42,7 +43,7 @@ def _cmd_eval(args: argparse.Namespace) -> int:
     for s in skipped:
         print(f"cec eval: skipping {s.name}: {s.reason}", file=sys.stderr)
     env = policies[0].env.name if policies else "overcooked"
-    if own is not None and env != "overcooked":
+    if own is not None and not game(env).level_files:
         raise ConfigError(f"--levels names Overcooked kitchen files, but the zoo's policies play {env}")
     levels = own if own is not None else eval_levels(env, config.levels)
     games = plan_games(policies, levels.names, config.pairs) if policies else []

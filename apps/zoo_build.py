@@ -381,7 +381,7 @@ def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[s
                 "env_steps": int(meta["env_steps"]),
                 "sha256": meta["sha256"],
             }
-            if cfg.env.name == "overcooked" and not cfg.env.procedural:
+            if cfg.env.game.single_task_own_level and not cfg.env.procedural:
                 entry["levels"] = [cfg.env.levels]  # a single-task agent meets others on its own kitchen
             entries.append(entry)
     return entries

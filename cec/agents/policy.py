@@ -23,6 +23,7 @@ from cec.agents.network import ActorCritic, NetworkConfig, init_params, network_
 from cec.agents.scripted import scripted_kind
 from cec.agents.zoo import SkippedEntry, ZooEntry, shipped_entries
 from cec.config import ConfigError, from_dict
+from cec.envs.registry import game
 from cec.training.config import TrainConfig
 from cec.training.tasks import EnvConfig, Task
 
@@ -93,7 +94,7 @@ def scripted_policy(
     """
     spec = scripted_kind(kind)
     if env is None:
-        env = EnvConfig(name=spec.env, levels="fixed" if spec.env == "dual_destination" else "generator")
+        env = EnvConfig(name=spec.env, levels=game(spec.env).default_levels)
     if env.name != spec.env:
         raise ConfigError(f"scripted policy {kind!r} plays {spec.env}, not {env.name}")
     return Policy(

@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cec.envs.registry import GAMES
 from cec.evaluation.results import EpisodeTable, ResultsError
 from cec.evaluation.stats import iqm, sem
 from cec.levels.classic import CLASSIC_ASCII
@@ -91,11 +92,17 @@ def check_single_env(table: EpisodeTable) -> tuple[str, int]:
 METRICS = ("score", "return", "deliveries", "collisions", "shaped_return")
 
 
+def normalised_score(env: str) -> bool:
+    """The game `env` scores return / (2 x episode length) (False for a name no game has)."""
+    game = GAMES.get(env)
+    return game is not None and game.normalised_score
+
+
 def scores(table: EpisodeTable, metric: str = "score") -> np.ndarray:
     """One value per row: `score` is the return, or for Dual Destination return / (2 x episode length);
     the other `METRICS` are the table's columns."""
     if metric == "score":
-        if len(table) and table.env[0] == "dual_destination":
+        if len(table) and normalised_score(str(table.env[0])):
             return table.returns / (2.0 * table.episode_steps)
         return table.returns.astype(np.float64)
     if metric not in METRICS:

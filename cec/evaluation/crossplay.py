@@ -37,10 +37,8 @@ import numpy as np
 from cec.agents.network import ActorCritic, NetworkConfig, embed_partner_model
 from cec.agents.policy import Policy
 from cec.config import ConfigError
-from cec.envs import dual_destination as dd
+from cec.envs.registry import game
 from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
-from cec.levels.level import stack_levels
-from cec.levels.named import resolve_levels
 from cec.training.rollout import init_carry, rollout
 from cec.training.tasks import Task
 
@@ -95,30 +93,9 @@ class EvalLevels(NamedTuple):
 
 def eval_levels(env: str, spec: str) -> EvalLevels:
     """The levels named by `spec` for game `env` (see `EvalConfig.levels`), in a stable order."""
-    if env == "overcooked":
-        kitchens = resolve_levels(spec)
-        return EvalLevels(tuple(kitchens), stack_levels(list(kitchens.values())))
-    if env == "dual_destination":
-        tokens = [t.strip() for t in spec.split(",") if t.strip()]
-        if not tokens:
-            raise ConfigError("levels is empty; give e.g. `heldout`, `generated` or level names")
-        out: dict[str, Any] = {}
-        generated = dict(dd.heldout_generated_dd_levels())
-        known = {"fixed": dd.fixed_level(), "multi_task": dd.multi_task_level(), **generated}
-        for tok in tokens:
-            if tok in ("generated", "heldout"):
-                out.update({"fixed": known["fixed"]} if tok == "heldout" else {})
-                out.update(generated)
-            elif tok in known:
-                out[tok] = known[tok]
-            else:
-                raise ConfigError(
-                    f"unknown Dual Destination level {tok!r}; choose from fixed, multi_task, generated (the "
-                    "100 held-out generated tasks), heldout (fixed + generated) or "
-                    "generated_000..generated_099"
-                )
-        return EvalLevels(tuple(out), dd.stack_dd_levels(list(out.values())))
-    raise ConfigError(f"unknown env {env!r}; choose overcooked or dual_destination")
+    g = game(env)
+    named = g.named_levels(spec)
+    return EvalLevels(tuple(named), g.stack_levels(list(named.values())))
 
 
 class Game(NamedTuple):
@@ -159,10 +136,7 @@ def _episode_keys(seed: int, names: Sequence[str], episodes: Sequence[int]) -> j
 
 def _obs_settings(policy: Policy) -> tuple:
     """The env settings the policy's observations depend on (they must agree for cross-play)."""
-    if policy.env.name == "dual_destination":
-        p = policy.env.dual_destination
-        return (bool(p.partial_obs), bool(p.multi_task))
-    return ()
+    return policy.env.game.obs_settings(policy.env.params)
 
 
 def _without_partner_model(network: NetworkConfig) -> NetworkConfig:
@@ -492,13 +466,7 @@ def _to_table(
     skipped: Sequence[SkippedEntry],
 ) -> EpisodeTable:
     returns = np.asarray(rows["returns"], np.float64)
-    if reference.env.name == "overcooked":
-        per_soup = float(env_params.delivery_reward)
-        deliveries = np.round(returns / per_soup) if per_soup > 0 else np.full_like(returns, np.nan)
-    else:  # steps on a goal pair: return = steps * step_cost + goal_steps * goal_bonus
-        bonus = float(env_params.goal_bonus)
-        goal = (returns - steps * float(env_params.step_cost)) / bonus if bonus else np.nan * returns
-        deliveries = np.round(goal)
+    deliveries = reference.env.game.deliveries(returns, steps, env_params)
     n = len(returns)
     return make_table(
         {

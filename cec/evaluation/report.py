@@ -86,9 +86,9 @@ class _Report:
         self.out = out_dir
         self.sources = sources
         self.env, self.steps = an.check_single_env(table)
-        self.dd = self.env == "dual_destination"
-        self.digits = 3 if self.dd else 1
-        self.unit = "normalised score (return / (2 x episode length))" if self.dd else "team return"
+        self.normalised = an.normalised_score(self.env)
+        self.digits = 3 if self.normalised else 1
+        self.unit = "normalised score (return / (2 x episode length))" if self.normalised else "team return"
         self.md: list[str] = []
         self.figures: list[Path] = []
 
@@ -140,7 +140,8 @@ class _Report:
         slug = _slug(name)
         d = self.digits
         self.md.append(f"## Level set: {name} ({len(levels)} level{'s' if len(levels) > 1 else ''})\n")
-        if self.dd:
+        # The oracle is Dual Destination's own (cec/envs/dual_destination/oracle.py), no other game has one.
+        if self.env == "dual_destination":
             self.oracle_note(levels)
 
         # Summary per algorithm.

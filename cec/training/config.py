@@ -138,7 +138,7 @@ class TrainConfig:
                 f"{sequences} training sequences per update (num_envs x trained seats) must split evenly "
                 f"into ppo.num_minibatches = {self.ppo.num_minibatches}"
             )
-        if self.network_config.egocentric and self.env.name != "overcooked":
+        if self.network_config.egocentric and not self.env.game.egocentric:
             raise ConfigError(
                 "network_overrides.egocentric centres the view on the cell in channel 0, which is the seat's "
                 f"own cell only in Overcooked; set it to false for {self.env.name}"

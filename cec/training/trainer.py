@@ -324,7 +324,7 @@ def metrics_rows(config: TrainConfig, first_update: int, metrics: UpdateMetrics,
                 **{name: _num(getattr(loss, name)[s, j]) for name in LossInfo._fields},
                 "env_steps_per_s": round(sps, 1),
             }
-            if config.env.name == "dual_destination":  # always a column, so the CSV header has it
+            if config.env.game.normalised_score:  # always a column, so the CSV header has it
                 ret = row["mean_return"]
                 row["normalised_return"] = None if ret is None else ret / (2 * config.env.params.max_steps)
             rows.append(row)

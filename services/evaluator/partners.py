@@ -19,8 +19,8 @@ from cec import checkpoints
 from cec.agents.policy import Policy, load_policy, resolve_checkpoint
 from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
+from cec.envs.registry import GAMES
 from cec.evaluation.results import SkippedEntry
-from cec.levels.classic import CLASSIC_ASCII
 from services.evaluator.config import EvaluatorConfig
 from services.store import ControlPlane, PartnerRecord
 
@@ -73,7 +73,9 @@ def label(text: str) -> str:
 def entry_of_record(record: PartnerRecord) -> ZooEntry:
     """The zoo entry of a Redis partner; `env: overcooked:<classic kitchen>` restricts it to that kitchen."""
     game, _, layout = record.env.partition(":")
-    levels = (layout,) if game == "overcooked" and layout in CLASSIC_ASCII else None
+    known = GAMES.get(game)
+    own_level = known is not None and known.single_task_own_level and layout in known.fixed_levels
+    levels = (layout,) if own_level else None
     return ZooEntry(
         name=record.name,
         checkpoint=record.path,

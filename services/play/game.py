@@ -167,7 +167,7 @@ def load_partner(spec: PartnerSpec, base_dir: Path) -> PartnerPool:
                 f"skipped: {[s.name for s in skipped]})"
             )
     for p in policies:
-        if p.env.name != "overcooked":
+        if p.env.name != "overcooked":  # the study plays in an Overcooked kitchen (this module renders it)
             raise ConfigError(
                 f"{where}: policy {p.name!r} plays {p.env.name}; only Overcooked agents can be played"
             )
