@@ -240,7 +240,7 @@ def _cmd_level_server(args: argparse.Namespace) -> int:
 def _cmd_train(args: argparse.Namespace) -> int:
     from cec.config import load_config
     from cec.training.config import TrainConfig
-    from cec.training.trainer import train
+    from cec.training.run import train
 
     train_overrides = [o for o in args.overrides if not o.startswith(("distributed.", "store."))]
     if args.distributed:

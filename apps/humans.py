@@ -227,8 +227,8 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     from cec.agents.policy import Policy, save_policy
     from cec.humans.bc import PROXY_NETWORK
     from cec.training.config import TrainConfig
+    from cec.training.run import config_dict
     from cec.training.tasks import EnvConfig
-    from cec.training.trainer import config_dict
 
     carrier = TrainConfig(
         algorithm="ippo",

@@ -217,7 +217,7 @@ def plan_zoo(spec_path: str | Path, out_dir: str | Path) -> list[PlannedRun]:
             names = tuple(f"{stem}-s{s}" for s in group)
             plan.append(PlannedRun(i, label, config, group, names, deps))
     _check_plan(plan, spec_path)
-    from cec.training.trainer import trains_as
+    from cec.training.run import trains_as
 
     for run in plan:  # a finished run whose config differs from the spec: stop before any training
         latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
@@ -289,7 +289,7 @@ def build_zoo(
     `init_from` run is not finished yet, and both are come back to; with nothing left to start, the
     process waits (`poll_s`) for the others. Each process writes the manifest once every run is done."""
     from cec import checkpoints
-    from cec.training.trainer import train
+    from cec.training.run import train
 
     plan = plan_zoo(spec_path, out_dir)
     trained: list[str] = []

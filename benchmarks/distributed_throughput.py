@@ -51,7 +51,8 @@ def main() -> int:
     from apps.machine import machine_info
     from cec.config import load_config
     from cec.training.config import TrainConfig
-    from cec.training.trainer import Trainer, config_dict, train
+    from cec.training.run import config_dict, train
+    from cec.training.trainer import Trainer
     from services import metrics as M  # noqa: N812
     from services.learner.learner import Learner
 

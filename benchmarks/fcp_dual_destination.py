@@ -36,7 +36,7 @@ from cec.agents.zoo import ZooEntry
 from cec.config import from_dict
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from cec.training.config import TrainConfig
-from cec.training.trainer import train
+from cec.training.run import train
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     from env_throughput import git_rev, machine  # type: ignore[import-not-found]

@@ -23,8 +23,8 @@ from cec import checkpoints
 from cec.config import ConfigError
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
+from cec.training.run import RunFiles, config_dict, trains_as
 from cec.training.tracking import describe
-from cec.training.trainer import RunFiles, config_dict, trains_as
 from services.learner.config import DistributedConfig
 from services.store import StoreConfig
 

@@ -48,7 +48,8 @@ from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
 from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo
 from cec.training.rollout import RolloutCarry
-from cec.training.trainer import Progress, RunFiles, Trainer, TrainState, metrics_rows
+from cec.training.run import Progress, RunFiles, metrics_rows
+from cec.training.trainer import Trainer, TrainState
 from services import metrics as M  # noqa: N812 - the metric objects, read as M.NAME
 from services.actors.actor import ActorNotReadyError, RolloutActor, decode_batch
 from services.learner.config import DistributedConfig
@@ -489,7 +490,7 @@ class Learner:
     def _connect_store(self, resume: bool) -> None:
         if not (self.dist.publish_checkpoints and self.store_dict is not None):
             return
-        from cec.training.trainer import config_dict
+        from cec.training.run import config_dict
         from services.store import ControlPlane, StoreConfig
 
         self.plane = ControlPlane.connect(

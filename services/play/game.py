@@ -18,6 +18,9 @@ with `dir` the `Direction` codes (0 N, 1 S, 2 E, 3 W), `inv`/`item` the `Item` c
 2 plate, 3 dish) and `status` the pot status of `cec.envs.overcooked.state` (23 empty .. 20 full, counting
 down to 0 ready). Together with the round's level (ASCII in the records) it determines the `EnvState`
 (`expand_state`, its inverse).
+
+Size: the compiled round (`_advance`), its host-side driver and the compact-state codec the browser and
+the records share change together; the study flow and recording are their own modules.
 """
 
 from __future__ import annotations

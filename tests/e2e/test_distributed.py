@@ -23,7 +23,7 @@ from ray._private.utils import read_ray_address  # noqa: E402
 
 from cec.config import ConfigError, load_config  # noqa: E402
 from cec.training.config import TrainConfig  # noqa: E402
-from cec.training.trainer import config_dict, train  # noqa: E402
+from cec.training.run import config_dict, train  # noqa: E402
 from services import metrics as M  # noqa: E402,N812
 from services.learner.config import DistributedConfig  # noqa: E402
 from services.learner.driver import check_start  # noqa: E402

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from cec.config import load_config
 from cec.training.config import TrainConfig
-from cec.training.trainer import train
+from cec.training.run import train
 
 ROOT = Path(__file__).resolve().parents[2]
 

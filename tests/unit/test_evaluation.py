@@ -27,8 +27,9 @@ from cec.evaluation.results import EpisodeTable, read_csv, write_csv
 from cec.levels.classic import CLASSIC_ASCII
 from cec.training.config import TrainConfig
 from cec.training.rollout import init_carry, rollout
+from cec.training.run import config_dict
 from cec.training.tasks import EnvConfig, Task
-from cec.training.trainer import Trainer, config_dict
+from cec.training.trainer import Trainer
 
 STEPS = 24
 EPISODES = 3

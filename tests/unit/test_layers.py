@@ -8,6 +8,7 @@ graph silently leaves out.
 
 from __future__ import annotations
 
+import ast
 from pathlib import Path
 
 import grimp
@@ -15,6 +16,7 @@ import networkx as nx
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGES = ("cec", "services", "apps")
+MAX_LINES = 500
 
 
 def _graph() -> nx.DiGraph:
@@ -56,3 +58,18 @@ def test_every_code_folder_is_a_package() -> None:
         and not (folder / "__init__.py").is_file()
     ]
     assert missing == []
+
+
+def test_a_long_module_says_why() -> None:
+    """Over ~500 lines a module must say in its docstring why it stays one (a `Size:` paragraph)."""
+    long = []
+    for name in PACKAGES:
+        for path in sorted((ROOT / name).rglob("*.py")):
+            if "v1" in path.parts:  # generated gRPC stubs
+                continue
+            text = path.read_text()
+            lines = text.count("\n")
+            docstring = ast.get_docstring(ast.parse(text)) or ""
+            if lines > MAX_LINES and "Size:" not in docstring:
+                long.append(f"{path.relative_to(ROOT)} ({lines} lines)")
+    assert long == []

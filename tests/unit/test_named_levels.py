@@ -20,8 +20,8 @@ from cec.levels.classic import classic_level
 from cec.levels.heldout import heldout_levels
 from cec.levels.named import load_kitchens, resolve_levels
 from cec.training.config import TrainConfig
+from cec.training.run import train
 from cec.training.tasks import EnvConfig, Task
-from cec.training.trainer import train
 from services.play.game import check_level_spec, resolve_level
 
 UNSOLVABLE = "WWWWW\nO0 1O\nWWWWW\nWPBXW\nWWWWW\n"  # pot, plates and goal walled off

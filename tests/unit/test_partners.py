@@ -15,7 +15,8 @@ from cec.training.partners import PartnerConfig, PopulationEntry, mixture_log_pr
 from cec.training.population import load_population
 from cec.training.ppo import PPOConfig, make_batch, ppo_loss
 from cec.training.rollout import rollout
-from cec.training.trainer import Trainer, train
+from cec.training.run import train
+from cec.training.trainer import Trainer
 
 NUM_ENVS, NUM_STEPS, EPISODE = 32, 24, 6
 

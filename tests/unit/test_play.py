@@ -19,7 +19,8 @@ from cec.evaluation.results import COLUMNS
 from cec.levels.classic import classic_level
 from cec.training.config import TrainConfig
 from cec.training.rollout import policy_step
-from cec.training.trainer import Trainer, config_dict
+from cec.training.run import config_dict
+from cec.training.trainer import Trainer
 from services.play.config import PartnerSpec, StudyConfig, load_study
 from services.play.game import (
     Round,

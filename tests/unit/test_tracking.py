@@ -16,8 +16,8 @@ import pytest
 
 from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
+from cec.training.run import train
 from cec.training.tracking import TB_DIR, Tracker, TrackingConfig, describe, row_scalars
-from cec.training.trainer import train
 from tests.unit.test_training import _config
 
 event_accumulator = pytest.importorskip(

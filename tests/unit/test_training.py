@@ -16,7 +16,8 @@ from cec.config import ConfigError, from_dict
 from cec.training.config import TrainConfig
 from cec.training.ppo import make_batch
 from cec.training.rollout import rollout
-from cec.training.trainer import Trainer, train
+from cec.training.run import train
+from cec.training.trainer import Trainer
 
 
 def _config(tmp_path, **over):

@@ -16,7 +16,7 @@ from cec import checkpoints
 from cec.agents.policy import load_policies, load_policy
 from cec.agents.zoo import load_zoo
 from cec.config import ConfigError
-from cec.training import trainer
+from cec.training import run as training_run
 
 PRESETS = Path(__file__).resolve().parents[2] / "configs" / "train"
 TINY = ["num_envs=8", "num_steps=10", "total_env_steps=160", "updates_per_call=1"]  # 2 updates, one per call
@@ -124,7 +124,7 @@ def test_builds_side_by_side_share_the_runs(zoo, tmp_path, monkeypatch):
     # the real trainer refuses a held run, naming the holder
     cfg = next(r.config for r in plan_zoo(spec, out) if r.run_dir == ippo)
     with pytest.raises(checkpoints.RunBusyError, match=r"being trained by another process \(pid \d+\)"):
-        trainer.train(cfg, resume=True, log=io.StringIO())
+        training_run.train(cfg, resume=True, log=io.StringIO())
 
     trained, waits = [], []
 
@@ -132,14 +132,14 @@ def test_builds_side_by_side_share_the_runs(zoo, tmp_path, monkeypatch):
         with checkpoints.RunLock(Path(config.run_dir) / config.run_name):
             trained.append(config.run_name)
             shutil.copytree(built / "runs" / fcp.name / finals[fcp].relative_to(fcp), finals[fcp])
-        return trainer.RunResult(None, fcp, 2, interrupted=False)
+        return training_run.RunResult(None, fcp, 2, interrupted=False)
 
     def other_process_finishes(seconds):
         waits.append(seconds)
         shutil.copytree(built / "runs" / ippo.name / finals[ippo].relative_to(ippo), finals[ippo])
         holder.release()
 
-    monkeypatch.setattr(trainer, "train", fake_train)
+    monkeypatch.setattr(training_run, "train", fake_train)
     monkeypatch.setattr(zoo_build.time, "sleep", other_process_finishes)
     log = io.StringIO()
     result = build_zoo(spec, out, log=log, poll_s=7)
@@ -167,9 +167,9 @@ def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_
     def fake_train(config, *, resume, progress, log):
         calls.append((config.run_name, resume))
         shutil.copytree(copy / final.relative_to(out), final)  # "finish" the run
-        return trainer.RunResult(None, run, 2, interrupted=False)
+        return training_run.RunResult(None, run, 2, interrupted=False)
 
-    monkeypatch.setattr(trainer, "train", fake_train)
+    monkeypatch.setattr(training_run, "train", fake_train)
     log = io.StringIO()
     result = build_zoo(spec, out, log=log)
     assert calls == [("ippo-dual_destination-fixed-s0", True)] and "resuming at update 1/2" in log.getvalue()
@@ -178,7 +178,9 @@ def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_
     # an interruption stops the build without a manifest; the next build continues
     (out / "zoo.yaml").unlink()
     shutil.rmtree(final)
-    monkeypatch.setattr(trainer, "train", lambda config, **kw: trainer.RunResult(None, run, 1, True))
+    monkeypatch.setattr(
+        training_run, "train", lambda config, **kw: training_run.RunResult(None, run, 1, True)
+    )
     result = build_zoo(spec, out, log=io.StringIO())
     assert result.interrupted and result.manifest is None and not (out / "zoo.yaml").exists()
 
@@ -197,7 +199,7 @@ def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_
 )
 def test_bad_specs_fail_before_any_training(tmp_path, monkeypatch, entry, message):
     monkeypatch.chdir(PRESETS)  # presets relative to the current directory
-    monkeypatch.setattr(trainer, "train", lambda *a, **k: pytest.fail("trained despite a bad spec"))
+    monkeypatch.setattr(training_run, "train", lambda *a, **k: pytest.fail("trained despite a bad spec"))
     with pytest.raises(ConfigError) as info:
         build_zoo(_spec(tmp_path, [entry]), tmp_path / "zoo", log=io.StringIO())
     assert message in str(info.value), str(info.value)
