@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: install up demo test lint typecheck unit bench clean
+.PHONY: install up demo test test-fast lint typecheck unit bench clean
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -39,9 +39,13 @@ typecheck: install
 unit: install
 	$(BIN)/python -m pytest -q tests/unit
 
+## Everyday loop: the library's unit tests without the slow ones, JAX's compiled calls kept in .cache/jax
+test-fast: install
+	CEC_TEST_JAX_CACHE=.cache/jax $(BIN)/python -m pytest -q tests/unit -m "not slow"
+
 ## Env throughput vs JaxMARL (N = 256, 1024, 4096); results land in benchmarks/results/
 bench: install
 	$(BIN)/python benchmarks/env_throughput.py
 
 clean:
-	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) out .pytest_cache .mypy_cache .ruff_cache .cache

@@ -4,7 +4,7 @@
     python scripts/gen_proto.py --check  # exit 1 if the committed files differ from a fresh generation
 
 Needs the `dev` extra (grpcio-tools for protoc and its Python/gRPC plugins, mypy-protobuf for the gRPC
-.pyi stubs). `tests/unit/test_proto_stubs.py` runs `--check`, so stale stubs fail the test suite.
+.pyi stubs). `tests/unit/levels/test_level_wire.py` runs `--check`, so stale stubs fail the test suite.
 """
 
 from __future__ import annotations

@@ -18,7 +18,7 @@ from cec.training.tracking import TB_DIR, row_scalars  # noqa: E402
 from services.learner.config import DistributedConfig  # noqa: E402
 from services.learner.driver import run_distributed  # noqa: E402
 from services.learner.learner import DISTRIBUTED_COLUMNS  # noqa: E402
-from tests.unit.test_tracking import read_scalars  # noqa: E402
+from tests.unit.training.test_tracking import read_scalars  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
 REPO = Path(__file__).resolve().parents[2]

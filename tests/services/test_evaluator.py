@@ -338,7 +338,7 @@ def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckp
 
 
 def test_scores_go_into_the_runs_tensorboard_events_at_the_checkpoints_env_steps(plane, ckpts, zoo, tmp_path):
-    from tests.unit.test_tracking import read_scalars
+    from tests.unit.training.test_tracking import read_scalars
 
     paths = [ckpts.write("cec-tb", update, [0, 1]) for update in (2, 5)]  # env steps 32 and 80
     quiet = ckpts.write("cec-tb-off", 2, [0], tracking={"tensorboard": False})

@@ -30,7 +30,7 @@ from cec.levels.wire import (
 from services.level_server.config import CurriculumConfig, LevelServerConfig
 from services.level_server.curriculum import PrioritizedLevelReplay
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def test_generated_stubs_are_fresh():

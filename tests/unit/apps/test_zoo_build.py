@@ -18,7 +18,7 @@ from cec.agents.zoo import load_zoo
 from cec.config import ConfigError
 from cec.training import run as training_run
 
-PRESETS = Path(__file__).resolve().parents[2] / "configs" / "train"
+PRESETS = Path(__file__).resolve().parents[3] / "configs" / "train"
 TINY = ["num_envs=8", "num_steps=10", "total_env_steps=160", "updates_per_call=1"]  # 2 updates, one per call
 
 

@@ -25,7 +25,7 @@ from services.play.config import StudyConfig
 from services.play.game import Round, RoundSetup, compact_state, expand_state, load_partner, pot_cells
 from services.play.human_samples import human_samples, read_play_records
 from services.play.recording import FileStore, finished_rounds
-from tests.unit.test_play import ROOT, _play_study, _study_dict
+from tests.services.test_play import ROOT, _play_study, _study_dict
 
 
 @pytest.fixture(scope="module")

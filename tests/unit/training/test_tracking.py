@@ -18,7 +18,7 @@ from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
 from cec.training.run import train
 from cec.training.tracking import TB_DIR, Tracker, TrackingConfig, describe, row_scalars
-from tests.unit.test_training import _config
+from tests.unit.training.test_training import _config
 
 event_accumulator = pytest.importorskip(
     "tensorboard.backend.event_processing.event_accumulator", reason="reads events: pip install tensorboard"

@@ -10,7 +10,7 @@ from cec.config import load_config
 from cec.levels.classic import CLASSIC_ASCII
 from cec.training.config import ALGORITHMS, TrainConfig
 
-PRESETS = sorted((Path(__file__).resolve().parents[2] / "configs" / "train").glob("*.yaml"))
+PRESETS = sorted((Path(__file__).resolve().parents[3] / "configs" / "train").glob("*.yaml"))
 
 
 def _load(name: str) -> TrainConfig:

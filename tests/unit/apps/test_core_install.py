@@ -14,7 +14,7 @@ from pathlib import Path
 
 import yaml
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 # Top-level modules of the `services` extra's distributions (and what they pull in that the core lacks).
 PLATFORM = ("ray", "redis", "starlette", "uvicorn", "websockets", "grpc", "grpc_health", "grpc_reflection",
             "prometheus_client")  # fmt: skip

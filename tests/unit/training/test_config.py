@@ -9,7 +9,7 @@ import pytest
 from cec.config import ConfigError, load_config
 from cec.envs.overcooked import EnvParams
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs" / "env"
+CONFIGS = Path(__file__).resolve().parents[3] / "configs" / "env"
 
 
 @pytest.mark.parametrize("preset", sorted(p.name for p in CONFIGS.glob("*.yaml")))
