@@ -3,8 +3,8 @@
 The 100 generated kitchens were drawn by `generate` (default config, the classic kitchens excluded) from
 the keys `PRNGKey(HELDOUT_SEED_BASE + i)`, i = 0..99, and are frozen in `data/heldout.txt`, so the set
 never changes when the generator does (`python -m cec.levels.heldout_build --write` rebuilds the file;
-`tests/unit/levels/test_heldout.py` checks the file still matches its seeds). Kitchens are identified by content
-(`cec.levels.fingerprint`).
+`tests/unit/levels/test_heldout.py` checks the file still matches its seeds). Kitchens are identified by
+content (`cec.levels.fingerprint`).
 """
 
 from __future__ import annotations
