@@ -12,6 +12,7 @@ import sys
 import tomllib
 from pathlib import Path
 
+import pytest
 import yaml
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -55,6 +56,7 @@ def test_the_platform_packages_are_an_extra_that_make_installs() -> None:
     assert "'.[services," in (ROOT / "Makefile").read_text()
 
 
+@pytest.mark.slow
 def test_the_core_trains_and_evaluates_without_the_platform(tmp_path: Path) -> None:
     config = tmp_path / "quick.yaml"
     config.write_text(

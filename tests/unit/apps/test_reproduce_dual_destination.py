@@ -109,6 +109,7 @@ def test_the_plan_command_prints_every_run_and_the_expected_time(capsys: pytest.
     assert "unknown variant" in capsys.readouterr().err
 
 
+@pytest.mark.slow
 def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_path: Path) -> None:
     log = io.StringIO()
     report = rp.reproduce_dual_destination(

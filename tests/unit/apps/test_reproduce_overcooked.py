@@ -86,6 +86,7 @@ def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
     assert scores.cook[0] == 20.0 and np.isnan(scores.cook[1])
 
 
+@pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results(tmp_path: Path) -> None:
     work, out, log = tmp_path / "work", tmp_path / "out", io.StringIO()

@@ -39,6 +39,7 @@ def _summarise(key: jax.Array) -> dict[str, jax.Array]:
     }
 
 
+@pytest.mark.slow
 def test_two_million_levels_are_solvable_never_heldout_within_bounds_and_uniform() -> None:
     chunks = [jax.device_get(_summarise(jax.random.PRNGKey(100 + i))) for i in range(-(-N_LEVELS // CHUNK))]
     total = CHUNK * len(chunks)

@@ -103,6 +103,7 @@ def test_training_draws_its_levels_from_the_folder_only(kitchens: Path) -> None:
         from_dict(TrainConfig, {"algorithm": "ippo", "env": {"levels": str(kitchens)}})
 
 
+@pytest.mark.slow
 def test_cec_trains_on_a_folder_and_cec_eval_scores_it_there(kitchens: Path, tmp_path: Path, capsys) -> None:
     config = from_dict(
         TrainConfig,

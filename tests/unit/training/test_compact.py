@@ -40,6 +40,7 @@ def _concat_time_major(parts: list) -> object:  # Trajectory leaves are [T, E, .
     return jax.tree.map(lambda *xs: jnp.concatenate(xs, axis=1 if xs[0].ndim > 1 else 0), *parts)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("case", list(CASES))
 def test_env_slices_play_what_they_play_in_the_full_batch(case: str) -> None:
     trainer = Trainer(CASES[case])

@@ -246,6 +246,7 @@ def test_partner_model_loss_falls_with_a_fixed_partner(tmp_path):
     assert loss[0] > 1.4 and loss[-3:].mean() < 0.3 * loss[0], loss
 
 
+@pytest.mark.slow
 def test_networks_with_and_without_a_partner_model_cross_play_exactly():
     """Cross-play embeds a network into one with a longer partner history by zero weights: same policy."""
     import dataclasses

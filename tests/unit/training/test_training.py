@@ -245,6 +245,7 @@ def test_bad_configs_fail_before_any_work(tmp_path, over, message):
         _config(tmp_path, **over)
 
 
+@pytest.mark.slow
 def test_cec_and_dual_destination_tasks_train(tmp_path):
     cec = _config(tmp_path, algorithm="cec", name="cec", env={"name": "overcooked", "levels": "generator"})
     assert train(cec, progress=False).updates_done == 4
