@@ -1,4 +1,4 @@
-"""What every test layer shares: one JAX compilation cache per session, and a local Redis.
+"""What every test layer shares: one JAX compilation cache per session, a local Redis, a saved run.
 
 The suite compiles the same training and evaluation calls many times over: in process (each test builds
 its own `Trainer`, whose jitted functions are new objects) and in the `cec` commands the CLI and e2e tests
@@ -73,3 +73,42 @@ def redis_server() -> Iterator[Any]:
 def redis_config(redis_server: Any) -> Any:
     """A `StoreConfig` on the session's Redis under a key prefix of this test's own."""
     return redis_server.config(key_prefix=f"t{uuid.uuid4().hex[:8]}", retries=1)
+
+
+@pytest.fixture(scope="session")
+def saved_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path, Any]:
+    """A real two-seed checkpoint (seeds 4, 5) of a tiny IPPO run on Cramped Room, written by the trainer's
+    own checkpoint code: (run directory, checkpoint directory, the saved state). Read it; never modify it."""
+    from cec import checkpoints
+    from cec.config import from_dict
+    from cec.training.config import TrainConfig
+    from cec.training.run import config_dict
+    from cec.training.trainer import Trainer
+
+    root = tmp_path_factory.mktemp("run")
+    config = from_dict(
+        TrainConfig,
+        {
+            "algorithm": "ippo",
+            "seed": 4,
+            "num_seeds": 2,
+            "num_envs": 2,
+            "num_steps": 8,
+            "total_env_steps": 16,
+            "network": "small",
+            "env": {"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 8}},
+            "run_dir": str(root),
+            "name": "r",
+        },
+    )
+    trainer = Trainer(config)
+    state = trainer.init()
+    path = checkpoints.CheckpointStore(root / "r", keep_last=2).save(
+        state,
+        update=0,
+        env_steps=0,
+        config=config_dict(config),
+        metadata={"algorithm": "ippo", "seeds": [4, 5]},
+        milestone=False,
+    )
+    return root / "r", path, state

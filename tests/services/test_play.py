@@ -12,15 +12,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from cec import checkpoints
 from cec.config import ConfigError, from_dict
 from cec.envs import overcooked as oc
 from cec.evaluation.results import COLUMNS
 from cec.levels.classic import classic_level
-from cec.training.config import TrainConfig
 from cec.training.rollout import policy_step
-from cec.training.run import config_dict
-from cec.training.trainer import Trainer
 from services.play.config import PartnerSpec, StudyConfig, load_study
 from services.play.game import (
     Round,
@@ -391,30 +387,11 @@ def test_a_restarted_server_takes_its_participants_back(tmp_path: Path, pools: d
     assert changed.participant(token) is None
 
 
-def test_partners_load_from_checkpoints_and_zoo_groups(tmp_path: Path) -> None:
+def test_partners_load_from_checkpoints_and_zoo_groups(saved_run: Any, tmp_path: Path) -> None:
     """A real two-seed checkpoint (written by the trainer's checkpoint code) as a partner, directly and as
     a zoo group; single-task entries are drawn only for their own kitchen."""
-    config = from_dict(
-        TrainConfig,
-        {
-            "algorithm": "ippo",
-            "seed": 4,
-            "num_seeds": 2,
-            "num_envs": 2,
-            "num_steps": 8,
-            "total_env_steps": 16,
-            "network": "small",
-            "env": {"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 8}},
-            "run_dir": str(tmp_path),
-            "name": "r",
-        },
-    )
-    state = Trainer(config).init()
-    meta = {"algorithm": "ippo", "seeds": [4, 5]}
-    ckpt = checkpoints.CheckpointStore(tmp_path / "r", keep_last=2).save(
-        state, update=0, env_steps=0, config=config_dict(config), metadata=meta, milestone=False
-    )
-    pool = load_partner(PartnerSpec("ippo5", checkpoint="r", seed=5), tmp_path)  # a run dir, relative
+    run_dir, ckpt, state = saved_run
+    pool = load_partner(PartnerSpec("ippo5", checkpoint=run_dir.name, seed=5), run_dir.parent)  # relative
     (policy,) = pool.policies
     assert policy.algorithm == "ippo" and policy.seed == 5 and pool.eligible("coord_ring") == [0]
     for mine, saved in zip(jax.tree.leaves(policy.params), jax.tree.leaves(state.params), strict=True):

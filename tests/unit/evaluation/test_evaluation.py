@@ -14,22 +14,18 @@ import numpy as np
 import pytest
 
 from apps.cli import main
-from cec import checkpoints
 from cec.agents.network import ActorCritic, network_preset
 from cec.agents.policy import Policy, load_policies, random_policy
 from cec.agents.zoo import load_zoo, parse_zoo
-from cec.config import ConfigError, from_dict
+from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc
 from cec.evaluation.analysis import pair_level_scores, pair_scores, policies_of
 from cec.evaluation.crossplay import EvalConfig, crossplay, episode_key, eval_levels, plan_games
 from cec.evaluation.results import EpisodeTable, read_csv, write_csv
 from cec.levels.classic import CLASSIC_ASCII
-from cec.training.config import TrainConfig
 from cec.training.rollout import init_carry, rollout
-from cec.training.run import config_dict
 from cec.training.tasks import EnvConfig, Task
-from cec.training.trainer import Trainer
 
 STEPS = 24
 EPISODES = 3
@@ -226,38 +222,6 @@ def test_zoo_manifest_errors_name_the_cause(tmp_path):
             parse_zoo(data)
     with pytest.raises(ConfigError, match="does not exist"):
         load_zoo(tmp_path / "nope.yaml")
-
-
-@pytest.fixture(scope="module")
-def saved_run(tmp_path_factory):
-    """A real two-seed checkpoint of a tiny IPPO run (written by the trainer's own checkpoint code)."""
-    root = tmp_path_factory.mktemp("run")
-    config = from_dict(
-        TrainConfig,
-        {
-            "algorithm": "ippo",
-            "seed": 4,
-            "num_seeds": 2,
-            "num_envs": 2,
-            "num_steps": 8,
-            "total_env_steps": 16,
-            "network": "small",
-            "env": {"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 8}},
-            "run_dir": str(root),
-            "name": "r",
-        },
-    )
-    trainer = Trainer(config)
-    state = trainer.init()
-    path = checkpoints.CheckpointStore(root / "r", keep_last=2).save(
-        state,
-        update=0,
-        env_steps=0,
-        config=config_dict(config),
-        metadata={"algorithm": "ippo", "seeds": [4, 5]},
-        milestone=False,
-    )
-    return root / "r", path, state
 
 
 def test_missing_and_corrupt_checkpoints_are_skipped_with_the_reason(saved_run, tmp_path, levels):
