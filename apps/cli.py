@@ -17,6 +17,7 @@ cec up [--config YAML] [--monitoring]         the whole stack: Redis, level serv
 cec evaluator [--config YAML] [k=v]            score new checkpoints from Redis vs the zoo (a service)
 cec play serve [STUDY.yaml] [--checkpoint DIR]  human-AI play in the browser (study flow, records)
 cec play export STUDY.yaml --out DIR           a study's records -> results.csv (cec report) + survey.csv
+cec monitoring [--target JOB=HOST:PORT]      Prometheus (+ Grafana) scraping a stack's /metrics
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from typing import TYPE_CHECKING
 from cec.checkpoints import CheckpointError
 from cec.config import ConfigError
 from cec.levels import Level, LevelError
+from services.entry import configure_logging
 
 if TYPE_CHECKING:
     from cec.envs.overcooked import EnvParams
@@ -231,12 +233,6 @@ def _cmd_levels_stream(args: argparse.Namespace) -> int:
     return 0
 
 
-def _cmd_level_server(args: argparse.Namespace) -> int:
-    from services.level_server.main import run
-
-    return run(args)
-
-
 def _cmd_train(args: argparse.Namespace) -> int:
     from cec.config import load_config
     from cec.training.config import TrainConfig
@@ -378,15 +374,6 @@ def build_parser() -> argparse.ArgumentParser:
     stream.add_argument("--tile-size", type=int, default=24)
     stream.set_defaults(func=_cmd_levels_stream)
 
-    def add_level_server(sub: argparse._SubParsersAction) -> None:
-        from services.level_server.main import add_arguments
-
-        server = sub.add_parser("level-server", help="serve kitchens over gRPC until SIGTERM/Ctrl-C")
-        add_arguments(server)
-        server.set_defaults(func=_cmd_level_server)
-
-    _add_optional(sub, add_level_server, "level-server")
-
     tr = sub.add_parser("train", help="train agents in one process (rollout + PPO update jitted together)")
     tr.add_argument(
         "--config", metavar="YAML", help="training preset, e.g. configs/train/cec_overcooked.yaml"
@@ -407,36 +394,37 @@ def build_parser() -> argparse.ArgumentParser:
     )
     tr.set_defaults(func=_cmd_train)
 
-    from apps.evaluate import add_subcommands as add_evaluation_subcommands
-
-    add_evaluation_subcommands(sub)  # cec eval, cec report
-    from apps.zoo_build import add_subcommands as add_zoo_subcommands
-
-    add_zoo_subcommands(sub)  # cec zoo build
-    from apps.humans import add_subcommands as add_humans_subcommands
-
-    add_humans_subcommands(sub)  # cec humans import, replay, bc
-    from apps.reproduce import add_subcommands as add_reproduce_subcommands
-
-    add_reproduce_subcommands(sub)  # cec reproduce dual-destination, cec reproduce overcooked
-    for module, names in SERVICE_COMMANDS:
+    for module, names in COMMANDS:
         _add_optional(sub, functools.partial(_add_module_subcommands, module), *names)
     return parser
 
 
-# The services' subcommands, registered only where their packages (Ray, Redis, gRPC's health and reflection
+# Every subcommand defined outside this file, in one list: (module, the commands it adds). A module adds
+# its commands with `add_subcommands(sub)`, or is a service (`services.entry.Service`) named `SERVICE`.
+# The services' commands register only where their packages (Ray, Redis, gRPC's health and reflection
 # services, the web stack) are installed: training, evaluation and the reports run on the `cec` core alone.
-SERVICE_COMMANDS = (
+COMMANDS = (
+    ("apps.evaluate", ("eval", "report")),
+    ("apps.zoo_build", ("zoo",)),
+    ("apps.humans", ("humans",)),
+    ("apps.reproduce", ("reproduce",)),
+    ("services.level_server.main", ("level-server",)),
     ("services.stack", ("up",)),
     ("services.status", ("status",)),
     ("services.cluster", ("cluster",)),
     ("services.evaluator.main", ("evaluator",)),
     ("services.play.main", ("play",)),
+    ("services.monitoring.main", ("monitoring",)),
 )
 
 
 def _add_module_subcommands(module: str, sub: argparse._SubParsersAction) -> None:
-    importlib.import_module(module).add_subcommands(sub)
+    imported = importlib.import_module(module)
+    service = getattr(imported, "SERVICE", None)
+    if service is not None:
+        service.register(sub)
+    else:
+        imported.add_subcommands(sub)
 
 
 def _add_optional(
@@ -485,10 +473,7 @@ def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argpa
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(build_parser(), argv)
-    logging.basicConfig(
-        level=logging.DEBUG if args.verbose else logging.INFO,
-        format="%(asctime)s %(levelname)s %(name)s: %(message)s",
-    )
+    configure_logging(args.verbose)
     try:
         return int(args.func(args))
     except (LevelError, ConfigError, ValueError, CheckpointError) as err:

@@ -1,3 +1,3 @@
-from services.evaluator.main import main
+from services.evaluator.main import SERVICE
 
-raise SystemExit(main())
+raise SystemExit(SERVICE.main())

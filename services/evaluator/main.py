@@ -12,54 +12,35 @@ from __future__ import annotations
 
 import argparse
 import logging
-import sys
-from typing import Any
 
-from cec.config import ConfigError, load_config
 from cec.signals import GracefulStop
+from services.entry import Service, config_arguments, load_service_config
 from services.evaluator.config import EvaluatorConfig
+from services.store import StoreError  # needs redis: without it `cec X` names the package
 
 log = logging.getLogger("cec.evaluator")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", help="YAML preset (e.g. configs/evaluator.yaml); defaults if omitted")
-    parser.add_argument(
-        "set", nargs="*", metavar="key=value", help="config overrides, e.g. store.url=redis://host:6379/0"
-    )
+    config_arguments(parser, "configs/evaluator.yaml", "store.url=redis://host:6379/0")
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    try:
-        config = load_config(EvaluatorConfig, args.config, args.set)
-    except ConfigError as err:
-        print(f"config error: {err}", file=sys.stderr)
-        return 2
+    config = load_service_config(EvaluatorConfig, args)
     from services.evaluator.evaluator import Evaluator
     from services.metrics import MetricsEndpoint  # the evaluator imports JAX: keep `cec --help` fast
-    from services.store import StoreError
 
-    try:
-        evaluator = Evaluator(config)
-    except ConfigError as err:
-        print(f"config error: {err}", file=sys.stderr)
-        return 2
-    except StoreError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+    evaluator = Evaluator(config)
     endpoint = None
     try:
         if config.metrics_port >= 0:
             try:
                 endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host, component="evaluator")
             except OSError as err:
-                print(
-                    f"error: cannot serve metrics on {config.metrics_host}:{config.metrics_port} ({err}); "
-                    "choose another metrics_port (0: a free one, -1: off)",
-                    file=sys.stderr,
-                )
-                return 1
+                raise OSError(
+                    f"cannot serve metrics on {config.metrics_host}:{config.metrics_port} ({err}); "
+                    "choose another metrics_port (0: a free one, -1: off)"
+                ) from err
         try:
             newest = evaluator.restore_gauges()
             if newest is not None:
@@ -83,17 +64,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_subcommands(sub: Any) -> None:
-    """Adds `evaluator` to the `cec` command's subparsers."""
-    parser = sub.add_parser(
-        "evaluator",
-        help="score checkpoints from the Redis event stream against the partner zoo until SIGTERM/Ctrl-C",
-    )
-    add_arguments(parser)
-    parser.set_defaults(func=run)
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m services.evaluator", description=__doc__.split("\n")[0])
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+SERVICE = Service(
+    "evaluator",
+    "services.evaluator",
+    "score checkpoints from the Redis event stream against the partner zoo until SIGTERM/Ctrl-C",
+    add_arguments,
+    run,
+    failures=(OSError, StoreError),
+)

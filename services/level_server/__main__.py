@@ -1,3 +1,3 @@
-from services.level_server.main import main
+from services.level_server.main import SERVICE
 
-raise SystemExit(main())
+raise SystemExit(SERVICE.main())

@@ -7,9 +7,8 @@ import argparse
 import asyncio
 import logging
 import signal
-import sys
 
-from cec.config import ConfigError, load_config
+from services.entry import Service, config_arguments, load_service_config
 from services.level_server.config import LevelServerConfig
 from services.level_server.server import LevelServer
 from services.metrics import MetricsEndpoint
@@ -18,8 +17,7 @@ log = logging.getLogger("cec.level_server")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", help="YAML preset (e.g. configs/level_server.yaml); defaults if omitted")
-    parser.add_argument("set", nargs="*", metavar="key=value", help="config overrides, e.g. port=50052")
+    config_arguments(parser, "configs/level_server.yaml", "port=50052")
 
 
 async def serve(config: LevelServerConfig) -> None:
@@ -42,21 +40,14 @@ async def serve(config: LevelServerConfig) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
-    try:
-        config = load_config(LevelServerConfig, args.config, args.set)
-    except ConfigError as err:
-        print(f"config error: {err}", file=sys.stderr)
-        return 2
-    try:
-        asyncio.run(serve(config))
-    except OSError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
+    asyncio.run(serve(load_service_config(LevelServerConfig, args)))
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="cec level-server", description=__doc__.split("\n")[0])
-    add_arguments(parser)
-    return run(parser.parse_args(argv))
+SERVICE = Service(
+    "level-server",
+    "services.level_server",
+    "serve kitchens over gRPC until SIGTERM/Ctrl-C",
+    add_arguments,
+    run,
+)

@@ -1,3 +1,3 @@
-from services.monitoring.main import main
+from services.monitoring.main import SERVICE
 
-raise SystemExit(main())
+raise SystemExit(SERVICE.main())

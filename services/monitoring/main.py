@@ -1,15 +1,15 @@
-"""`python -m services.monitoring`: Prometheus (and Grafana, when installed) for a CEC stack until Ctrl-C."""
+"""`cec monitoring` (also `python -m services.monitoring`): Prometheus (and Grafana, when installed) for a
+CEC stack until Ctrl-C."""
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import logging
 import sys
-from collections.abc import Sequence
 
 from cec.config import ConfigError, load_config
 from cec.signals import GracefulStop
+from services.entry import Service
 from services.monitoring.config import (
     METRICS_PORTS,
     MonitoringConfig,
@@ -18,7 +18,6 @@ from services.monitoring.config import (
 from services.monitoring.servers import start_monitoring
 
 
-# --- python -m services.monitoring --------------------------------------------------------------------------
 def _parse_target(text: str) -> tuple[str, str]:
     job, sep, address = text.partition("=")
     if not sep:
@@ -26,11 +25,7 @@ def _parse_target(text: str) -> tuple[str, str]:
     return job, address
 
 
-def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m services.monitoring",
-        description="Start Prometheus (and Grafana, when installed) for a CEC stack; Ctrl-C stops them.",
-    )
+def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--target",
         action="append",
@@ -47,29 +42,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument(
         "set", nargs="*", metavar="key=value", help="MonitoringConfig overrides, e.g. grafana=false"
     )
-    args = parser.parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+
+
+def run(args: argparse.Namespace) -> int:
     if args.target and args.prometheus_config:
-        print("error: give --target or --prometheus-config, not both", flush=True)
-        return 2
-    try:
-        config = load_config(MonitoringConfig, None, args.set)
-    except ConfigError as err:
-        print(f"config error: {err}", flush=True)
-        return 2
+        raise ConfigError("give --target or --prometheus-config, not both")
+    config = load_config(MonitoringConfig, None, args.set)
     targets: dict[str, list[str]] | None = None
     if args.target:
         targets = {}
         for job, address in args.target:
             targets.setdefault(job, []).append(address)
-    try:
-        monitoring = start_monitoring(args.run_dir, targets, config, config_file=args.prometheus_config)
-    except MonitoringError as err:
-        print(f"error: {err}", flush=True)
-        return 1
+    monitoring = start_monitoring(args.run_dir, targets, config, config_file=args.prometheus_config)
     with monitoring, GracefulStop("stopping Prometheus and Grafana", out=sys.stdout) as stopping:
         print(monitoring.describe(), flush=True)
         print("monitoring ready; Ctrl-C stops it", flush=True)
         with contextlib.suppress(KeyboardInterrupt):
             stopping.event.wait()
     return 0
+
+
+SERVICE = Service(
+    "monitoring",
+    "services.monitoring",
+    "start Prometheus (and Grafana, when installed) for a CEC stack; Ctrl-C stops them",
+    add_arguments,
+    run,
+    failures=(OSError, MonitoringError),
+)

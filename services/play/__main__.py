@@ -1,5 +1,5 @@
 """`python -m services.play serve|export ...` (the same as `cec play ...`)."""
 
-from services.play.main import main
+from services.play.main import SERVICE
 
-raise SystemExit(main())
+raise SystemExit(SERVICE.main())

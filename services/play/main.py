@@ -14,22 +14,21 @@ from __future__ import annotations
 import argparse
 import logging
 import socket
-import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
+from services.entry import Service
 from services.play.config import MODES, StudyConfig, load_study
-from services.store import StoreError
+from services.store import StoreError  # needs redis: without it `cec X` names the package
 
 log = logging.getLogger("cec.play")
 
 
-def add_subcommands(sub: Any) -> None:
-    """Registers `cec play serve` and `cec play export` on the `cec` command's subparsers."""
-    play = sub.add_parser("play", help="human-AI play in the browser: serve a study, export its records")
+def add_arguments(play: argparse.ArgumentParser) -> None:
+    """`serve` and `export` under `cec play`."""
     play_sub = play.add_subparsers(dest="play_command", required=True)
 
     serve = play_sub.add_parser("serve", help="serve a study (or free play with one partner) over HTTP")
@@ -58,7 +57,7 @@ def add_subcommands(sub: Any) -> None:
     serve.add_argument("--port", type=int, default=8000, help="port (0: a free one; default 8000)")
     serve.add_argument("--data", help="records folder (overrides storage.dir)")
     serve.add_argument("--redis-url", help="also record to this Redis (overrides storage.redis_url)")
-    serve.set_defaults(func=_cmd_serve)
+    serve.set_defaults(play_func=_cmd_serve)
 
     export = play_sub.add_parser(
         "export", help="a study's records -> results.csv (cec report) and survey.csv"
@@ -70,7 +69,7 @@ def add_subcommands(sub: Any) -> None:
     export.add_argument(
         "--out", required=True, metavar="DIR", help="writes DIR/results.csv and DIR/survey.csv"
     )
-    export.set_defaults(func=_cmd_export)
+    export.set_defaults(play_func=_cmd_export)
 
 
 def _storage_overrides(args: argparse.Namespace) -> list[str]:
@@ -200,11 +199,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             "give a study file (e.g. configs/study/default.yaml) or a partner to play with: "
             "--checkpoint RUN_DIR, --zoo ZOO.yaml [--group ALG] or --random-init"
         )
-    try:
-        return serve(config, base_dir, args.host, args.port)
-    except StoreError as err:
-        print(f"cec play serve: error: {err}", file=sys.stderr)
-        return 1
+    return serve(config, base_dir, args.host, args.port)
 
 
 def _cmd_export(args: argparse.Namespace) -> int:
@@ -213,20 +208,16 @@ def _cmd_export(args: argparse.Namespace) -> int:
 
     config, _ = load_study(args.study, [*args.set, *_storage_overrides(args)])
     directory = "" if args.redis_url is not None else config.storage.dir
+    stores = open_stores(
+        config.name, directory, config.storage.redis_url, config.storage.key_prefix, create=False
+    )
     try:
-        stores = open_stores(
-            config.name, directory, config.storage.redis_url, config.storage.key_prefix, create=False
-        )
-        try:
-            if not stores[0].participants():
-                raise RecordError(f"no records of study {config.name!r} in {directory or 'Redis'}")
-            table, survey = export_tables(stores[0])
-        finally:
-            for s in stores:
-                s.close()
-    except StoreError as err:
-        print(f"cec play export: error: {err}", file=sys.stderr)
-        return 1
+        if not stores[0].participants():
+            raise RecordError(f"no records of study {config.name!r} in {directory or 'Redis'}")
+        table, survey = export_tables(stores[0])
+    finally:
+        for s in stores:
+            s.close()
     out = Path(args.out)
     results = write_csv(table, out / "results.csv")
     answers = write_survey_csv(survey, out / "survey.csv")
@@ -236,14 +227,15 @@ def _cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
-def main(argv: list[str] | None = None) -> int:
-    """`python -m services.play ...`: the same as `cec play ...`."""
-    parser = argparse.ArgumentParser(prog="python -m services.play")
-    add_subcommands(parser.add_subparsers(dest="command", required=True))
-    args = parser.parse_args(["play", *(argv if argv is not None else sys.argv[1:])])
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    try:
-        return int(args.func(args))
-    except (ConfigError, ValueError) as err:
-        print(f"cec play: error: {err}", file=sys.stderr)
-        return 2
+def run(args: argparse.Namespace) -> int:
+    return int(args.play_func(args))
+
+
+SERVICE = Service(
+    "play",
+    "services.play",
+    "human-AI play in the browser: serve a study, export its records",
+    add_arguments,
+    run,
+    failures=(OSError, StoreError),
+)

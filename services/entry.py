@@ -1,0 +1,93 @@
+"""One entry point for every service: `cec <command>` and `python -m services.<package>` parse their
+arguments, log, load the config and turn errors into exit statuses the same way.
+
+A service module defines its `add_arguments(parser)` and `run(args) -> int` and one `SERVICE = Service(...)`;
+`SERVICE.register` adds it to the `cec` command (apps/cli.py's one registration list) and `SERVICE.main` is
+its `python -m` entry. `run` raises rather than prints:
+
+- bad input, a `ValueError` (`ConfigError`: a bad preset, override, zoo manifest or study file; a bad
+  level or record) or a `CheckpointError`: one line `cec <command>: config error: ...` (`error:` for the
+  others) on stderr, exit status 2;
+- one of the service's `failures` (by default `OSError`: a port taken; the evaluator adds `StoreError`:
+  Redis unreachable): one line `cec <command>: error: ...`, exit status 1.
+
+Anything else is a bug and keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from cec.checkpoints import CheckpointError
+from cec.config import ConfigError, load_config
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+
+
+def configure_logging(verbose: bool = False) -> None:
+    """INFO (DEBUG when `verbose`) to stderr, in the one format every service and the `cec` command use."""
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format=LOG_FORMAT)
+
+
+def config_arguments(parser: argparse.ArgumentParser, preset: str, example: str) -> None:
+    """`--config YAML` and trailing `key=value` overrides (read by `load_service_config`)."""
+    parser.add_argument("--config", help=f"YAML preset (e.g. {preset}); defaults if omitted")
+    parser.add_argument("set", nargs="*", metavar="key=value", help=f"config overrides, e.g. {example}")
+
+
+def load_service_config(cls: type, args: argparse.Namespace) -> Any:
+    """The config of `config_arguments`' flags: the preset (or the defaults) with the overrides applied;
+    `ConfigError` naming the field and the fix."""
+    return load_config(cls, args.config, args.set)
+
+
+@dataclass(frozen=True)
+class Service:
+    """A service's command line.
+
+    Attributes:
+        command: its `cec` subcommand, e.g. "level-server".
+        module: the module `python -m` runs it as, e.g. "services.level_server".
+        help: one line for `cec --help`.
+        add_arguments: adds its flags to a parser.
+        run: runs it on parsed arguments; returns the exit status.
+        failures: exception types that mean "the service could not do its work here" (exit 1).
+    """
+
+    command: str
+    module: str
+    help: str
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    run: Callable[[argparse.Namespace], int]
+    failures: tuple[type[BaseException], ...] = (OSError,)
+
+    def register(self, sub: Any) -> None:
+        """Adds `cec <command>` to the `cec` command's subparsers."""
+        parser = sub.add_parser(self.command, help=self.help, description=self.help)
+        self.add_arguments(parser)
+        parser.set_defaults(func=self.call)
+
+    def call(self, args: argparse.Namespace) -> int:
+        """`run(args)` with its errors as one line on stderr and an exit status (module docstring)."""
+        try:
+            return int(self.run(args))
+        except (ValueError, CheckpointError) as err:
+            kind = "config error" if isinstance(err, ConfigError) else "error"
+            print(f"cec {self.command}: {kind}: {err}", file=sys.stderr)
+            return 2
+        except self.failures as err:
+            print(f"cec {self.command}: error: {err}", file=sys.stderr)
+            return 1
+
+    def main(self, argv: list[str] | None = None) -> int:
+        """`python -m <module> ...`: the same as `cec <command> ...`."""
+        parser = argparse.ArgumentParser(prog=f"python -m {self.module}", description=self.help)
+        self.add_arguments(parser)
+        args = parser.parse_args(argv)
+        configure_logging()
+        return self.call(args)
