@@ -54,8 +54,12 @@ def test_config_errors_exit_2_with_the_cause(tmp_path):
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_a_signal_saves_a_checkpoint_and_resume_finishes(tmp_path, sig):
+    # A run far too long to finish before the signal arrives, however fast the machine or warm the compile
+    # cache (400 updates used to finish first now and then); the resumed run then stops 5 updates later.
     cfg = tmp_path / "quick.yaml"
-    cfg.write_text(yaml.safe_dump({**QUICK, "run_dir": str(tmp_path / "runs")}))
+    cfg.write_text(
+        yaml.safe_dump({**QUICK, "total_env_steps": 4 * 8 * 10**7, "run_dir": str(tmp_path / "runs")})
+    )
     proc = _cec("train", "--config", str(cfg))
     assert proc.stderr is not None
     for line in proc.stderr:  # wait until training is under way
@@ -68,14 +72,17 @@ def test_a_signal_saves_a_checkpoint_and_resume_finishes(tmp_path, sig):
     run = tmp_path / "runs" / "cli"
     meta = json.loads(next((run / "checkpoints").glob("update_*/meta.json")).read_text())
     stopped_at = meta["update"]
-    assert 0 < stopped_at < 400
+    assert stopped_at > 0
 
-    proc = _cec("train", "--resume", str(run), "--quiet")
+    proc = _cec("train", "--resume", str(run), "--quiet", "--max-updates", "5")
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
-    assert f"resuming {run} from update {stopped_at}" in err and "finished after 400 updates" in out
+    assert (
+        f"resuming {run} from update {stopped_at}" in err
+        and f"finished after {stopped_at + 5} updates" in out
+    )
     updates = [json.loads(line)["update"] for line in (run / "metrics.jsonl").read_text().splitlines()]
-    assert updates == list(range(1, 401))
+    assert updates == list(range(1, stopped_at + 6))
 
 
 def test_resume_continues_a_moved_run_where_it_lies(tmp_path):
