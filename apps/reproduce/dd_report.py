@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -57,6 +58,14 @@ def _verdict(ours: Score | None, p: PaperNumber | None) -> str:
         return ""
     d = ours.mean - p.mean
     return f"{d:+.3f}" + ("" if abs(d) <= TOLERANCE else f" (differs by {abs(d):.3f} > {TOLERANCE})")
+
+
+def _fits(raw: Score | None, clipped: Score | None, p: PaperNumber | None) -> str:
+    if raw is None or clipped is None or p is None or p.mean is None:
+        return ""
+    if abs(raw.mean - clipped.mean) < 0.01:
+        return "either"
+    return "raw" if abs(raw.mean - p.mean) < abs(clipped.mean - p.mean) else "clipped"
 
 
 def bar_plot(summary: dict[str, dict[str, dict[str, Score]]], variant: str, path: Path) -> Path:
@@ -145,16 +154,32 @@ def write_report(
     missing = [VARIANT_TITLES[v] for v in VARIANTS if v not in summaries]
     if missing:
         md.append(f"Not run for this report: {', '.join(missing)} (`--variants`).\n")
-    md.append("| variant | task set | algorithm | ours: XP mean ± SE | seeds | paper | ours − paper |")
-    md.append("|---|---|---|---|---|---|---|")
+    md.append(
+        "XP is played as the paper plays it, with sampled actions; *clipped*: the same episodes with each "
+        "return clipped at 0 before normalising (a pair that never meets on a goal pair scores 0, not "
+        "-0.5); *greedy*: every seed acting with its most likely action, which shows its convention without "
+        "the re-planning that sampling allows after a clash. *fits*: the scale (raw or clipped) whose XP is "
+        "nearer the paper's number.\n"
+    )
+    md.append(
+        "| variant | task set | algorithm | ours: XP mean ± SE | XP clipped | greedy XP | greedy SP | seeds "
+        "| paper | ours − paper | fits |"
+    )
+    md.append("|---|---|---|---|---|---|---|---|---|---|---|")
     for variant in [v for v in VARIANTS if v in summaries]:
         for level_set in LEVEL_SETS:
+            kinds = summaries.get(variant, {}).get(level_set, {})
             for algo in ALGORITHMS:
-                s = summaries.get(variant, {}).get(level_set, {}).get("xp", {}).get(algo)
+                s = kinds.get("xp", {}).get(algo)
+                clipped = kinds.get("xp_clipped", {}).get(algo)
                 p = paper_number(variant, level_set, algo)
                 n = "—" if s is None else str(s.n)
                 where = f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo.upper()} |"
-                md.append(f"{where} {_pm(s)} | {n} | {_paper_cell(p)} | {_verdict(s, p)} |")
+                greedy = " | ".join(_pm(kinds.get(k, {}).get(algo)) for k in ("greedy_xp", "greedy_sp"))
+                md.append(
+                    f"{where} {_pm(s)} | {_pm(clipped)} | {greedy} | {n} | {_paper_cell(p)} | "
+                    f"{_verdict(s, p)} | {_fits(s, clipped, p)} |"
+                )
     md.append("")
     md.append("## The paper's orderings\n")
     md.append(
@@ -175,7 +200,12 @@ def write_report(
     held = sum(c.holds for c in claims)
     sig = sum(c.significant for c in claims)
     md.append(f"{held} of {len(claims)} orderings hold, {sig} of them significantly.\n")
-    failed = [ordering_reason(c, summaries[c.variant][c.level_set]) for c in claims if not c.holds]
+    conventions = meta.get("conventions", {})
+    failed = [
+        ordering_reason(c, summaries[c.variant][c.level_set], conventions.get(c.variant, {}).get(c.worse))
+        for c in claims
+        if not c.holds
+    ]
     if failed:
         md.append("Where an ordering does not hold, what the same seeds' self-play (SP) shows:\n")
         md.extend(failed)
@@ -241,16 +271,42 @@ def write_report(
             "self-play, on the fixed task and on generated tasks; FCP with its population, untrained "
             "first milestones included).\n"
         )
-        md.append("| variant | algorithm | seeds | env steps per seed | training time | return at the end |")
-        md.append("|---|---|---|---|---|---|")
+        md.append(
+            "| variant | algorithm | seeds | env steps per seed | training time | return at the end | "
+            "entropy at the end |"
+        )
+        md.append("|---|---|---|---|---|---|---|")
         for variant, per in meta["training"].items():
             for algo in ALGORITHMS:
                 t = per.get(algo)
                 if t is not None:
                     md.append(
                         f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {t['seeds']} | {t['env_steps']:,} | "
-                        f"{t['seconds'] / 60:.1f} min | {t['final_return']:.3f} |"
+                        f"{t['seconds'] / 60:.1f} min | {t['final_return']:.3f} | "
+                        f"{t.get('final_entropy', math.nan):.2f} |"
                     )
+        md.append("")
+        md.append(
+            "Entropy in nats (log 5 = 1.61: uniform over the five actions). A seed with high entropy samples "
+            "often off its convention, and a partner that sees it re-plans: sampled XP then hides a "
+            "mismatch that greedy XP shows.\n"
+        )
+    if meta.get("conventions"):
+        md.append("## Conventions\n")
+        md.append(
+            "The goal seat 0 stands on at the end of each seed's greedy self-play on the variant's fixed "
+            "task (row, column; `green (0, 2)` is the top goal of the fixed task, `green (4, 2)` the "
+            "bottom one). Seeds that differ here cannot all coordinate with each other greedily.\n"
+        )
+        md.append("| variant | algorithm | seed: seat 0's goal | distinct conventions |")
+        md.append("|---|---|---|---|")
+        for variant, per in meta["conventions"].items():
+            for algo in ALGORITHMS:
+                seeds = per.get(algo, {})
+                if seeds:
+                    listed = ", ".join(f"{seed}: {goal}" for seed, goal in sorted(seeds.items()))
+                    distinct = len({g for g in seeds.values() if g != "no goal"})
+                    md.append(f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {listed} | {distinct} |")
         md.append("")
     md.append("## Reference points: self-play and the oracle partner\n")
     md.append(
@@ -351,9 +407,12 @@ def difference_reason(
     return said + "the seeds play well with themselves and each other but below the paper's value."
 
 
-def ordering_reason(claim: ClaimResult, kinds: dict[str, dict[str, Score]]) -> str:
+def ordering_reason(
+    claim: ClaimResult, kinds: dict[str, dict[str, Score]], conventions: dict[int, str] | None = None
+) -> str:
     """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
-    as well as with itself (the coordination failure the ordering rests on did not occur) and whether
+    as well as with itself (the coordination failure the ordering rests on did not occur), whether greedy
+    play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, and whether
     `better` learned the task as well as `worse` did (SP)."""
     xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
     b, w = claim.better, claim.worse
@@ -371,6 +430,16 @@ def ordering_reason(claim: ClaimResult, kinds: dict[str, dict[str, Score]]) -> s
             f"{w.upper()}'s seeds coordinate with each other about as well as with themselves, so the "
             "failure with unseen partners that the paper's ordering rests on did not occur"
         )
+    gxp, gsp = kinds.get("greedy_xp", {}).get(w), kinds.get("greedy_sp", {}).get(w)
+    if gxp is not None and gsp is not None:
+        hidden = gsp.mean - gxp.mean > CONVENTION_GAP >= sp[w].mean - xp[w].mean
+        parts.append(
+            f"greedy, {w.upper()} XP {gxp.mean:.3f} vs SP {gsp.mean:.3f}"
+            + (": its seeds' conventions differ, and sampling hides it" if hidden else "")
+        )
+    if conventions:
+        counts = sorted(Counter(conventions.values()).items())
+        parts.append(f"{w.upper()}'s seeds send seat 0 to " + ", ".join(f"{g} ({n})" for g, n in counts))
     if sp[b].mean < sp[w].mean - TOLERANCE:
         parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
     return head + "; ".join(parts) + "."

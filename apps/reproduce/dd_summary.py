@@ -44,12 +44,24 @@ class Score:
     samples: tuple[float, ...]
 
 
+#: The kinds of score `summarise` gives: (kind, actions played, episode returns clipped at 0).
+KINDS = (
+    ("xp", "sampled", False),  # the paper's protocol: sampled actions, cross-play with unseen seeds
+    ("sp", "sampled", False),
+    ("oracle", "sampled", False),
+    ("xp_clipped", "sampled", True),  # each episode's return clipped at 0 before normalising
+    ("greedy_xp", "greedy", False),  # each seed's most likely action: its convention, unblurred
+    ("greedy_sp", "greedy", False),
+)
+
+
 def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]]:
-    """{level set: {kind: {algorithm: Score}}} with kinds `xp` (per seed, its mean with the algorithm's
-    other seeds: the paper's measure, with seeds as the units), `sp` (each seed with itself) and `oracle`
-    (each seed with the oracle partner); the oracle partner's own self-play is under `sp` as `oracle`."""
-    from cec.evaluation import analysis as an
-    from cec.evaluation.stats import seed_means, sem
+    """{level set: {kind: {algorithm: Score}}} for the `KINDS` the table has episodes of: `xp` (per seed,
+    its mean with the algorithm's other seeds: the paper's measure, with seeds as the units), `sp` (each
+    seed with itself), `oracle` (each seed with the oracle partner; the oracle's own self-play is under
+    `sp` as `oracle`), `xp_clipped` (`xp` with every episode's return clipped at 0, the scale on which a
+    failed episode scores 0 rather than -0.5), and `greedy_xp`/`greedy_sp` (the table's greedy episodes)."""
+    import dataclasses
 
     out: dict[str, dict[str, dict[str, Score]]] = {}
     for level_set in LEVEL_SETS:
@@ -58,23 +70,39 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
         )
         if not names:
             continue
-        pl = an.pair_level_scores(table, names)
-        m = an.pair_scores(pl)
-        seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ALGORITHMS, ORACLE)}
-        kinds: dict[str, dict[str, Score]] = {"xp": {}, "sp": {}, "oracle": {}}
-        for algo, idx in seeds.items():
-            if not idx:
+        kinds: dict[str, dict[str, Score]] = {}
+        for kind, actions, clipped in KINDS:
+            played = table.select(table.actions == actions)
+            if not len(played):
                 continue
-            xp = [x for x in seed_means(m[np.ix_(idx, idx)]) if not math.isnan(x)]  # seeds: the units
-            sp = [m[i, i] for i in idx if not math.isnan(m[i, i])]
-            with_oracle = [m[i, o] for i in idx for o in seeds[ORACLE] if not math.isnan(m[i, o])]
-            for kind, vals in (("xp", xp), ("sp", sp), ("oracle", with_oracle)):
-                if vals and not (kind == "oracle" and algo == ORACLE):
-                    arr = np.asarray(vals, np.float64)
-                    kinds[kind][algo] = Score(
-                        float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist())
-                    )
+            if clipped:
+                played = dataclasses.replace(played, returns=np.maximum(played.returns, 0.0))
+            kinds[kind] = _scores(played, names, kind.removeprefix("greedy_").removesuffix("_clipped"))
         out[level_set] = kinds
+    return out
+
+
+def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
+    """{algorithm: Score} of one kind (`xp`, `sp`, `oracle`) on the levels `names`."""
+    from cec.evaluation import analysis as an
+    from cec.evaluation.stats import seed_means, sem
+
+    pl = an.pair_level_scores(table, names)
+    m = an.pair_scores(pl)
+    seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ALGORITHMS, ORACLE)}
+    out = {}
+    for algo, idx in seeds.items():
+        if not idx or (kind == "oracle" and algo == ORACLE):
+            continue
+        if kind == "xp":
+            vals = [x for x in seed_means(m[np.ix_(idx, idx)]) if not math.isnan(x)]  # seeds: the units
+        elif kind == "sp":
+            vals = [m[i, i] for i in idx if not math.isnan(m[i, i])]
+        else:
+            vals = [m[i, o] for i in idx for o in seeds[ORACLE] if not math.isnan(m[i, o])]
+        if vals:
+            arr = np.asarray(vals, np.float64)
+            out[algo] = Score(float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist()))
     return out
 
 
@@ -130,12 +158,15 @@ class TrainingStats:
             checkpointing not included), also when this invocation skipped the finished run.
         final_return: normalised training return at the end (mean over seeds of the last 5 updates), with
             the partner it trained with (itself; FCP: its population).
+        final_entropy: policy entropy (nats; log 5 = 1.61 is uniform) at the end, the same way; low means
+            the seeds act almost deterministically, so sampled and greedy play agree.
     """
 
     seeds: int
     env_steps: int
     seconds: float
     final_return: float
+    final_entropy: float = math.nan
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
@@ -158,7 +189,12 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
         )
         last = sorted(per_update)[-5:]
         final = [r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r]
+        entropy = [r["entropy"] for r in rows if r["update"] in last and r.get("entropy") is not None]
         out[algo] = TrainingStats(
-            len(seeds), int(steps[-1]), float(seconds), float(np.mean(final)) if final else math.nan
+            len(seeds),
+            int(steps[-1]),
+            float(seconds),
+            float(np.mean(final)) if final else math.nan,
+            float(np.mean(entropy)) if entropy else math.nan,
         )
     return out

@@ -305,20 +305,57 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
     for level_set in LEVEL_SETS:
         spec = fixed_level_name(variant) if level_set == "fixed" else _generated_spec(mode)
         levels = eval_levels("dual_destination", spec)
-        config = EvalConfig(levels=spec, episodes=mode.episodes[level_set], seed=seed, games_per_call=1)
-        for k, algo in enumerate(ALGORITHMS):
-            group = [p for p in policies if p.algorithm == algo]
-            t0 = time.perf_counter()
-            table = crossplay([*group, oracle], levels, config)
-            if k:  # the oracle's self-play once
-                table = table.select((table.policy_a != ORACLE) | (table.policy_b != ORACLE))
-            tables.append(table)
-            _log(
-                log,
-                f"{variant}: {len(group)} {algo} seeds + oracle partner, every pair, on the "
-                f"{LEVEL_SET_TITLES[level_set]}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s",
+        for greedy in (False, True):
+            config = EvalConfig(
+                levels=spec, episodes=mode.episodes[level_set], seed=seed, games_per_call=1, greedy=greedy
             )
+            for k, algo in enumerate(ALGORITHMS):
+                group = [p for p in policies if p.algorithm == algo]
+                t0 = time.perf_counter()
+                # greedy: the seeds among themselves (XP, SP); sampled: with the oracle partner too
+                table = crossplay(group if greedy else [*group, oracle], levels, config)
+                if k and not greedy:  # the oracle's self-play once
+                    table = table.select((table.policy_a != ORACLE) | (table.policy_b != ORACLE))
+                tables.append(table)
+                actions = "greedy" if greedy else "sampled"
+                _log(
+                    log,
+                    f"{variant}: {len(group)} {algo} seeds{'' if greedy else ' + oracle partner'}, every "
+                    f"pair, {actions} actions, on the {LEVEL_SET_TITLES[level_set]}: {len(table)} episodes "
+                    f"in {time.perf_counter() - t0:.0f}s",
+                )
     return EpisodeTable.concat(tables)
+
+
+def conventions(variant: str, manifest: Path) -> dict[str, dict[int, str]]:
+    """{algorithm: {seed: its convention}}: the goal seat 0 stands on at the end of the seed's greedy
+    self-play on the variant's fixed task (`green (0, 2)`: the top goal of the fixed task; `no goal`)."""
+    import jax
+    import numpy as np
+
+    from cec.agents.policy import load_policies
+    from cec.agents.zoo import load_zoo
+    from cec.evaluation.crossplay import episode_states, eval_levels
+
+    policies, _ = load_policies(load_zoo(manifest))
+    name = fixed_level_name(variant)
+    level = jax.tree.map(lambda x: x[0], eval_levels("dual_destination", name).levels)
+    out: dict[str, dict[int, str]] = {}
+    for p in policies:
+        states, _ = episode_states(p, p, level, name, greedy=True)
+        at = tuple(int(v) for v in np.asarray(states.agent_pos)[-1, 0])
+        out.setdefault(p.algorithm, {})[int(p.seed)] = goal_label(level, at)
+    return out
+
+
+def goal_label(level: Any, cell: tuple[int, int]) -> str:
+    """`green (r, c)` / `pink (r, c)` when `cell` is one of `level`'s goals, else `no goal`."""
+    import numpy as np
+
+    for colour in ("green", "pink"):
+        if any(tuple(int(v) for v in g) == cell for g in np.asarray(getattr(level, f"{colour}_goals"))):
+            return f"{colour} {cell}"
+    return "no goal"
 
 
 def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
@@ -371,6 +408,7 @@ def reproduce_dual_destination(
     stages: dict[str, float] = {}
     summaries = {}
     trained: dict[str, dict[str, Any]] = {}
+    seat0: dict[str, dict[str, dict[int, str]]] = {}
     skipped_runs: list[str] = []
     train_s = eval_s = 0.0
     for variant in variants:
@@ -383,6 +421,7 @@ def reproduce_dual_destination(
         t0 = time.perf_counter()
         table = cached_evaluation(mode, variant, manifest, work / variant, log=log)
         summaries[variant] = summarise(table, variant)
+        seat0[variant] = conventions(variant, manifest)
         trained[variant] = {a: t.__dict__ for a, t in training_stats(manifest.parent).items()}
         stages[f"{variant}: evaluate"] = time.perf_counter() - t0
         eval_s += stages[f"{variant}: evaluate"]
@@ -398,6 +437,7 @@ def reproduce_dual_destination(
         "eval_s": eval_s,
         "stages": stages,
         "training": trained,
+        "conventions": seat0,
         "skipped_runs": skipped_runs,
         "work": str(work),
     }
@@ -450,6 +490,11 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     if args.plan:
         _print_plan(mode, variants, work, out, sys.stdout)
         return 0
+    if code_version().endswith("+dirty") and not args.allow_dirty:
+        raise ConfigError(
+            "the working tree has uncommitted changes, so the report could not name the code it came from; "
+            "commit them first (or pass --allow-dirty for a report marked +dirty)"
+        )
     command = command_of(mode)
     command += f" --variants {','.join(variants)}" if args.variants else ""
     command += "".join(f" --{k} {getattr(args, k)}" for k in ("work", "out") if getattr(args, k))
@@ -484,6 +529,11 @@ def add_subcommand(rep_sub: Any) -> None:
     dd.add_argument(
         "--variants",
         help=f"comma-separated subset of {','.join(VARIANTS)} (default: all; --quick: full_obs)",
+    )
+    dd.add_argument(
+        "--allow-dirty",
+        action="store_true",
+        help="write the report from a tree with uncommitted changes (its git revision is marked +dirty)",
     )
     dd.add_argument("--quiet", action="store_true", help="no per-update progress lines")
     dd.set_defaults(func=_cmd_reproduce_dd)

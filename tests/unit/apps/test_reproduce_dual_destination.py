@@ -148,7 +148,24 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
     xp = summary["summaries"]["full_obs"]["fixed"]["xp"]["cec"]
     pairs = (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
     assert xp["n"] == 3 and xp["n_seeds"] == 3
-    assert xp["mean"] == pytest.approx(table.returns[pairs & (table.level == "fixed")].mean() / 200)
+    sampled = table.actions == "sampled"
+    assert xp["mean"] == pytest.approx(table.returns[pairs & sampled & (table.level == "fixed")].mean() / 200)
+    # greedy play of the seeds among themselves, without the oracle; the conventions of every seed
+    greedy = table.actions == "greedy"
+    assert np.any(greedy) and not np.any(
+        greedy & ((table.policy_a == rp.ORACLE) | (table.policy_b == rp.ORACLE))
+    )
+    kinds = summary["summaries"]["full_obs"]["fixed"]
+    assert {"xp", "sp", "oracle", "xp_clipped", "greedy_xp", "greedy_sp"} <= set(kinds)
+    assert kinds["xp_clipped"]["cec"]["mean"] >= xp["mean"] and kinds["greedy_xp"]["cec"]["n"] == 3
+    seat0 = summary["meta"]["conventions"]["full_obs"]
+    assert {a: sorted(map(int, v)) for a, v in seat0.items()} == {
+        "ippo": [0, 1, 2], "fcp": [100, 101, 102], "cec": [200, 201, 202],
+    }  # fmt: skip
+    assert all(
+        g == "no goal" or g.startswith(("green (", "pink (")) for v in seat0.values() for g in v.values()
+    )
+    assert "## Conventions" in text and "entropy at the end" in text
 
     # a second run resumes: nothing is trained or played again, and the report is the same
     log2 = io.StringIO()
@@ -183,7 +200,15 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     generated = {"cec": _score(0.80), "fcp": _score(0.0), "ippo": _score(0.0)}
     summaries = {
         "full_obs": {
-            "fixed": {"xp": fixed, "sp": {"fcp": _score(0.62), "ippo": _score(0.72)}, "oracle": {}},
+            "fixed": {
+                "xp": fixed,
+                "sp": {"fcp": _score(0.62), "ippo": _score(0.72)},
+                "oracle": {},
+                "xp_clipped": {"cec": _score(0.95)},
+                # IPPO: greedy, its seeds' conventions clash (XP well below SP); sampled play hides it
+                "greedy_xp": {"ippo": _score(0.35)},
+                "greedy_sp": {"ippo": _score(0.59)},
+            },
             "generated": {"xp": generated, "sp": {"cec": _score(0.95)}, "oracle": {"cec": _score(0.9)}},
         },
         "partial_obs": {  # CEC learned (SP) but its seeds do not agree; FCP did not learn at all
@@ -203,8 +228,19 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         "train_s": 50.0,
         "eval_s": 10.0,
         "why": "Why: a test.",
+        "conventions": {"full_obs": {"ippo": {0: "green (4, 2)", 1: "green (0, 2)", 2: "green (0, 2)"}}},
     }
     text = rp.write_report(tmp_path, rp.FULL, summaries, meta).read_text()
+    cec_fixed = next(
+        ln for ln in text.splitlines() if ln.startswith("| Fully observable | fixed task | CEC |")
+    )
+    assert "| 0.940 ± 0.004 | 0.950 ± 0.004 | — | — | 4 | 0.931 ± 0.013 |" in cec_fixed
+    assert cec_fixed.endswith("| raw |")  # 0.940 is nearer the paper's 0.931 than the clipped 0.950
+    ippo_fixed = next(
+        ln for ln in text.splitlines() if ln.startswith("| Fully observable | fixed task | IPPO |")
+    )
+    assert "| 0.350 ± 0.004 | 0.590 ± 0.004 |" in ippo_fixed
+    assert "| Fully observable | IPPO | 0: green (4, 2), 1: green (0, 2), 2: green (0, 2) | 2 |" in text
     assert "CEC, fully observable, fixed task: 0.940 vs the paper's 0.931: within 0.05." in text
     assert "generated tasks: 0.800 vs the paper's 0.966: **not within** (by 0.166)" in text
     line = next(ln for ln in text.splitlines() if ln.startswith("- Fully observable, held-out generated"))
@@ -227,3 +263,5 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     )
     assert "IPPO's seeds coordinate with each other about as well as with themselves" in reason
     assert "FCP also plays the task less well with itself than IPPO does" in reason
+    assert "greedy, IPPO XP 0.350 vs SP 0.590: its seeds' conventions differ, and sampling hides it" in reason
+    assert "IPPO's seeds send seat 0 to green (0, 2) (2), green (4, 2) (1)" in reason
