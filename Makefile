@@ -25,8 +25,12 @@ demo: install
 	$(BIN)/cec demo --out out/demo.gif
 
 ## Lint, type checks and the whole test suite (unit + JaxMARL parity)
+# The pure-compute layers (no ports, no services) run on every core; the services and end-to-end layers,
+# which start servers and time their recoveries, run one test at a time.
+TEST_WORKERS ?= auto
 test: lint typecheck
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests/unit tests/parity tests/learning
+	$(BIN)/python -m pytest -q tests/services tests/e2e
 
 lint: install
 	$(BIN)/ruff check .
@@ -41,7 +45,7 @@ unit: install
 
 ## Everyday loop: the library's unit tests without the slow ones, JAX's compiled calls kept in .cache/jax
 test-fast: install
-	CEC_TEST_JAX_CACHE=.cache/jax $(BIN)/python -m pytest -q tests/unit -m "not slow"
+	CEC_TEST_JAX_CACHE=.cache/jax $(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests/unit -m "not slow"
 
 ## Env throughput vs JaxMARL (N = 256, 1024, 4096); results land in benchmarks/results/
 bench: install
