@@ -348,7 +348,7 @@ def conventions(variant: str, manifest: Path) -> dict[str, dict[int, str]]:
     return out
 
 
-def goal_label(level: Any, cell: tuple[int, int]) -> str:
+def goal_label(level: Any, cell: tuple[int, ...]) -> str:
     """`green (r, c)` / `pink (r, c)` when `cell` is one of `level`'s goals, else `no goal`."""
     import numpy as np
 
