@@ -1,7 +1,8 @@
 """The numbers `cec reproduce dual-destination` reports, from what its runs wrote.
 
-`summarise`: per task set, kind (XP, SP, with the oracle partner) and algorithm, a variant's score over
-seeds, from its cross-play table (`dual_destination.evaluate_variant`). `check_claims`: the paper's
+`summarise`: per task set, kind (XP, SP, with the oracle partner; sampled and greedy) and algorithm, a
+variant's score over seeds, from its cross-play table (`dual_destination.evaluate_variant`); `conventions`:
+the goal each seed sends seat 0 to in greedy self-play. `check_claims`: the paper's
 orderings (`dd_paper.CLAIMS`) tested on per-seed XP. `training_stats`: each algorithm's training time and
 return at the end, from its runs' metrics. `dd_report.write_report` writes them beside the paper's numbers.
 """
@@ -104,6 +105,37 @@ def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
             arr = np.asarray(vals, np.float64)
             out[algo] = Score(float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist()))
     return out
+
+
+def conventions(variant: str, manifest: Path) -> dict[str, dict[int, str]]:
+    """{algorithm: {seed: its convention}}: the goal seat 0 stands on at the end of the seed's greedy
+    self-play on the variant's fixed task (`green (0, 2)`: the top goal of the fixed task; `no goal`)."""
+    import jax
+    import numpy as np
+
+    from cec.agents.policy import load_policies
+    from cec.agents.zoo import load_zoo
+    from cec.evaluation.crossplay import episode_states, eval_levels
+
+    policies, _ = load_policies(load_zoo(manifest))
+    name = fixed_level_name(variant)
+    level = jax.tree.map(lambda x: x[0], eval_levels("dual_destination", name).levels)
+    out: dict[str, dict[int, str]] = {}
+    for p in policies:
+        states, _ = episode_states(p, p, level, name, greedy=True)
+        at = tuple(int(v) for v in np.asarray(states.agent_pos)[-1, 0])
+        out.setdefault(p.algorithm, {})[int(p.seed)] = goal_label(level, at)
+    return out
+
+
+def goal_label(level: Any, cell: tuple[int, ...]) -> str:
+    """`green (r, c)` / `pink (r, c)` when `cell` is one of `level`'s goals, else `no goal`."""
+    import numpy as np
+
+    for colour in ("green", "pink"):
+        if any(tuple(int(v) for v in g) == cell for g in np.asarray(getattr(level, f"{colour}_goals"))):
+            return f"{colour} {cell}"
+    return "no goal"
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,7 @@ from typing import Any, TextIO
 
 import yaml
 
-from apps.machine import duration, log_line
-from apps.machine import machine_info as _machine_info
+from apps.machine import duration, log_line, machine_info
 from apps.reproduce.dd_paper import (
     ALGORITHMS,
     LEVEL_SET_TITLES,
@@ -56,18 +55,12 @@ from apps.reproduce.dd_paper import (
 from apps.reproduce.dd_paper import CLAIMS as CLAIMS
 from apps.reproduce.dd_paper import ORACLE_FIXED as ORACLE_FIXED
 from apps.reproduce.dd_paper import PAPER as PAPER
-from apps.reproduce.dd_paper import VARIANT_TITLES as VARIANT_TITLES
 from apps.reproduce.dd_paper import PaperNumber as PaperNumber
 from apps.reproduce.dd_paper import paper_number as paper_number
-from apps.reproduce.dd_report import TOLERANCE as TOLERANCE
-from apps.reproduce.dd_report import bar_plot as bar_plot
 from apps.reproduce.dd_report import write_report
 from apps.reproduce.dd_summary import ALPHA as ALPHA
-from apps.reproduce.dd_summary import ClaimResult as ClaimResult
 from apps.reproduce.dd_summary import Score as Score
-from apps.reproduce.dd_summary import TrainingStats as TrainingStats
-from apps.reproduce.dd_summary import check_claims as check_claims
-from apps.reproduce.dd_summary import summarise, training_stats
+from apps.reproduce.dd_summary import conventions, summarise, training_stats
 from cec.checkpoints import code_version
 from cec.config import ConfigError
 
@@ -327,37 +320,6 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
     return EpisodeTable.concat(tables)
 
 
-def conventions(variant: str, manifest: Path) -> dict[str, dict[int, str]]:
-    """{algorithm: {seed: its convention}}: the goal seat 0 stands on at the end of the seed's greedy
-    self-play on the variant's fixed task (`green (0, 2)`: the top goal of the fixed task; `no goal`)."""
-    import jax
-    import numpy as np
-
-    from cec.agents.policy import load_policies
-    from cec.agents.zoo import load_zoo
-    from cec.evaluation.crossplay import episode_states, eval_levels
-
-    policies, _ = load_policies(load_zoo(manifest))
-    name = fixed_level_name(variant)
-    level = jax.tree.map(lambda x: x[0], eval_levels("dual_destination", name).levels)
-    out: dict[str, dict[int, str]] = {}
-    for p in policies:
-        states, _ = episode_states(p, p, level, name, greedy=True)
-        at = tuple(int(v) for v in np.asarray(states.agent_pos)[-1, 0])
-        out.setdefault(p.algorithm, {})[int(p.seed)] = goal_label(level, at)
-    return out
-
-
-def goal_label(level: Any, cell: tuple[int, ...]) -> str:
-    """`green (r, c)` / `pink (r, c)` when `cell` is one of `level`'s goals, else `no goal`."""
-    import numpy as np
-
-    for colour in ("green", "pink"):
-        if any(tuple(int(v) for v in g) == cell for g in np.asarray(getattr(level, f"{colour}_goals"))):
-            return f"{colour} {cell}"
-    return "no goal"
-
-
 def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
     """What a variant's results depend on: the evaluation settings and every zoo entry (its checkpoint and
     the state's SHA-256 that `cec zoo build` pinned)."""
@@ -382,11 +344,6 @@ def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, l
     return cached_table(vdir, key, play, label=f"{variant}: ", log=log)
 
 
-def machine_info() -> dict[str, Any]:
-    """The machine the command ran on: host, CPU model, cores, JAX device, load average."""
-    return _machine_info(load_average=True)
-
-
 # ---------------------------------------------------------------------------------------------------------
 # THE COMMAND
 # ---------------------------------------------------------------------------------------------------------
@@ -404,7 +361,7 @@ def reproduce_dual_destination(
 ) -> Path:
     """Trains, evaluates and reports (see the module docstring); returns the report's path."""
     t_start = time.perf_counter()
-    load_start = machine_info()["load_average_1_5_15min"]
+    load_start = machine_info(load_average=True)["load_average_1_5_15min"]
     stages: dict[str, float] = {}
     summaries = {}
     trained: dict[str, dict[str, Any]] = {}
@@ -425,7 +382,7 @@ def reproduce_dual_destination(
         trained[variant] = {a: t.__dict__ for a, t in training_stats(manifest.parent).items()}
         stages[f"{variant}: evaluate"] = time.perf_counter() - t0
         eval_s += stages[f"{variant}: evaluate"]
-    machine = machine_info()
+    machine = machine_info(load_average=True)
     machine["load_average_start"] = load_start
     meta = {
         "command": command or command_of(mode),
