@@ -119,7 +119,7 @@ def test_tracking_config_and_a_missing_wandb_before_any_work(tmp_path, monkeypat
 
 
 def test_wandb_offline_writes_a_run_folder(tmp_path, monkeypatch):
-    pytest.importorskip("wandb", reason="the optional W&B mirror: pip install wandb")
+    wandb = pytest.importorskip("wandb", reason="the optional W&B mirror: pip install wandb")
     for var in ("WANDB_CACHE_DIR", "WANDB_CONFIG_DIR", "WANDB_DATA_DIR"):
         monkeypatch.setenv(var, str(tmp_path / "wandb-home"))
     run_dir = tmp_path / "run"
@@ -128,6 +128,10 @@ def test_wandb_offline_writes_a_run_folder(tmp_path, monkeypatch):
     with Tracker(run_dir, config, name="run", run_config={"seed": 0}) as tracker:
         tracker.log_rows([{"update": 1, "env_steps": 96, "seed": 0, "total_loss": 0.5, "mean_return": 1.0}])
         tracker.log(96, {"eval/self_play/classic/return": 3.0})
+    # run.finish() only tells W&B's service process that the run ended: the service closes the run's file
+    # (its last buffered block) on its own time, which under load came after this test read it (CI, once).
+    # A `cec` process's exit stops the service and waits for it (W&B's atexit teardown); so does this.
+    wandb.teardown()
     [folder] = (run_dir / "wandb").glob("offline-run-*")
     [data] = folder.glob("run-*.wandb")
     content = data.read_bytes()
