@@ -18,27 +18,37 @@ from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from services.play.main import free_play_config, prepare
 
 SHIPPED_NAMES = [e.name for e in load_zoo(SHIPPED)]
+CEC_NAMES = [e.name for e in load_zoo(SHIPPED) if e.algorithm == "cec"]
+PROXIES = [e for e in load_zoo(SHIPPED) if e.algorithm == "human_proxy"]
+CLASSIC = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
 
 
-def test_the_shipped_zoo_exists_and_names_cec_policies() -> None:
-    assert SHIPPED_ZOO.is_file() and SHIPPED_NAMES
-    assert {e.algorithm for e in load_zoo(SHIPPED)} >= {"cec"}
+def test_the_shipped_zoo_exists_and_names_cec_policies_and_a_human_proxy_per_classic_kitchen() -> None:
+    assert SHIPPED_ZOO.is_file() and CEC_NAMES
     for entry in load_zoo(SHIPPED):
         assert Path(entry.checkpoint).is_relative_to(SHIPPED_ZOO.parent)  # inside the package
         assert sum(f.stat().st_size for f in Path(entry.checkpoint).iterdir()) < 4 * 2**20  # parameters only
+    # the evaluation proxies (`hp_`: cloned from the test games, players the `bc_` proxies never saw)
+    assert sorted(level for e in PROXIES for level in e.levels) == sorted(CLASSIC)
+    assert all(e.name == f"hp_{e.levels[0]}" for e in PROXIES)
 
 
 @pytest.mark.parametrize("name", SHIPPED_NAMES)
-def test_each_shipped_policy_loads_by_name_with_its_sha256_and_delivers_with_the_cook(name: str) -> None:
-    """What a person playing with it depends on: with a competent partner (the scripted cook) it delivers
-    (benchmarks/results/overcooked/cpu/report.md: 101-160 per 400 steps on the classic kitchens)."""
+def test_each_shipped_policy_loads_by_name_with_its_sha256(name: str) -> None:
     (entry,) = [e for e in load_zoo(SHIPPED) if e.name == name]
     path = resolve_checkpoint(name)  # the name stands for the checkpoint
     assert path == Path(entry.checkpoint)
     digest = hashlib.sha256((path / checkpoints.STATE_FILE).read_bytes()).hexdigest()
     assert digest == entry.sha256 == checkpoints.read_meta(path)["sha256"]
+    assert load_policy(ZooEntry(name, name)).algorithm == entry.algorithm
+    assert load_policy(entry).levels == entry.levels  # a proxy plays the kitchen of its games only
+
+
+@pytest.mark.parametrize("name", CEC_NAMES)
+def test_each_shipped_cec_policy_delivers_with_the_cook(name: str) -> None:
+    """What a person playing with it depends on: with a competent partner (the scripted cook) it delivers
+    (benchmarks/results/overcooked/cpu/report.md: 101-160 per 400 steps on the classic kitchens)."""
     policy = load_policy(ZooEntry(name, name))
-    assert policy.algorithm == entry.algorithm and policy.env.procedural  # trained on generated kitchens
     cook = scripted_policy("cook", "cook", env=policy.env, algorithm="cook")
     table = crossplay(
         [policy, cook], eval_levels("overcooked", "cramped_room"),
@@ -48,11 +58,27 @@ def test_each_shipped_policy_loads_by_name_with_its_sha256_and_delivers_with_the
     assert np.mean(returns) >= 40, f"{name} with the cook: {returns} on cramped_room (one soup is 20)"
 
 
+def test_the_shipped_human_proxies_deliver_with_the_cook_in_their_kitchens() -> None:
+    """The evaluator and `cec report` score agents with these: each plays its own kitchen only, and with a
+    competent partner soups get delivered there (docs/humans.md has the proxies' figures)."""
+    proxies = [load_policy(e) for e in PROXIES]
+    cook = scripted_policy("cook", "cook", env=proxies[0].env, algorithm="cook")
+    table = crossplay(
+        [*proxies, cook], eval_levels("overcooked", ",".join(CLASSIC)),
+        EvalConfig(episodes=4, max_steps=400, pairs="with:cook"),
+    )  # fmt: skip
+    played = table.policy_a != table.policy_b
+    for p in proxies:
+        mine = played & ((table.policy_a == p.name) | (table.policy_b == p.name))
+        assert set(table.level[mine]) == set(p.levels), p.name
+        assert np.mean(table.returns[mine]) >= 20, f"{p.name} with the cook: {table.returns[mine]}"
+
+
 def test_the_shipped_cec_agents_deliver_with_themselves() -> None:
     """`cec play serve --partner cec` and `cec render --policy` show an agent that cooks on its own: the best
     shipped CEC policy delivers with itself on Cramped Room (the report's 15M-step seeds are weak in self-play
     on the classic kitchens, 0-75 per seed; report.md gives every figure)."""
-    policies = [load_policy(ZooEntry(e.name, e.name)) for e in load_zoo(SHIPPED) if e.algorithm == "cec"]
+    policies = [load_policy(ZooEntry(name, name)) for name in CEC_NAMES]
     config = EvalConfig(episodes=4, max_steps=400, pairs="self")
     table = crossplay(policies, eval_levels("overcooked", "cramped_room"), config)
     best = max(np.mean(table.returns[table.policy_a == p.name]) for p in policies)
