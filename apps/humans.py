@@ -28,6 +28,7 @@ from typing import Any, TextIO
 import numpy as np
 
 from apps.machine import log_line
+from cec.agents.zoo import HUMAN_PROXY
 from cec.config import ConfigError
 from cec.envs.overcooked.state import Action
 from cec.humans.bc import BCConfig
@@ -236,13 +237,13 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
         network_overrides=PROXY_NETWORK,
         seed=config.seed,
     )  # the network and game the parameters belong to
-    policy = Policy(name, "human_proxy", config.seed, result.params, PROXY_NETWORK, carrier.env)
+    policy = Policy(name, HUMAN_PROXY, config.seed, result.params, PROXY_NETWORK, carrier.env)
     saved = save_policy(
         policy, out / name, config=config_dict(carrier), env_steps=0, update=result.best_epoch
     )
     entry: dict[str, Any] = {
         "name": name,
-        "algorithm": "human_proxy",
+        "algorithm": HUMAN_PROXY,
         "seed": config.seed,
         "checkpoint": name,
         "sha256": checkpoints.read_meta(saved)["sha256"],

@@ -41,6 +41,9 @@ from cec.config import ConfigError
 #: The zoo name that stands for the manifest of the policies shipped with the package.
 SHIPPED = "shipped"
 SHIPPED_ZOO = Path(__file__).resolve().parents[1] / "shipped" / "zoo.yaml"
+#: The algorithm label of behaviour-cloned human proxies (`cec humans bc`): reports score agents with them
+#: apart from the other algorithms (as people-like partners, not as ad-hoc agents).
+HUMAN_PROXY = "human_proxy"
 _ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "scripted", "levels", "sha256")
 #: Descriptive keys `cec zoo build` also writes (not used to load the policy).
 _INFO_KEYS = ("env", "layout", "env_steps")

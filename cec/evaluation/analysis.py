@@ -25,6 +25,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from cec.agents.zoo import HUMAN_PROXY
 from cec.envs.registry import GAMES
 from cec.evaluation.results import EpisodeTable, ResultsError
 from cec.evaluation.stats import iqm, sem
@@ -228,7 +229,8 @@ def algorithm_matrix(pl: PairLevel) -> Matrix:
 
 def algorithm_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
     """Per algorithm, its pair scores: `sp` (each policy with itself), `xp` (two different seeds of the
-    algorithm) or `adhoc` (its policies with every policy of another algorithm)."""
+    algorithm), `adhoc` (its policies with every policy of another algorithm, human proxies aside) or
+    `human` (its policies with every human proxy, `HUMAN_PROXY`)."""
     m = pair_scores(pl)
     out: dict[str, np.ndarray] = {}
     for alpha in algorithms_of(pl.policies):
@@ -237,11 +239,16 @@ def algorithm_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
             vals = np.asarray([m[i, i] for i in idx])
         elif kind == "xp":
             vals = _pairs_between(pl, m, alpha, alpha)
-        elif kind == "adhoc":
-            others = [j for j, p in enumerate(pl.policies) if p.algorithm != alpha]
-            vals = np.asarray([m[i, j] for i in idx for j in others])
+        elif kind in ("adhoc", "human"):
+            human = kind == "human"
+            others = [
+                j
+                for j, p in enumerate(pl.policies)
+                if p.algorithm != alpha and (p.algorithm == HUMAN_PROXY) == human
+            ]
+            vals = np.asarray([m[i, j] for i in idx for j in others], np.float64)
         else:
-            raise ValueError(f"kind must be sp, xp or adhoc, got {kind!r}")
+            raise ValueError(f"kind must be sp, xp, adhoc or human, got {kind!r}")
         out[alpha] = vals[~np.isnan(vals)]
     return out
 

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
 from cec.evaluation.results import EpisodeTable
@@ -145,44 +146,44 @@ class _Report:
             self.oracle_note(levels)
 
         # Summary per algorithm.
-        sp, xp, adhoc = (an.algorithm_samples(pl, k) for k in ("sp", "xp", "adhoc"))
+        sp, xp, adhoc, human = (an.algorithm_samples(pl, k) for k in ("sp", "xp", "adhoc", "human"))
+        with_humans = any(p.algorithm == HUMAN_PROXY for p in pl.policies)
         prox = an.br_prox(pl)
         rows = []
         for alpha in an.algorithms_of(pl.policies):
             b = prox.get(alpha)
-            rows.append(
-                [
-                    alpha,
-                    str(len(sp.get(alpha, []))),
-                    _pm(*_mean_sem(sp.get(alpha)), d),
-                    _pm(*_mean_sem(xp.get(alpha)), d),
-                    _pm(*_mean_sem(adhoc.get(alpha)), d),
-                    "—" if b is None else f"{b.iqm:.2f} [{b.q25:.2f}, {b.q75:.2f}]",
-                ]
-            )
+            row = [
+                alpha,
+                str(len(sp.get(alpha, []))),
+                _pm(*_mean_sem(sp.get(alpha)), d),
+                _pm(*_mean_sem(xp.get(alpha)), d),
+                _pm(*_mean_sem(adhoc.get(alpha)), d),
+            ]
+            if with_humans:
+                row.append("—" if alpha == HUMAN_PROXY else _pm(*_mean_sem(human.get(alpha)), d))
+            rows.append([*row, "—" if b is None else f"{b.iqm:.2f} [{b.q25:.2f}, {b.q75:.2f}]"])
+        heads = ["algorithm", "seeds", "SP", "XP (other seeds)", "ad hoc (other algorithms)"]
+        if with_humans:
+            heads.append("with human proxies")
         self.md.append("### Scores per algorithm\n")
-        self.md.append(
-            _table(
-                [
-                    "algorithm",
-                    "seeds",
-                    "SP",
-                    "XP (other seeds)",
-                    "ad hoc (other algorithms)",
-                    "BR-prox IQM [IQR]",
-                ],
-                rows,
-            )
-        )
+        self.md.append(_table([*heads, "BR-prox IQM [IQR]"], rows))
         self.md.append(
             "Mean ± standard error over pairs. BR-prox: score with a partner divided by the best score any "
             "zoo policy reached with that partner on that level (capped at 1), interquartile mean over "
             "(policy, partner, level).\n"
         )
+        if with_humans:
+            self.md.append(
+                f"Human proxies (algorithm `{HUMAN_PROXY}`: behaviour-cloned from recorded human-human games, "
+                "`cec humans bc`) are people-like partners, kept out of the ad-hoc column: with human proxies "
+                "= a policy with each proxy, on the levels the proxy plays. The paper's human study (Counter "
+                "Circuit and Coordination Ring, score with real people): E3T ahead, CEC and CEC-Finetune "
+                "next, FCP and IPPO behind (CEC ahead of FCP, p < 0.001).\n"
+            )
         self.seed_matrices(pl, slug)
         self.algorithm_heatmap(pl, name, slug)
         self.per_level(pl, levels, name, slug)
-        self.tests(xp, adhoc)
+        self.tests(xp, adhoc, human)
         self.meta_game(pl, name, slug)
 
     def oracle_note(self, levels: list[str]) -> None:
@@ -290,15 +291,20 @@ class _Report:
                 )
             self.md.append(_table(["algorithm", "levels", "mean ± SE over levels", "median"], rows))
 
-    def tests(self, xp: dict[str, np.ndarray], adhoc: dict[str, np.ndarray]) -> None:
+    def tests(
+        self, xp: dict[str, np.ndarray], adhoc: dict[str, np.ndarray], human: dict[str, np.ndarray]
+    ) -> None:
         self.md.append("### Significance between algorithms\n")
         self.md.append(
             "Two-sided Welch t-test and 95% percentile bootstrap interval (10,000 resamples) of the "
             "difference of mean pair scores.\n"
         )
         d = self.digits
-        for label, samples in (("XP (other seeds of the same algorithm)", xp), ("ad hoc", adhoc)):
-            algos = [a for a in sorted(samples) if samples[a].size]
+        kinds = [("XP (other seeds of the same algorithm)", xp), ("ad hoc", adhoc)]
+        if any(v.size for v in human.values()):
+            kinds.append(("with human proxies", human))
+        for label, samples in kinds:
+            algos = [a for a in sorted(samples) if samples[a].size and a != HUMAN_PROXY]
             rows = []
             for i, a in enumerate(algos):
                 for b in algos[i + 1 :]:

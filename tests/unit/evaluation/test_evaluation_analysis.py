@@ -280,3 +280,27 @@ def test_report_for_dual_destination_uses_oracle_normalised_scores(tmp_path: Pat
     assert "Meta-game" in text and "| cec 1.000 | stable | yes | yes |" in text
     for name in ("seed_matrices_fixed", "algorithms_fixed", "per_level_fixed", "replicator_fixed"):
         assert (tmp_path / "rep" / f"{name}.png").stat().st_size > 1000
+
+
+def test_human_proxies_are_their_own_column_not_ad_hoc_partners(tmp_path: Path):
+    """`cec report` scores agents with human proxies (`cec humans bc`) beside their cross-play; the proxies
+    do not count as ad-hoc partners."""
+    base = {**BASE, "human_proxy": 60.0}
+
+    def value(p, q, level, seat, ep):
+        return (base[p[0]] + base[q[0]]) / 2 + (10 if level == "coord_ring" else 0) + 4 * seat
+
+    t = _table([*POLICIES, ("human_proxy", 0)], value)
+    pl = an.pair_level_scores(t)
+    adhoc, human = an.algorithm_samples(pl, "adhoc"), an.algorithm_samples(pl, "human")
+    assert adhoc["cec"] == pytest.approx([77.0] * 6)  # with IPPO only: (100 + 40) / 2 + 5 + 2
+    assert human["cec"] == pytest.approx([87.0] * 3) and human["ippo"] == pytest.approx([57.0] * 2)
+    assert adhoc["human_proxy"].size == 5 and human["human_proxy"].size == 0
+    text = write_report(t, tmp_path / "rep").read_text()
+    assert "| ad hoc (other algorithms) | with human proxies |" in text
+    assert "| cec | 3 | 105.0 ± 0.0 | 107.0 ± 0.0 | 77.0 ± 0.0 | 87.0 ± 0.0 |" in text
+    assert "**with human proxies**" in text and "| cec vs ippo | 87.0 vs 57.0 |" in text
+    assert "vs human_proxy" not in text  # the proxies are partners, not an algorithm under test
+    assert "E3T ahead, CEC and CEC-Finetune next" in text
+    plain = write_report(_table(POLICIES, value), tmp_path / "plain").read_text()
+    assert "with human proxies" not in plain
