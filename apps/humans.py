@@ -226,7 +226,6 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     returns its zoo entry (restricted to `kitchen` when one is given)."""
     from cec import checkpoints
     from cec.agents.policy import Policy, save_policy
-    from cec.humans.bc import PROXY_NETWORK
     from cec.training.config import TrainConfig
     from cec.training.run import config_dict
     from cec.training.tasks import EnvConfig
@@ -234,10 +233,10 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     carrier = TrainConfig(
         algorithm="ippo",
         env=EnvConfig(levels=kitchen or KITCHENS[0]),
-        network_overrides=PROXY_NETWORK,
+        network_overrides=config.network,
         seed=config.seed,
     )  # the network and game the parameters belong to
-    policy = Policy(name, HUMAN_PROXY, config.seed, result.params, PROXY_NETWORK, carrier.env)
+    policy = Policy(name, HUMAN_PROXY, config.seed, result.params, config.network, carrier.env)
     saved = save_policy(
         policy, out / name, config=config_dict(carrier), env_steps=0, update=result.best_epoch
     )
@@ -367,7 +366,10 @@ def _count(n: int, noun: str) -> str:
 
 
 def _cmd_bc(args: argparse.Namespace) -> int:
-    config = BCConfig(epochs=args.epochs, seed=args.seed)
+    try:
+        config = BCConfig(epochs=args.epochs, seed=args.seed, **_preset_network(args.preset))
+    except ConfigError as err:
+        return _bc_error(str(err))
     if args.from_play is not None:
         from services.play.recording import RecordError
 
@@ -387,6 +389,16 @@ def _cmd_bc(args: argparse.Namespace) -> int:
         print(f"{name:<22} {f['early_stopped_on']:<15} {f['accuracy']:>8.3f} {f['cross_entropy']:>6.3f}"
               f"   {f['frequency_accuracy']:.3f}, {f['frequency_cross_entropy']:.3f}")  # fmt: skip
     return 0
+
+
+def _preset_network(preset: str | None) -> dict[str, Any]:
+    """{"network": the network of a training preset} ({} without one: the CEC CPU recipe's)."""
+    if preset is None:
+        return {}
+    from cec.config import load_config
+    from cec.training.config import TrainConfig
+
+    return {"network": load_config(TrainConfig, preset, []).network_config}
 
 
 def _bc_error(message: str) -> int:
@@ -427,4 +439,10 @@ def add_subcommands(sub: Any) -> None:
     bc.add_argument("--kitchens", nargs="+", help="all and/or classic kitchen names (default: all + each)")
     bc.add_argument("--epochs", type=int, default=BCConfig.epochs, help="passes over the games (best kept)")
     bc.add_argument("--seed", type=int, default=0, help="initialisation and sample order")
+    bc.add_argument(
+        "--preset",
+        metavar="YAML",
+        help="clone with this training preset's network (a proxy plays only with agents of its architecture; "
+        "feed-forward only); default: the CEC CPU recipe's",
+    )
     bc.set_defaults(func=_cmd_bc)

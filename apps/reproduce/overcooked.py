@@ -13,13 +13,15 @@
 2. **Evaluate** (`cec.evaluation.crossplay`, common random numbers, both seat orders, 400-step episodes)
    each algorithm's seeds with each other (cross-play: partners they never met), with themselves
    (self-play), and with the scripted cook (`cook`, a partner none of them trained with), on the five
-   classic kitchens and on the 100 held-out kitchens. A single-kitchen agent meets others on its own
-   kitchen among the classic ones, and plays every held-out kitchen.
+   classic kitchens and on the 100 held-out kitchens; on the classic kitchens also with the human proxies
+   (`--proxies`, default the shipped `hp_<kitchen>`: behaviour-cloned from recorded human games, each in
+   its own kitchen). A single-kitchen agent meets others on its own kitchen among the classic ones, and
+   plays every held-out kitchen.
 3. **Report** `report.md` + `summary.json`: per level set and algorithm the mean team return over seeds
    (each seed's mean over its partners first: seeds are the independent units), SP beside XP beside the
-   cook, the paper's values (`paper_overcooked.yaml`, read off its figures) beside ours, Welch tests of CEC
-   against each baseline on per-seed XP, learning curves (PNG) and a GIF of two CEC seeds in a held-out
-   kitchen.
+   cook and the human proxies, the paper's values (`paper_overcooked.yaml`, read off its figures) and its
+   human study's ordering beside ours, Welch tests of CEC against each baseline on per-seed XP and score
+   with the proxies, learning curves (PNG) and a GIF of two CEC seeds in a held-out kitchen.
 
 The work directory (`--work`, default `runs/reproduce/overcooked-<mode>`) holds the zoo (`zoo/`), its spec
 and the result tables; the report goes to `--out` (default `benchmarks/results/overcooked/<mode>`).
@@ -45,6 +47,7 @@ import numpy as np
 import yaml
 
 from apps.machine import duration, log_line, machine_info
+from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
 from cec.config import ConfigError
 from cec.levels.classic import CLASSIC_ASCII
@@ -60,7 +63,15 @@ EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
 ALPHA = 0.05
 MEASURED_ON = "the CEC CPU preset, one seed, 2-core AMD EPYC, both cores busy (2.4k steps/s), 2026-11-22"
 MACHINE_FILE = "machine.json"  # the machine and commit that trained and played, in the work folder
-TABLE_HEAD = "| algorithm | self-play | cross-play (unseen partners) | XP / SP | with the cook | paper (XP) |"
+TABLE_HEAD = (
+    "| algorithm | self-play | cross-play (unseen partners) | XP / SP | with the cook | with human proxies "
+    "| paper (XP) |"
+)
+#: The paper's human study (score with real people on Counter Circuit and Coordination Ring, its Q3).
+HUMAN_STUDY = (
+    "E3T ahead; CEC and CEC-Finetune next; FCP and IPPO behind (CEC ahead of FCP, p < 0.001). People "
+    "rated CEC and CEC-Finetune the better partners on all seven subjective measures."
+)
 
 
 @dataclass(frozen=True)
@@ -79,6 +90,8 @@ class Mode:
         measured_on: where and how they were measured.
         overrides: applied to every run (a tiny network in tests).
         generated_levels: held-out generated kitchens played (fewer only in tests).
+        proxies: a zoo manifest (or `shipped`) whose `human_proxy` entries play every agent on the classic
+            kitchens ('' none); they must have the agents' network (`cec humans bc --preset`).
     """
 
     name: str
@@ -92,6 +105,7 @@ class Mode:
     measured_on: str = ""
     overrides: tuple[str, ...] = ()
     generated_levels: int = 100
+    proxies: str = SHIPPED
 
 
 QUICK = Mode(
@@ -234,20 +248,42 @@ def level_spec(mode: Mode, level_set: str) -> str:
     return ",".join(f"generated_{i:03d}" for i in range(mode.generated_levels))
 
 
-def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
-    """Per level set and algorithm: its seeds and the scripted cook, every pair (XP, SP, with the cook),
-    both seat orders -> one `EpisodeTable`. On the held-out kitchens single-kitchen agents play every
-    kitchen (the paper's baselines there)."""
-    from cec.agents.policy import load_policies, scripted_policy
+def _load(manifest: str | Path) -> list[Any]:
+    """Every policy of a zoo manifest; a `ConfigError` naming each entry that cannot be loaded."""
+    from cec.agents.policy import load_policies
     from cec.agents.zoo import load_zoo
-    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-    from cec.evaluation.results import EpisodeTable
 
     policies, skipped = load_policies(load_zoo(manifest))
     if skipped:
         raise ConfigError(
-            "zoo entries could not be loaded: " + "; ".join(f"{s.name}: {s.reason}" for s in skipped)
+            f"{manifest}: zoo entries could not be loaded: "
+            + "; ".join(f"{s.name}: {s.reason}" for s in skipped)
         )
+    return policies
+
+
+def human_proxies(mode: Mode) -> list[Any]:
+    """The `human_proxy` policies of `mode.proxies` (none when it is ''), numbered 0, 1, ... as their seeds:
+    result tables tell policies apart by algorithm and seed, and `cec humans bc` gives its `bc_` and `hp_`
+    proxies of a kitchen the same training seed."""
+    if not mode.proxies:
+        return []
+    proxies = [p for p in _load(mode.proxies) if p.algorithm == HUMAN_PROXY]
+    return [dataclasses.replace(p, seed=i) for i, p in enumerate(proxies)]
+
+
+def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
+    """Per level set and algorithm: its seeds and the scripted cook, every pair (XP, SP, with the cook),
+    and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable` (the proxies'
+    and the cook's own games once). On the held-out kitchens single-kitchen agents play every kitchen (the
+    paper's baselines there). Proxies that cannot play with the agents (another network) are the table's
+    skipped entries, with the reason."""
+    from cec.agents.policy import scripted_policy
+    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.results import EpisodeTable
+
+    policies = _load(manifest)
+    proxies = human_proxies(mode)
     cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
     tables = []
     for level_set in LEVEL_SETS:
@@ -262,9 +298,10 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
                 firsts = {p.seed: p for p in reversed(group)}
                 group = [dataclasses.replace(p, levels=None) for p in firsts.values()]
             t0 = time.perf_counter()
-            table = crossplay([*group, cook], levels, config)
-            if k:  # the cook's self-play once per level set
-                table = table.select((table.policy_a != COOK) | (table.policy_b != COOK))
+            partners = [cook, *proxies] if level_set == "classic" else [cook]
+            table = crossplay([*group, *partners], levels, config)
+            if k:  # the cook's and the proxies' own games once per level set
+                table = table.select((table.algorithm_a == algo) | (table.algorithm_b == algo))
             tables.append(table)
             _log(log, f"{algo}: {len(group)} entries + the cook on {len(levels.names)} {level_set} kitchens: "
                       f"{len(table)} episodes in {time.perf_counter() - t0:.0f}s")  # fmt: skip
@@ -278,8 +315,9 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
     from cec.agents.zoo import load_zoo
 
     zoo = sorted([e.name, e.seed, e.checkpoint, e.sha256] for e in load_zoo(manifest))
+    proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
-    key = {**settings, "steps": EVAL_STEPS, "zoo": zoo}
+    key = {**settings, "steps": EVAL_STEPS, "zoo": zoo, "proxies": proxies}
     return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
 
 
@@ -291,24 +329,28 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
 @dataclass(frozen=True)
 class SeedScores:
     """One algorithm on one level set: per seed, its mean team return per episode with the other seeds of
-    its algorithm (`xp`), with itself (`sp`) and with the scripted cook (`cook`)."""
+    its algorithm (`xp`), with itself (`sp`), with the scripted cook (`cook`) and with the human proxies
+    (`human`: the mean over the proxies, each on its kitchen; NaN where none played)."""
 
     seeds: tuple[int, ...]
     xp: tuple[float, ...]
     sp: tuple[float, ...]
     cook: tuple[float, ...]
+    human: tuple[float, ...] = ()
 
 
 def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]:
-    """{algorithm: SeedScores} on `level_names` (the cook's own self-play under `cook`)."""
+    """{algorithm: SeedScores} on `level_names` (the cook's own self-play under `cook`; the proxies are
+    partners, not an algorithm of the summary)."""
     from cec.evaluation import analysis as an
     from cec.evaluation.stats import seed_means
 
     pl = an.pair_level_scores(table, level_names)
     m = an.pair_scores(pl)
     cook = [i for i, p in enumerate(pl.policies) if p.algorithm == COOK]
+    humans = [i for i, p in enumerate(pl.policies) if p.algorithm == HUMAN_PROXY]
     out = {}
-    for algo in sorted({p.algorithm for p in pl.policies}):
+    for algo in sorted({p.algorithm for p in pl.policies} - {HUMAN_PROXY}):
         idx = [i for i, p in enumerate(pl.policies) if p.algorithm == algo]
 
         def mean(values: list[float]) -> float:
@@ -320,6 +362,7 @@ def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]
             tuple(float(x) for x in seed_means(m[np.ix_(idx, idx)])),
             tuple(float(m[i, i]) for i in idx),
             tuple(mean([m[i, c] for c in cook]) for i in idx),
+            tuple(mean([m[i, h] for h in humans]) for i in idx),
         )
     return out
 
@@ -344,22 +387,28 @@ def paper_values() -> dict[str, dict[str, float]]:
     return {s: dict(data.get(s, {})) for s in LEVEL_SETS}
 
 
+MEASURES = {"xp": "cross-play", "human": "with human proxies"}
+
+
 def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any]]:
-    """CEC against each baseline on per-seed XP (Welch t-test, bootstrap interval), per level set."""
+    """CEC against each baseline on per-seed XP and per-seed score with the human proxies (Welch t-test,
+    bootstrap interval), per level set."""
     from cec.evaluation.stats import compare
 
     out = []
     for level_set, scores in summary.items():
         if "cec" not in scores:
             continue
-        for other in ALGORITHMS[1:]:
-            a, b = _finite(scores["cec"].xp), _finite(scores.get(other, SeedScores((), (), (), ())).xp)
-            if a.size < 2 or b.size < 2:
-                continue
-            c = compare(a, b)
-            out.append({"level_set": level_set, "better": "cec", "worse": other, "diff": c.diff,
-                        "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
-                        "significant": bool(c.diff > 0 and c.p < ALPHA)})  # fmt: skip
+        for measure in MEASURES:
+            for other in ALGORITHMS[1:]:
+                a = _finite(getattr(scores["cec"], measure))
+                b = _finite(getattr(scores[other], measure) if other in scores else ())
+                if a.size < 2 or b.size < 2:
+                    continue
+                c = compare(a, b)
+                out.append({"level_set": level_set, "measure": measure, "better": "cec", "worse": other,
+                            "diff": c.diff, "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
+                            "significant": bool(c.diff > 0 and c.p < ALPHA)})  # fmt: skip
     return out
 
 
@@ -370,10 +419,11 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
 
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
-    plan: list[PlanLine], command: str, ran_on: dict[str, Any], commit: str,
+    plan: list[PlanLine], command: str, ran_on: dict[str, Any], commit: str, skipped: Sequence[Any] = (),
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
-    `commit`: the checkout's as the command started."""
+    `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
+    (proxies that could not play with the agents)."""
 
     paper = paper_values()
     tests = comparisons(summary)
@@ -392,12 +442,13 @@ def write_report(
         "seeds. The paper's values are read off its figures (approximate; "
         "`apps/reproduce/paper_overcooked.yaml`).",
         "",
+        *_human_lines(mode, summary, skipped),
     ]
     for level_set, scores in summary.items():
         title = (
             f"{len(mode.kitchens)} classic" if level_set == "classic" else f"{mode.generated_levels} held-out"
         )
-        lines += [f"## The {title} kitchens", "", TABLE_HEAD, "|---|---|---|---|---|---|"]
+        lines += [f"## The {title} kitchens", "", TABLE_HEAD, "|---|---|---|---|---|---|---|"]
         for algo in [*ALGORITHMS, COOK]:
             if algo not in scores:
                 continue
@@ -407,16 +458,17 @@ def write_report(
             ref = paper.get(level_set, {}).get(algo)
             lines.append(
                 f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_cell(s.xp)} | {ratio} | "
-                f"{_cell(s.cook) if algo != COOK else '—'} | {'≈' + str(ref) if ref is not None else '—'} |"
+                f"{_cell(s.cook) if algo != COOK else '—'} | {_cell(s.human)} | "
+                f"{'≈' + str(ref) if ref is not None else '—'} |"
             )
         lines.append("")
     if tests:
-        lines += ["## CEC against the baselines (per-seed XP, Welch t-test)", "",
-                  "| level set | CEC − | difference | 95% bootstrap CI | p | CEC ahead (p < 0.05) |",
-                  "|---|---|---|---|---|---|"]  # fmt: skip
+        lines += ["## CEC against the baselines (per-seed scores, Welch t-test)", "",
+                  "| level set | score | CEC − | difference | 95% bootstrap CI | p | CEC ahead (p < 0.05) |",
+                  "|---|---|---|---|---|---|---|"]  # fmt: skip
         for t in tests:
             lines.append(
-                f"| {t['level_set']} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
+                f"| {t['level_set']} | {MEASURES[t['measure']]} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
                 f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | "
                 f"{'yes' if t['significant'] else 'no'} |"
             )
@@ -435,6 +487,22 @@ def write_report(
     }  # fmt: skip
     (out / "summary.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
     return report
+
+
+def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped: Sequence[Any]) -> list[str]:
+    """What the human-proxy column holds, the paper's human study beside it, or why it is empty."""
+    played = any(_finite(s.human).size for scores in summary.values() for s in scores.values())
+    if played:
+        return [
+            f"With human proxies: each seed with every `{HUMAN_PROXY}` entry of `{mode.proxies}` "
+            "(behaviour-cloned from recorded human-human games, `cec humans bc`; each plays its own "
+            "kitchen), the mean over the proxies. The paper's human study (score with real people, "
+            f"Counter Circuit and Coordination Ring): {HUMAN_STUDY}",
+            "",
+        ]
+    reasons = sorted({s.reason for s in skipped if s.algorithm == HUMAN_PROXY})
+    why = f"they could not play with the agents: {'; '.join(reasons)}" if reasons else "none were given"
+    return [f"With human proxies: not played ({why}).", ""]
 
 
 def _machine_text(m: dict[str, Any]) -> str:
@@ -516,8 +584,9 @@ def reproduce_overcooked(
     summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
     report = write_report(
-        mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit
-    )
+        mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
+        skipped=table.skipped,
+    )  # fmt: skip
     _log(log, f"report: {report}")
     return report
 
@@ -553,6 +622,8 @@ def _cmd(args: argparse.Namespace) -> int:
         print(f"training: ~{duration(total)} on one core ({mode.seconds_per_update} s per update, seed; "
               f"measured on {mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
         return 0
+    if args.proxies is not None:
+        mode = dataclasses.replace(mode, proxies=args.proxies)
     if args.policies and not args.report_only:
         raise ConfigError("--policies draws the GIF of --report-only; add --report-only or drop it")
     report = reproduce_overcooked(
@@ -582,4 +653,10 @@ def add_subcommand(rep_sub: Any) -> None:
         help="neither train nor play: the report from the work folder's cross-play table and curves",
     )
     oc.add_argument("--policies", metavar="MANIFEST", help="with --report-only: CEC policies for the GIF")
+    oc.add_argument(
+        "--proxies",
+        metavar="MANIFEST",
+        help=f"zoo whose {HUMAN_PROXY} entries play every agent on the classic kitchens (default: shipped; "
+        "'' none); they need the agents' network (cec humans bc --preset)",
+    )
     oc.set_defaults(func=_cmd)

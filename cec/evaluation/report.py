@@ -174,11 +174,11 @@ class _Report:
         )
         if with_humans:
             self.md.append(
-                f"Human proxies (algorithm `{HUMAN_PROXY}`: behaviour-cloned from recorded human-human games, "
-                "`cec humans bc`) are people-like partners, kept out of the ad-hoc column: with human proxies "
-                "= a policy with each proxy, on the levels the proxy plays. The paper's human study (Counter "
-                "Circuit and Coordination Ring, score with real people): E3T ahead, CEC and CEC-Finetune "
-                "next, FCP and IPPO behind (CEC ahead of FCP, p < 0.001).\n"
+                f"Human proxies (algorithm `{HUMAN_PROXY}`: behaviour-cloned from recorded human-human "
+                "games, `cec humans bc`) are people-like partners, kept out of the ad-hoc column: with "
+                "human proxies = a policy with each proxy, on the levels the proxy plays. The paper's human "
+                "study (Counter Circuit and Coordination Ring, score with real people): E3T ahead, CEC and "
+                "CEC-Finetune next, FCP and IPPO behind (CEC ahead of FCP, p < 0.001).\n"
             )
         self.seed_matrices(pl, slug)
         self.algorithm_heatmap(pl, name, slug)

@@ -24,6 +24,7 @@ import numpy as np
 import optax
 
 from cec.agents.network import ActorCritic, NetworkConfig, forward, init_params
+from cec.config import ConfigError
 from cec.envs.overcooked.observation import get_obs
 from cec.envs.overcooked.state import NUM_ACTIONS, EnvParams, EnvState
 from cec.humans.data import KITCHENS, Steps
@@ -50,12 +51,26 @@ class BCConfig:
         batch_size: samples per gradient step.
         lr: Adam learning rate.
         seed: parameter initialisation and sample order.
+        network: the proxy's network; a proxy plays only with agents of the same architecture (cross-play
+            batches both seats through one), so clone with theirs (`cec humans bc --preset`). Feed-forward
+            only: proxies are cloned step by step, and an LSTM would play with a memory it never trained.
     """
 
     epochs: int = 30
     batch_size: int = 512
     lr: float = 1e-3
     seed: int = 0
+    network: NetworkConfig = PROXY_NETWORK
+
+    def __post_init__(self) -> None:
+        if self.network.lstm_features:
+            raise ConfigError(
+                f"a human proxy's network has no memory (it is cloned step by step), this one has an LSTM of "
+                f"{self.network.lstm_features}: pick a preset with lstm_features 0 (e.g. "
+                "configs/train/cec_overcooked_cpu.yaml)"
+            )
+        if self.epochs < 1 or self.batch_size < 1 or self.lr <= 0:
+            raise ConfigError(f"epochs and batch_size must be >= 1 and lr > 0, got {self}")
 
 
 @dataclass(frozen=True)
@@ -139,7 +154,7 @@ def train_bc(
     train: Samples, test: Samples, config: BCConfig = BCConfig(), *, log: TextIO = sys.stderr, label: str = ""
 ) -> BCResult:
     """Trains one proxy on `train`, early-stopped on `test` (lowest cross-entropy)."""
-    net = ActorCritic(PROXY_NETWORK, NUM_ACTIONS)
+    net = ActorCritic(config.network, NUM_ACTIONS)
     key = jax.random.PRNGKey(config.seed)
     key, k_init = jax.random.split(key)
     params = init_params(net, k_init, train.obs.shape[1:])
@@ -157,7 +172,7 @@ def train_bc(
             idx = order[b * config.batch_size : (b + 1) * config.batch_size]
             params, opt_state, loss = step(params, opt_state, train.obs[idx], train.actions[idx])
             losses.append(float(loss))
-        ce, acc = evaluate_bc(params, test)
+        ce, acc = evaluate_bc(params, test, config.network)
         history.append({"epoch": epoch, "train_ce": float(np.mean(losses)), "test_ce": ce, "test_acc": acc})
         print(
             f"[bc{(' ' + label) if label else ''}] epoch {epoch}/{config.epochs}: train CE "
@@ -171,9 +186,11 @@ def train_bc(
     return BCResult(jax.tree.map(np.asarray, params), epoch, ce, acc, history)
 
 
-def evaluate_bc(params: Any, data: Samples, *, batch: int = 8192) -> tuple[float, float]:
-    """(mean cross-entropy, accuracy of the most likely action) of `params` on `data`."""
-    net = ActorCritic(PROXY_NETWORK, NUM_ACTIONS)
+def evaluate_bc(
+    params: Any, data: Samples, network: NetworkConfig = PROXY_NETWORK, *, batch: int = 8192
+) -> tuple[float, float]:
+    """(mean cross-entropy, accuracy of the most likely action) of `params` (of `network`) on `data`."""
+    net = ActorCritic(network, NUM_ACTIONS)
     ce_sum, hits = 0.0, 0
     for start in range(0, len(data), batch):
         logits = _logits(net, params, data.obs[start : start + batch])

@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
+import math
 import shutil
 from pathlib import Path
 
@@ -11,11 +13,15 @@ import numpy as np
 import pytest
 import yaml
 
+from apps import humans
 from apps.cli import main
 from apps.reproduce import overcooked as ro
 from apps.zoo_build import export_zoo
-from cec.config import ConfigError
+from cec.agents.zoo import SkippedEntry
+from cec.config import ConfigError, load_config
 from cec.evaluation.results import make_table
+from cec.humans.bc import BCConfig
+from cec.training.config import TrainConfig
 
 TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 0, actor_features: [8], "
@@ -89,21 +95,35 @@ def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results(tmp_path: Path) -> None:
+    # human proxies with the agents' (tiny) network, cloned from the first recorded game of each kitchen
+    humans.import_games(tmp_path / "humans", games_per_kitchen=1, log=io.StringIO())
+    network = load_config(TrainConfig, str(ro.ROOT / TINY.preset), [TINY_NET]).network_config
+    proxies = humans.train_proxies(
+        tmp_path / "humans", tmp_path / "proxies", kitchens=["cramped_room"],
+        config=BCConfig(epochs=1, network=network), log=io.StringIO(),
+    )  # fmt: skip
+    mode = dataclasses.replace(TINY, proxies=str(proxies))
     work, out, log = tmp_path / "work", tmp_path / "out", io.StringIO()
-    report = ro.reproduce_overcooked(TINY, work, out, progress=False, log=log, command="tiny")
+    report = ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert report is not None and report.exists()
     text = report.read_text()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
-                   "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "per-seed XP"):  # fmt: skip
+                   "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "per-seed scores",
+                   "| with human proxies |", "The paper's human study"):  # fmt: skip
         assert needle in text, needle
     summary = json.loads((out / "summary.json").read_text())
     cec = summary["summary"]["heldout"]["cec"]
     assert cec["seeds"] == [200, 201] and len(cec["xp"]) == 2 and len(cec["cook"]) == 2
+    assert all(np.isnan(cec["human"]))  # the proxies play their own (classic) kitchen only
+    for algo in ro.ALGORITHMS:  # every seed played both proxies on the classic kitchen
+        human = summary["summary"]["classic"][algo]["human"]
+        assert len(human) == len(TINY.seeds[algo]) and np.all(np.isfinite(human)), algo
+    assert "human_proxy" not in summary["summary"]["classic"]  # partners, not an algorithm of the summary
     assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
     assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
-    ro.reproduce_overcooked(TINY, work, out, progress=False, log=log, command="tiny")
+    ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert "not played again" in log.getvalue() and "finished, skipping" in log.getvalue()
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
     # the GIF from the exported CEC seeds, the machine that trained and played named
@@ -113,7 +133,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     (out / "cec_xp_heldout.gif").unlink()
     ran_on = json.loads((work / ro.MACHINE_FILE).read_text())
     again = ro.reproduce_overcooked(
-        TINY, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
+        mode, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
         policies=tmp_path / "shipped" / "zoo.yaml",
     )  # fmt: skip
     assert again is not None and again.read_text().count("| CEC |") == 2
@@ -121,6 +141,13 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
     with pytest.raises(ConfigError, match="results.csv"):
         ro.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
+
+
+def test_proxies_that_cannot_play_are_named_with_the_reason() -> None:
+    summary = {"classic": {"cec": ro.SeedScores((200,), (10.0,), (20.0,), (30.0,), (math.nan,))}}
+    skipped = [SkippedEntry("hp_cramped_room", "human_proxy", 0, "its network differs")]
+    (line, _) = ro._human_lines(TINY, summary, skipped)
+    assert line.endswith("not played (they could not play with the agents: its network differs).")
 
 
 def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:

@@ -108,3 +108,17 @@ def test_proxies_are_zoo_entries_that_play(imported, tmp_path):
     assert not table.skipped and set(table.policy_a) == {"bc_cramped_room", "hp_cramped_room"}
     with pytest.raises(ConfigError, match=r"unknown kitchen\(s\) \['kitchen_9'\]"):
         humans.train_proxies(imported, out, kitchens=["kitchen_9"])
+
+
+def test_bc_clones_with_a_presets_network_and_refuses_one_with_memory(capsys):
+    """A proxy plays only with agents of its architecture: `--preset` clones with theirs; an LSTM network
+    (cloned step by step, it would play with a memory it never trained) is refused before any work."""
+    from apps.cli import main
+    from cec.humans.bc import PROXY_NETWORK
+
+    assert humans._preset_network("configs/train/quick_cpu.yaml")["network"] != PROXY_NETWORK
+    assert (
+        main(["humans", "bc", "--preset", "configs/train/cec_overcooked.yaml", "--data", "/nonexistent"]) == 2
+    )
+    err = capsys.readouterr().err
+    assert "cec humans bc: error: a human proxy's network has no memory" in err and "LSTM of 256" in err
