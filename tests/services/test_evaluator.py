@@ -301,6 +301,12 @@ def test_bad_checkpoints_are_recorded_and_do_not_stop_the_stream(plane, ckpts, z
 def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckpts, zoo, tmp_path):
     path = ckpts.write("cec-groups", 1, [3])
     single = ckpts.write("zoo-ippo-cramped", 10, [9], "ippo")
+    # a human proxy of one kitchen (as `cec humans bc` writes them): its own partner group
+    proxy = ckpts.write("zoo-hp", 10, [0], "human_proxy")
+    manifest = tmp_path / "zoo.yaml"
+    manifest.write_text(
+        zoo.read_text() + f"  - {{name: hp_cramped_room, checkpoint: {proxy}, levels: [cramped_room]}}\n"
+    )
     meta = checkpoints.read_meta(single)
     plane.add_partner(PartnerRecord("ippo_cramped_s9", "ippo", 9, "overcooked:cramped_room", 0, str(single),
                                     meta["sha256"]))  # fmt: skip
@@ -311,7 +317,7 @@ def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckp
     assert plane.publish_checkpoint(foreign).outcome == "published"
     event = _publish(plane, path, "cec-groups")
     config = _config(
-        plane, zoo, tmp_path / "results", redis_zoo=True, self_play=False, level_sets=(CLASSIC, HELDOUT),
+        plane, manifest, tmp_path / "results", redis_zoo=True, self_play=False, level_sets=(CLASSIC, HELDOUT),
         groups=(PartnerGroupConfig("population", ("fcp_s7", "ippo_cramped_s9")),), runs=("cec-groups",),
     )  # fmt: skip
     with Evaluator(config, plane) as ev:
@@ -321,7 +327,11 @@ def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckp
     assert ignored.status == "ignored" and plane.get_results(foreign.checkpoint_id) == []
     assert outcome.status == "scored"
     results = {(r.partner_group, r.level_set): r.metrics for r in plane.get_results(event.checkpoint_id)}
-    assert set(results) == {(g, s) for g in ("population", "ippo", "e3t") for s in ("classic", "heldout")}
+    groups = ("population", "ippo", "e3t", "human_proxy")
+    assert set(results) == {(g, s) for g in groups for s in ("classic", "heldout")}
+    assert results[("human_proxy", "classic")]["per_partner"].keys() == {"human_proxy/s0"}
+    assert results[("human_proxy", "classic")]["episodes"] == 2  # both seat orders on its kitchen
+    assert "none of its levels" in results[("human_proxy", "heldout")]["skipped"][0]["reason"]
     # The single-task partner (Redis env overcooked:cramped_room) plays on its own kitchen only.
     assert results[("population", "classic")]["partners"] == ["fcp_s7", "ippo_cramped_s9"]
     assert results[("population", "classic")]["per_partner"].keys() == {"fcp/s7", "ippo/s9"}
@@ -332,9 +342,9 @@ def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckp
     assert results[("e3t", "classic")]["episodes"] == 0 and results[("e3t", "classic")]["return_mean"] is None
     assert "missing" in results[("e3t", "classic")]["skipped"][0]["reason"]
     table = read_csv(tmp_path / "results" / "cec-groups" / "eval" / "update_000000001.csv")
-    assert {s.name for s in table.skipped} == {"ippo_cramped_s9", "lost"}
-    # Both seats, 1 episode: classic (cramped_room) with 3 partners, the held-out kitchen with 2.
-    assert len(table) == 2 * 3 + 2 * 2
+    assert {s.name for s in table.skipped} == {"ippo_cramped_s9", "hp_cramped_room", "lost"}
+    # Both seats, 1 episode: classic (cramped_room) with 4 partners, the held-out kitchen with 2.
+    assert len(table) == 2 * 4 + 2 * 2
 
 
 def test_scores_go_into_the_runs_tensorboard_events_at_the_checkpoints_env_steps(plane, ckpts, zoo, tmp_path):
