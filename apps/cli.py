@@ -242,14 +242,16 @@ def _cmd_train(args: argparse.Namespace) -> int:
     if args.distributed:
         return _train_distributed(args, [o for o in args.overrides if o not in train_overrides])
     if args.resume:
-        if args.config or args.overrides:
+        where = [o for o in args.overrides if o.startswith("devices=")]  # changes where, not what, it trains
+        if args.config or len(where) != len(args.overrides):
             raise ConfigError(
-                "--resume continues a run with its own config.yaml; drop --config and overrides"
+                "--resume continues a run with its own config.yaml; drop --config and overrides (devices=N "
+                "aside)"
             )
         config_file = Path(args.resume) / "config.yaml"
         if not config_file.is_file():
             raise CheckpointError(f"{args.resume} is not a run directory (no config.yaml)")
-        config = _at_run_directory(load_config(TrainConfig, config_file), Path(args.resume))
+        config = _at_run_directory(load_config(TrainConfig, config_file, where), Path(args.resume))
     else:
         if not args.config:
             raise ConfigError("give --config configs/train/<preset>.yaml (or --resume RUN_DIR)")

@@ -65,6 +65,10 @@ class TrainConfig:
         total_env_steps: joint env steps per seed over the whole run (rounded up to whole updates).
         updates_per_call: updates fused into one compiled call (fewer host round trips; checkpoints,
             metrics rows and interruption happen between calls).
+        devices: local devices (GPUs; CPU devices with XLA_FLAGS=--xla_force_host_platform_device_count=N)
+            each seed's envs are split over: data-parallel, one set of parameters replicated, the
+            gradients all-reduced, the same updates as one device to float rounding. 1: one device; 0:
+            every local device. num_envs must split evenly over them.
         network: network preset name (`paper`, `small` or `reference`); the env picks its variant.
         network_overrides: optional explicit widths replacing the preset (all fields of NetworkConfig).
         env: the game and its level distribution.
@@ -87,6 +91,7 @@ class TrainConfig:
     num_steps: int = 256
     total_env_steps: int = 3_000_000_000
     updates_per_call: int = 1
+    devices: int = 1
     network: str = "paper"
     network_overrides: NetworkConfig | None = None
     env: EnvConfig = field(default_factory=EnvConfig)
@@ -131,6 +136,13 @@ class TrainConfig:
         ):
             raise ConfigError(
                 "num_seeds, num_envs, num_steps, total_env_steps, updates_per_call must be >= 1"
+            )
+        if self.devices < 0:
+            raise ConfigError(f"devices must be >= 0 (0: every local device), got {self.devices}")
+        if self.devices and self.num_envs % self.devices:
+            raise ConfigError(
+                f"num_envs {self.num_envs} must split evenly over devices = {self.devices} (each device "
+                "plays a share of every seed's envs)"
             )
         sequences = self.num_envs * (1 if self.partner.learner_seat_only else 2)
         if sequences % self.ppo.num_minibatches:

@@ -14,6 +14,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import optax
+from jax.sharding import Mesh, PartitionSpec
 
 from cec.agents.network import ActorCritic, LSTMState, forward, forward_partner
 from cec.config import ConfigError
@@ -179,9 +180,13 @@ def make_batch(
 
 
 def ppo_loss(
-    params: Any, network: ActorCritic, batch: Batch, config: PPOConfig
+    params: Any, network: ActorCritic, batch: Batch, config: PPOConfig, axis: str | None = None
 ) -> tuple[jax.Array, tuple[jax.Array, ...]]:
     """Clipped PPO objective on one minibatch of whole sequences (advantages normalised per minibatch).
+
+    `axis`: inside `shard_map` over that mesh axis, `batch` is this device's share of the minibatch; the
+    advantages are then normalised with the whole minibatch's mean and deviation (equal shares), and the
+    loss is the share's (its gradients averaged over the devices give the whole minibatch's).
 
     Returns:
         (total loss, (policy loss, value loss, entropy, approx KL, clip fraction, partner-model loss)).
@@ -209,7 +214,12 @@ def ppo_loss(
     # POLICY LOSS.
     log_ratio = log_prob - batch.log_prob
     ratio = jnp.exp(log_ratio)
-    adv = (batch.advantage - batch.advantage.mean()) / (batch.advantage.std() + 1e-8)
+    if axis is None:
+        adv = (batch.advantage - batch.advantage.mean()) / (batch.advantage.std() + 1e-8)
+    else:  # the whole minibatch's statistics, from every device's share
+        adv_mean = jax.lax.pmean(batch.advantage.mean(), axis)
+        adv_std = jnp.sqrt(jax.lax.pmean(jnp.square(batch.advantage - adv_mean).mean(), axis))
+        adv = (batch.advantage - adv_mean) / (adv_std + 1e-8)
     surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - config.clip_eps, 1.0 + config.clip_eps) * adv)
     policy_loss = -surrogate.mean()
 
@@ -218,6 +228,24 @@ def ppo_loss(
     approx_kl = ((ratio - 1.0) - log_ratio).mean()
     clip_fraction = (jnp.abs(ratio - 1.0) > config.clip_eps).mean()
     return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction, partner_loss)
+
+
+def _sharded_grads(grad_fn: Any, mesh: Mesh, network: ActorCritic, config: PPOConfig) -> Any:
+    """(params, minibatch) -> ((loss, aux), grads) with the minibatch's sequences split over `mesh`'s
+    `envs` axis: per-device losses and gradients, averaged over the devices."""
+    sequences = PartitionSpec(None, "envs")  # time-major fields [T, N, ...]
+    specs = Batch(*([sequences] * (len(Batch._fields) - 1)), init_lstm=PartitionSpec("envs"))
+
+    devices = mesh.shape["envs"]
+
+    def local(params: Any, mb: Batch) -> Any:
+        (loss, aux), grads = grad_fn(params, network, mb, config, "envs")
+        # `params` are the same on every device, so shard_map's autodiff sums their gradients over the
+        # devices: the sum of the shares' mean-loss gradients, N times the whole minibatch's
+        grads = jax.tree.map(lambda g: g / devices, grads)
+        return jax.lax.pmean((loss, aux), "envs"), grads
+
+    return jax.shard_map(local, mesh=mesh, in_specs=(PartitionSpec(), specs), out_specs=PartitionSpec())
 
 
 def make_optimizer(
@@ -246,8 +274,14 @@ def update(
     network: ActorCritic,
     optimizer: optax.GradientTransformation,
     config: PPOConfig,
+    mesh: Mesh | None = None,
 ) -> tuple[Any, Any, LossInfo]:
     """`update_epochs` x `num_minibatches` Adam steps on one rollout's `Batch`.
+
+    `mesh` (one axis, `envs`; the data-parallel trainer's): each minibatch's sequences are split over its
+    devices, each device computes the loss and gradients of its share (`shard_map`), and the gradients are
+    averaged over the devices (an all-reduce). The advantages are normalised with the whole minibatch's
+    statistics, so the step equals one device's to float rounding.
 
     Returns:
         (new params, new optimizer state, `LossInfo` averaged over the gradient steps).
@@ -262,7 +296,10 @@ def update(
         p, o = carry
         time_major = jax.tree.map(lambda x: jnp.take(x, idx, axis=1), batch[:-1])
         mb = Batch._make([*time_major, jax.tree.map(lambda x: x[idx], batch.init_lstm)])
-        (loss, aux), grads = grad_fn(p, network, mb, config)
+        if mesh is None:
+            (loss, aux), grads = grad_fn(p, network, mb, config)
+        else:
+            (loss, aux), grads = _sharded_grads(grad_fn, mesh, network, config)(p, mb)
         updates, o = optimizer.update(grads, o, p)
         p = optax.apply_updates(p, updates)
         return (p, o), jnp.stack([loss, *aux, optax.tree.norm(grads)])

@@ -40,9 +40,10 @@ class RunResult(NamedTuple):
 
 def trains_as(written: dict, config: TrainConfig) -> bool:
     """Whether a checkpoint's recorded config (`written`) trains what `config` trains. Where the run lives
-    (`run_dir`, `name`) and where its series go (`tracking`) are left out: a moved or copied run is the
-    same run, and so is one that was written before `tracking` existed."""
-    where = ("run_dir", "name", "tracking")
+    (`run_dir`, `name`), where its series go (`tracking`) and on how many devices it runs (`devices`: the
+    same updates to float rounding) are left out: a moved or copied run is the same run, and so is one
+    that was written before `tracking` or `devices` existed."""
+    where = ("run_dir", "name", "tracking", "devices")
     ours = config_dict(config)
     return {k: v for k, v in written.items() if k not in where} == {
         k: v for k, v in ours.items() if k not in where
@@ -292,7 +293,7 @@ def _train_loop(
 ) -> RunResult:
     config = files.config
     run_dir, writer = files.run_dir, files.writer
-    state = trainer.init() if loaded is None else loaded
+    state = trainer.init() if loaded is None else trainer.place(loaded)
     total = config.num_updates
     stop_at = total if max_updates is None else min(total, done + max_updates)
     per_call = config.updates_per_call

@@ -6,6 +6,12 @@ This is the paper's own topology and the embedded default on one machine:
     repeat: state, metrics = train_call(state)   # jit(vmap over seeds(scan over `updates_per_call` updates))
             write metrics rows, checkpoint when due, print progress   (`cec.training.run`: the host loop)
 
+Over several local devices (`devices`), the same program runs data-parallel: the state's env axis is
+sharded over a one-axis mesh (`envs`) and everything else (parameters, Adam state, keys) replicated, and
+XLA's SPMD partitioner splits the rollout by env and inserts the all-reduces of the update's sums. No
+second code path: the program and its random draws are those of one device, so N devices give one
+device's updates to float rounding (reductions are summed in another order).
+
 Everything random comes from the per-seed key in the state, and the state is checkpointed whole, so a
 run interrupted between calls and resumed produces the same parameters as an uninterrupted one.
 """
@@ -18,7 +24,9 @@ from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from cec import checkpoints
 from cec.agents.network import ActorCritic, init_params
@@ -89,6 +97,7 @@ class Trainer:
         )
         self.shaping_horizon = config.ppo.shaping_anneal_env_steps or config.total_env_steps // 2
         self._init = jax.jit(self.init_one)
+        self.mesh = device_mesh(config)
         self._calls: dict[int, Any] = {}
         self.population: Any = None  # FCP's partners' params (leading axis P); set by `load_partners`
 
@@ -168,8 +177,9 @@ class Trainer:
         batch = make_batch(traj, weight, cfg.ppo.gamma, cfg.ppo.gae_lambda, cfg.partner.learner_seat_only)
         lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(
-            params, opt_state, batch, k_update, network=self.network, optimizer=self.optimizer, config=cfg.ppo
-        )
+            params, opt_state, batch, k_update, network=self.network, optimizer=self.optimizer,
+            config=cfg.ppo, mesh=self.mesh,
+        )  # fmt: skip
         n, mean_return, mean_shaped, collisions = episode_stats(traj)
         metrics = UpdateMetrics(
             n, mean_return, mean_shaped, collisions, weight, jnp.asarray(lr, jnp.float32), loss
@@ -195,7 +205,11 @@ class Trainer:
                 step = lambda s, _: self.update_step(s, population)  # noqa: E731
                 return jax.lax.scan(step, state, None, length=n_updates)
 
-            call = jax.jit(jax.vmap(many, in_axes=(0, None)), donate_argnums=0)
+            shardings = {}
+            if self.mesh is not None:  # the state stays where `place` put it; metrics on every device
+                replicated = NamedSharding(self.mesh, PartitionSpec())
+                shardings["out_shardings"] = (self.state_shardings(self.state_template()), replicated)
+            call = jax.jit(jax.vmap(many, in_axes=(0, None)), donate_argnums=0, **shardings)
             self._calls[n_updates] = lambda state: call(state, self.population)
         return self._calls[n_updates]
 
@@ -212,7 +226,24 @@ class Trainer:
             )
             opt_state = jax.vmap(self.optimizer.init)(params)
             state = state._replace(params=params, opt_state=opt_state)
-        return state
+        return self.place(state)
+
+    def state_shardings(self, state: TrainState) -> TrainState:
+        """Where each leaf of a (stacked) state lives over the mesh: the carry's env axis (axis 1, after
+        the seeds) split over the devices, everything else replicated."""
+        assert self.mesh is not None
+        replicated = NamedSharding(self.mesh, PartitionSpec())
+        envs = NamedSharding(self.mesh, PartitionSpec(None, "envs"))
+        return jax.tree.map(lambda _: replicated, state)._replace(
+            carry=jax.tree.map(lambda _: envs, state.carry)
+        )
+
+    def place(self, state: TrainState) -> TrainState:
+        """The state on this trainer's devices (as `init` returns it; a loaded checkpoint goes through
+        here too). One device: unchanged."""
+        if self.mesh is None:
+            return state
+        return jax.device_put(state, self.state_shardings(state))
 
     def initial_params(self) -> Any:
         """The parameters of `init_from` (checked against this run's game, observations and network)."""
@@ -233,6 +264,26 @@ class Trainer:
         """Shapes and dtypes of the state (no compute), for loading checkpoints."""
         keys = jax.ShapeDtypeStruct((self.config.num_seeds, 2), jnp.uint32)
         return jax.eval_shape(jax.vmap(self.init_one), keys)
+
+
+def device_mesh(config: TrainConfig) -> Mesh | None:
+    """The one-axis mesh (`envs`) of the run's `devices` local devices; None for one device. A
+    `ConfigError` when the process sees fewer devices than asked for."""
+    devices = jax.local_devices()
+    n = config.devices or len(devices)
+    if n > len(devices):
+        raise ConfigError(
+            f"devices = {n}, but this process sees {len(devices)} {devices[0].platform} device(s); lower "
+            "devices (0: all of them), or on a CPU start the process with "
+            f"XLA_FLAGS=--xla_force_host_platform_device_count={n}"
+        )
+    sequences = config.num_envs * (1 if config.partner.learner_seat_only else 2) // config.ppo.num_minibatches
+    if config.num_envs % n or sequences % n:
+        raise ConfigError(
+            f"num_envs {config.num_envs} and each minibatch's {sequences} sequences must split evenly over "
+            f"the {n} devices (devices = {config.devices}); change num_envs, ppo.num_minibatches or devices"
+        )
+    return Mesh(np.asarray(devices[:n]), ("envs",)) if n > 1 else None
 
 
 def device_memory_bytes() -> int:
