@@ -234,7 +234,7 @@ def _sharded_grads(grad_fn: Any, mesh: Mesh, network: ActorCritic, config: PPOCo
     """(params, minibatch) -> ((loss, aux), grads) with the minibatch's sequences split over `mesh`'s
     `envs` axis: per-device losses and gradients, averaged over the devices."""
     sequences = PartitionSpec(None, "envs")  # time-major fields [T, N, ...]
-    specs = Batch(*([sequences] * (len(Batch._fields) - 1)), init_lstm=PartitionSpec("envs"))
+    specs: Any = Batch._make([*([sequences] * (len(Batch._fields) - 1)), PartitionSpec("envs")])
 
     devices = mesh.shape["envs"]
 

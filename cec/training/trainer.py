@@ -205,7 +205,7 @@ class Trainer:
                 step = lambda s, _: self.update_step(s, population)  # noqa: E731
                 return jax.lax.scan(step, state, None, length=n_updates)
 
-            shardings = {}
+            shardings: dict[str, Any] = {}
             if self.mesh is not None:  # the state stays where `place` put it; metrics on every device
                 replicated = NamedSharding(self.mesh, PartitionSpec())
                 shardings["out_shardings"] = (self.state_shardings(self.state_template()), replicated)
