@@ -303,8 +303,9 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
             if k:  # the cook's and the proxies' own games once per level set
                 table = table.select((table.algorithm_a == algo) | (table.algorithm_b == algo))
             tables.append(table)
-            _log(log, f"{algo}: {len(group)} entries + the cook on {len(levels.names)} {level_set} kitchens: "
-                      f"{len(table)} episodes in {time.perf_counter() - t0:.0f}s")  # fmt: skip
+            with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
+            _log(log, f"{algo}: {len(group)} entries + {with_whom} on {len(levels.names)} {level_set} "
+                      f"kitchens: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")  # fmt: skip
     return EpisodeTable.concat(tables)
 
 
