@@ -80,6 +80,11 @@ class DistributedConfig:
                 f"distributed training runs one seed per run (num_seeds=1), got num_seeds={train.num_seeds}; "
                 "start one run per seed (seed=0, seed=1, ...)"
             )
+        if train.devices != 1:
+            raise ConfigError(
+                f"the Ray learner updates on one device, got devices={train.devices}; data-parallel training "
+                "over several devices is the single-process trainer's (cec train ... devices=N)"
+            )
         if train.num_envs % self.num_actors:
             raise ConfigError(
                 f"num_envs={train.num_envs} must split evenly over distributed.num_actors={self.num_actors}"
