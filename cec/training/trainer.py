@@ -7,10 +7,11 @@ This is the paper's own topology and the embedded default on one machine:
             write metrics rows, checkpoint when due, print progress   (`cec.training.run`: the host loop)
 
 Over several local devices (`devices`), the same program runs data-parallel: the state's env axis is
-sharded over a one-axis mesh (`envs`) and everything else (parameters, Adam state, keys) replicated, and
-XLA's SPMD partitioner splits the rollout by env and inserts the all-reduces of the update's sums. No
-second code path: the program and its random draws are those of one device, so N devices give one
-device's updates to float rounding (reductions are summed in another order).
+sharded over a one-axis mesh (`envs`) and everything else (parameters, Adam state, keys) replicated; XLA's
+SPMD partitioner runs each device's envs where they live, and the PPO update splits each minibatch's
+sequences over the devices (`cec.training.ppo.update`'s `mesh`), averaging the gradients. The program and
+its random draws are one device's, so N devices give one device's updates to float rounding (sums are
+taken in another order).
 
 Everything random comes from the per-seed key in the state, and the state is checkpointed whole, so a
 run interrupted between calls and resumed produces the same parameters as an uninterrupted one.
