@@ -25,12 +25,13 @@ demo: install
 	$(BIN)/cec demo --out out/demo.gif
 
 ## Lint, type checks and the whole test suite (unit + JaxMARL parity)
-# The pure-compute layers (no ports, no services) run on every core; the services and end-to-end layers,
-# which start servers and time their recoveries, run one test at a time.
+# The library, parity, learning and services layers run on every core (each worker has its own Redis and
+# JAX cache; servers bind free ports); the end-to-end layer, whole stacks of Ray processes timing their
+# recoveries, runs one test at a time.
 TEST_WORKERS ?= auto
 test: lint typecheck
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests/unit tests/parity tests/learning
-	$(BIN)/python -m pytest -q tests/services tests/e2e
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests/unit tests/parity tests/learning tests/services
+	$(BIN)/python -m pytest -q tests/e2e
 
 lint: install
 	$(BIN)/ruff check .

@@ -44,8 +44,8 @@ CHILD = textwrap.dedent(
         diffs = jax.tree.map(lambda x, y: float(np.max(np.abs(np.asarray(x) - np.asarray(y)))), a, b)
         return max(jax.tree.leaves(diffs))
     one, four = run("one", 1), run("four", 4)
-    run("two", 2, max_updates=1)  # interrupted after one update on 2 devices, resumed on 4
-    resumed = run("two", 4, resume=True)
+    run("moved", 4, max_updates=1)  # interrupted after one update on 4 devices, resumed on one
+    resumed = run("moved", 1, resume=True)
     try:
         Trainer(config("ppo.num_minibatches=8", "devices=4"))  # 2 sequences per minibatch
         refused = ""
@@ -54,17 +54,17 @@ CHILD = textwrap.dedent(
     print(json.dumps({
         "devices": len(jax.local_devices()), "sharding": str(four.state.carry.obs.sharding.spec),
         "params_four": largest_difference(one.state.params, four.state.params),
-        "params_two": largest_difference(one.state.params, resumed.state.params), "refused": refused,
+        "params_moved": largest_difference(one.state.params, resumed.state.params), "refused": refused,
     }))
     """
 )
 
 
 @pytest.mark.timeout(600)
-def test_four_devices_train_what_one_device_trains_and_a_run_resumes_on_other_devices(tmp_path: Path) -> None:
+def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_device_counts(tmp_path: Path) -> None:
     """Two seeds, an LSTM, 3 updates of 8 envs x 16 steps: the parameters after N = 4 devices, and after a
-    run that did one update on 2 devices and was resumed on 4, equal one device's to float rounding; the
-    rows of the metrics agree too."""
+    run that did one update on 4 devices and was resumed on one, equal one device's to float rounding; the
+    rows of the metrics agree too (the resumed run's programs come from the session's compilation cache)."""
     env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run(
         [sys.executable, "-c", CHILD, json.dumps(BASE), str(tmp_path)],
@@ -73,11 +73,11 @@ def test_four_devices_train_what_one_device_trains_and_a_run_resumes_on_other_de
     assert proc.returncode == 0, proc.stderr[-3000:]
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert result["devices"] == 4 and result["sharding"] == "P(None, 'envs')"
-    assert result["params_four"] < 1e-5 and result["params_two"] < 1e-5, result
+    assert result["params_four"] < 1e-5 and result["params_moved"] < 1e-5, result
     assert "each minibatch's 2 sequences must split evenly over the 4 devices" in result["refused"]
     rows = {n: [json.loads(x) for x in (tmp_path / n / "metrics.jsonl").read_text().splitlines()] for n in
-            ("one", "four", "two")}  # fmt: skip
-    for name in ("four", "two"):
+            ("one", "four", "moved")}  # fmt: skip
+    for name in ("four", "moved"):
         assert [r["update"] for r in rows[name]] == [r["update"] for r in rows["one"]] == [1, 1, 2, 2, 3, 3]
         for a, b in zip(rows["one"], rows[name], strict=True):
             assert b["total_loss"] == pytest.approx(a["total_loss"], rel=1e-4, abs=1e-6), name
