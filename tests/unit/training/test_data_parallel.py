@@ -61,7 +61,7 @@ CHILD = textwrap.dedent(
 
 
 @pytest.mark.timeout(600)
-def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_device_counts(tmp_path: Path) -> None:
+def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devices(tmp_path: Path) -> None:
     """Two seeds, an LSTM, 3 updates of 8 envs x 16 steps: the parameters after N = 4 devices, and after a
     run that did one update on 4 devices and was resumed on one, equal one device's to float rounding; the
     rows of the metrics agree too (the resumed run's programs come from the session's compilation cache)."""
