@@ -27,6 +27,9 @@ class DistributedConfig:
         actor_max_restarts: how often Ray restarts a dead actor (-1: always).
         learner_max_restarts: how often the driver restarts a dead learner, which resumes from its latest
             checkpoint.
+        learner_gpus: GPUs Ray reserves for the learner (0: it runs JAX on a CPU; 1: Ray places it on a node
+            with a free GPU, which its JAX uses, so that node needs JAX's CUDA build: `pip install -e
+            '.[cuda]'`, as `cluster/config.yaml`'s head node does).
         level_server: `host:port` of the level server that streams procedural kitchens to the actors
             (Overcooked `generator` runs); empty: actors draw levels themselves from the learner's keys.
         level_token: bearer token for the level server (empty: the CEC_LEVEL_SERVER_TOKEN variable).
@@ -46,6 +49,7 @@ class DistributedConfig:
     actor_threads: int = 1
     actor_max_restarts: int = -1
     learner_max_restarts: int = 3
+    learner_gpus: float = 0.0
     level_server: str = ""
     level_token: str = ""
     level_buffer_rollouts: int = 8
@@ -66,6 +70,8 @@ class DistributedConfig:
             raise ConfigError(
                 f"distributed.level_buffer_rollouts must be >= 1, got {self.level_buffer_rollouts}"
             )
+        if self.learner_gpus < 0:
+            raise ConfigError(f"distributed.learner_gpus must be >= 0, got {self.learner_gpus}")
         if self.actor_cpus <= 0 or self.actor_threads < 0:
             raise ConfigError("distributed.actor_cpus must be > 0 and distributed.actor_threads >= 0")
         if self.metrics_port < -1 or self.metrics_port > 65535:

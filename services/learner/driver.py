@@ -89,6 +89,21 @@ def check_level_server(address: str, token: str = "", timeout: float = 10.0) -> 
         client.close()
 
 
+def learner_options(dist: DistributedConfig) -> dict[str, Any]:
+    """Ray's options for the learner's process: no CPU reserved (it mostly waits on the actors), the GPUs
+    of `learner_gpus`, and the JAX platform: the driver's `JAX_PLATFORMS` (CPU by default), or JAX's own
+    choice (the GPU Ray gave it) when the learner has GPUs."""
+    platforms = os.environ.get("JAX_PLATFORMS", "" if dist.learner_gpus else "cpu")
+    return {
+        "num_cpus": 0,
+        "num_gpus": dist.learner_gpus,
+        "max_restarts": dist.learner_max_restarts,
+        "max_task_retries": 0,
+        "max_concurrency": 2,  # `stop` runs while `run` does
+        "runtime_env": {"env_vars": {"JAX_PLATFORMS": platforms}},
+    }
+
+
 def run_distributed(
     train: TrainConfig,
     dist: DistributedConfig,
@@ -106,13 +121,7 @@ def run_distributed(
     check_start(train, dist, store, resume)
     for line in describe(Path(train.run_dir) / train.run_name, train.tracking):
         print(line, file=log_to, flush=True)
-    remote = ray.remote(Learner).options(
-        num_cpus=0,
-        max_restarts=dist.learner_max_restarts,
-        max_task_retries=0,
-        max_concurrency=2,  # `stop` runs while `run` does
-        runtime_env={"env_vars": {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}},
-    )
+    remote = ray.remote(Learner).options(**learner_options(dist))
     store_dict = None if store is None else _asdict(store)
     learner: Any = remote.remote(config_dict(train), _asdict(dist), store_dict)
     stopping = threading.Event()

@@ -38,3 +38,17 @@ def test_a_broken_cluster_config_is_refused_naming_the_field(tmp_path: Path, edi
     path.write_text(yaml.safe_dump(config))
     with pytest.raises(ConfigError, match=match):
         check_cluster_config(path)
+
+
+def test_the_learner_takes_a_gpu_when_given_one_and_the_gpu_head_installs_cuda(monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    from services.learner.config import DistributedConfig
+    from services.learner.driver import learner_options
+
+    monkeypatch.delenv("JAX_PLATFORMS", raising=False)
+    cpu, gpu = learner_options(DistributedConfig()), learner_options(DistributedConfig(learner_gpus=1))
+    assert cpu["num_gpus"] == 0 and cpu["runtime_env"]["env_vars"]["JAX_PLATFORMS"] == "cpu"
+    assert gpu["num_gpus"] == 1 and gpu["runtime_env"]["env_vars"]["JAX_PLATFORMS"] == ""  # JAX picks the GPU
+    with pytest.raises(ConfigError, match="learner_gpus must be >= 0"):
+        DistributedConfig(learner_gpus=-1)
+    config = yaml.safe_load((CLUSTER / "config.yaml").read_text())
+    assert any(".[cuda]" in c for c in config["head_setup_commands"])
