@@ -20,13 +20,14 @@ import os
 import statistics
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     from env_throughput import git_rev, machine  # type: ignore[import-not-found]
+    from train_throughput import time_train_call  # type: ignore[import-not-found]
 except ImportError:
     from benchmarks.env_throughput import git_rev, machine
+    from benchmarks.train_throughput import time_train_call
 
 RESULTS = Path(__file__).parent / "results"
 REPO = Path(__file__).resolve().parents[1]
@@ -41,19 +42,7 @@ def measure(config: str, overrides: list[str], devices: int, updates: int, repea
     from cec.training.trainer import Trainer
 
     cfg = load_config(TrainConfig, config, [*overrides, f"devices={devices}", f"updates_per_call={updates}"])
-    trainer = Trainer(cfg)
-    state = trainer.init()
-    call = trainer.train_call(updates)
-    t0 = time.perf_counter()
-    state, _ = call(state)
-    jax.block_until_ready(state)
-    first = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        state, _ = call(state)
-        jax.block_until_ready(state)
-        times.append(time.perf_counter() - t0)
+    first, times = time_train_call(Trainer(cfg), updates, repeats)
     median = statistics.median(times)
     steps = updates * cfg.steps_per_update * cfg.num_seeds
     return {

@@ -50,6 +50,20 @@ RESULTS = Path(__file__).parent / "results"
 PEER = Path(__file__).parent / "peers" / "reference_train.py"
 
 
+def time_train_call(trainer: Trainer, updates: int, repeats: int) -> tuple[float, list[float]]:
+    """(seconds of the first call: compile + one call, seconds of each of `repeats` more calls) of the
+    trainer's own compiled call of `updates` updates (state donated, as in `cec train`)."""
+    state = trainer.init()
+    call = trainer.train_call(updates)
+    times = []
+    for _ in range(repeats + 1):
+        t = time.perf_counter()
+        state, _ = call(state)
+        jax.block_until_ready(state)
+        times.append(time.perf_counter() - t)
+    return times[0], times[1:]
+
+
 def peak_matmul_flops(n: int = 2048, repeats: int = 10) -> float:
     """FLOP/s of a jitted n x n float32 matmul (best of `repeats`)."""
     a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32)
@@ -103,18 +117,7 @@ def measure_ours(preset: str, envs: int, steps: int, updates: int, repeats: int)
         },
     )
     trainer = Trainer(cfg)
-    state = trainer.init()
-    call = trainer.train_call(updates)  # jitted on first use (the trainer's own call, state donated)
-    t = time.perf_counter()
-    state, _ = call(state)  # compile + one call
-    jax.block_until_ready(state)
-    first_s = time.perf_counter() - t
-    times = []
-    for _ in range(repeats):
-        t = time.perf_counter()
-        state, _ = call(state)
-        jax.block_until_ready(state)
-        times.append(time.perf_counter() - t)
+    first_s, times = time_train_call(trainer, updates, repeats)
     median = statistics.median(times)
     flops = flops_per_env_step(trainer)
     sps = updates * cfg.steps_per_update / median
