@@ -502,7 +502,7 @@ def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped:
             "",
         ]
     reasons = sorted({s.reason for s in skipped if s.algorithm == HUMAN_PROXY})
-    why = f"they could not play with the agents: {'; '.join(reasons)}" if reasons else "none were given"
+    why = f"they could not play with the agents: {'; '.join(reasons)}" if reasons else "none in the table"
     return [f"With human proxies: not played ({why}).", ""]
 
 
