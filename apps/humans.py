@@ -392,13 +392,15 @@ def _cmd_bc(args: argparse.Namespace) -> int:
 
 
 def _preset_network(preset: str | None) -> dict[str, Any]:
-    """{"network": the network of a training preset} ({} without one: the CEC CPU recipe's)."""
+    """{"network": the network of a training preset, without E3T's partner model (cross-play embeds one
+    for it)} ({} without a preset: the CEC CPU recipe's)."""
     if preset is None:
         return {}
     from cec.config import load_config
     from cec.training.config import TrainConfig
 
-    return {"network": load_config(TrainConfig, preset, []).network_config}
+    network = load_config(TrainConfig, preset, []).network_config
+    return {"network": dataclasses.replace(network, partner_history=0)}
 
 
 def _bc_error(message: str) -> int:
