@@ -137,19 +137,15 @@ class TrainConfig:
             raise ConfigError(
                 "num_seeds, num_envs, num_steps, total_env_steps, updates_per_call must be >= 1"
             )
+        if self.sequences % self.ppo.num_minibatches:
+            raise ConfigError(
+                f"{self.sequences} training sequences per update (num_envs x trained seats) must split "
+                f"evenly into ppo.num_minibatches = {self.ppo.num_minibatches}"
+            )
         if self.devices < 0:
             raise ConfigError(f"devices must be >= 0 (0: every local device), got {self.devices}")
-        if self.devices and self.num_envs % self.devices:
-            raise ConfigError(
-                f"num_envs {self.num_envs} must split evenly over devices = {self.devices} (each device "
-                "plays a share of every seed's envs)"
-            )
-        sequences = self.num_envs * (1 if self.partner.learner_seat_only else 2)
-        if sequences % self.ppo.num_minibatches:
-            raise ConfigError(
-                f"{sequences} training sequences per update (num_envs x trained seats) must split evenly "
-                f"into ppo.num_minibatches = {self.ppo.num_minibatches}"
-            )
+        if self.devices:
+            self.check_devices(self.devices)
         if self.network_config.egocentric and not self.env.game.egocentric:
             raise ConfigError(
                 "network_overrides.egocentric centres the view on the cell in channel 0, which is the seat's "
@@ -160,7 +156,23 @@ class TrainConfig:
                 f"unknown network preset {self.network!r}; choose one of {sorted(NETWORK_PRESETS)}"
             )
 
+    def check_devices(self, n: int) -> None:
+        """A `ConfigError` unless the envs and each minibatch's sequences split evenly over `n` devices
+        (each device plays a share of every seed's envs and learns on a share of every minibatch); the
+        trainer checks the count it resolves `devices = 0` to as well."""
+        share = self.sequences // self.ppo.num_minibatches
+        if self.num_envs % n or share % n:
+            raise ConfigError(
+                f"num_envs {self.num_envs} and each minibatch's {share} sequences must split evenly over the "
+                f"{n} devices; change num_envs, ppo.num_minibatches or devices"
+            )
+
     # Derived values (never written back into the config).
+    @property
+    def sequences(self) -> int:
+        """Training sequences per update and seed: num_envs x trained seats."""
+        return self.num_envs * (1 if self.partner.learner_seat_only else 2)
+
     @property
     def network_config(self) -> NetworkConfig:
         """The preset (or the overrides), with the partner model of `partner.predict_partner`."""

@@ -278,12 +278,7 @@ def device_mesh(config: TrainConfig) -> Mesh | None:
             "devices (0: all of them), or on a CPU start the process with "
             f"XLA_FLAGS=--xla_force_host_platform_device_count={n}"
         )
-    sequences = config.num_envs * (1 if config.partner.learner_seat_only else 2) // config.ppo.num_minibatches
-    if config.num_envs % n or sequences % n:
-        raise ConfigError(
-            f"num_envs {config.num_envs} and each minibatch's {sequences} sequences must split evenly over "
-            f"the {n} devices (devices = {config.devices}); change num_envs, ppo.num_minibatches or devices"
-        )
+    config.check_devices(n)
     return Mesh(np.asarray(devices[:n]), ("envs",)) if n > 1 else None
 
 

@@ -87,7 +87,7 @@ def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devic
 def test_devices_that_do_not_fit_are_refused_before_any_work() -> None:
     with pytest.raises(ConfigError, match="devices must be >= 0"):
         load_config(TrainConfig, None, ["devices=-1"])
-    with pytest.raises(ConfigError, match="must split evenly over devices = 3"):
+    with pytest.raises(ConfigError, match="must split evenly over the 3 devices"):
         load_config(TrainConfig, None, ["num_envs=8", "devices=3"])
     two = load_config(TrainConfig, str(REPO / "configs/train/quick_cpu.yaml"), [*BASE[:3], "devices=2"])
     with pytest.raises(ConfigError, match="xla_force_host_platform_device_count=2"):
