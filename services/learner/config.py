@@ -24,12 +24,20 @@ class DistributedConfig:
         max_policy_lag: async only: the oldest weights (in versions behind the learner) a batch may be from.
         actor_cpus: CPUs Ray reserves per actor.
         actor_threads: XLA CPU threads per actor process (0: XLA's default, all cores).
-        actor_max_restarts: how often Ray restarts a dead actor (-1: always).
+        actor_max_restarts: how often Ray restarts a dead actor (-1: always), on any node that has room: a
+            dead node's actors come back on the others.
+        actor_resource: a custom Ray resource each actor takes one unit of, so that actors run only on the
+            nodes that declare it (`ray start --resources='{"rollout": 8}'` hosts up to 8); empty: any node
+            with the CPUs.
+        actor_spread: place the actors on as many nodes as possible (Ray's SPREAD strategy), so that one
+            node's death takes few of them; false: Ray packs them.
         learner_max_restarts: how often the driver restarts a dead learner, which resumes from its latest
             checkpoint.
         learner_gpus: GPUs Ray reserves for the learner (0: it runs JAX on a CPU; 1: Ray places it on a node
             with a free GPU, which its JAX uses, so that node needs JAX's CUDA build: `pip install -e
             '.[cuda]'`, as `cluster/config.yaml`'s head node does).
+        learner_resource: a custom Ray resource the learner takes one unit of (pins it to the node that
+            declares it, e.g. the head: `ray start --head --resources='{"learner": 1}'`); empty: anywhere.
         level_server: `host:port` of the level server that streams procedural kitchens to the actors
             (Overcooked `generator` runs); empty: actors draw levels themselves from the learner's keys.
         level_token: bearer token for the level server (empty: the CEC_LEVEL_SERVER_TOKEN variable).
@@ -48,8 +56,11 @@ class DistributedConfig:
     actor_cpus: float = 1.0
     actor_threads: int = 1
     actor_max_restarts: int = -1
+    actor_resource: str = ""
+    actor_spread: bool = True
     learner_max_restarts: int = 3
     learner_gpus: float = 0.0
+    learner_resource: str = ""
     level_server: str = ""
     level_token: str = ""
     level_buffer_rollouts: int = 8
@@ -86,10 +97,10 @@ class DistributedConfig:
                 f"distributed training runs one seed per run (num_seeds=1), got num_seeds={train.num_seeds}; "
                 "start one run per seed (seed=0, seed=1, ...)"
             )
-        if train.devices != 1:
+        if self.learner_gpus and train.devices > self.learner_gpus:
             raise ConfigError(
-                f"the Ray learner updates on one device, got devices={train.devices}; data-parallel training "
-                "over several devices is the single-process trainer's (cec train ... devices=N)"
+                f"devices={train.devices}, but the learner has distributed.learner_gpus="
+                f"{self.learner_gpus:g}; give it as many GPUs or lower devices (0: all of its GPUs)"
             )
         if train.num_envs % self.num_actors:
             raise ConfigError(

@@ -89,18 +89,42 @@ def check_level_server(address: str, token: str = "", timeout: float = 10.0) -> 
         client.close()
 
 
-def learner_options(dist: DistributedConfig) -> dict[str, Any]:
+def check_cluster(dist: DistributedConfig, resources: dict[str, float]) -> None:
+    """The custom resources the learner and actors are pinned to, against the cluster's
+    (`ray.cluster_resources()`): one no node declares would leave them waiting forever, so it is a
+    `ConfigError` naming the fix (an autoscaling cluster's node types declare theirs under `resources`;
+    keep one such node up, `min_workers: 1`)."""
+    wanted = {
+        "distributed.learner_resource": (dist.learner_resource, 1),
+        "distributed.actor_resource": (dist.actor_resource, dist.num_actors),
+    }
+    for field, (name, units) in wanted.items():
+        if name and resources.get(name, 0) < units:
+            raise ConfigError(
+                f"{field}={name!r} needs {units} unit(s) of Ray resource {name!r}, but the cluster's "
+                f"nodes declare {resources.get(name, 0):g}; start nodes with "
+                f"`ray start ... --resources='{{\"{name}\": {units}}}'` or clear {field}"
+            )
+
+
+def learner_options(dist: DistributedConfig, devices: int = 1) -> dict[str, Any]:
     """Ray's options for the learner's process: no CPU reserved (it mostly waits on the actors), the GPUs
     of `learner_gpus`, and the JAX platform: the driver's `JAX_PLATFORMS` (CPU by default), or JAX's own
-    choice (the GPU Ray gave it) when the learner has GPUs."""
+    choice (the GPUs Ray gave it) when the learner has GPUs. A CPU learner asked for `devices` > 1 gets
+    that many host devices (XLA's `--xla_force_host_platform_device_count`), which test what a multi-GPU
+    learner computes but share the node's cores."""
     platforms = os.environ.get("JAX_PLATFORMS", "" if dist.learner_gpus else "cpu")
+    env_vars = {"JAX_PLATFORMS": platforms}
+    if not dist.learner_gpus and devices > 1:
+        env_vars["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
     return {
         "num_cpus": 0,
         "num_gpus": dist.learner_gpus,
+        "resources": {dist.learner_resource: 1} if dist.learner_resource else None,
         "max_restarts": dist.learner_max_restarts,
         "max_task_retries": 0,
         "max_concurrency": 2,  # `stop` runs while `run` does
-        "runtime_env": {"env_vars": {"JAX_PLATFORMS": platforms}},
+        "runtime_env": {"env_vars": env_vars},
     }
 
 
@@ -119,9 +143,10 @@ def run_distributed(
     from services.learner.learner import Learner
 
     check_start(train, dist, store, resume)
+    check_cluster(dist, ray.cluster_resources())
     for line in describe(Path(train.run_dir) / train.run_name, train.tracking):
         print(line, file=log_to, flush=True)
-    remote = ray.remote(Learner).options(**learner_options(dist))
+    remote = ray.remote(Learner).options(**learner_options(dist, train.devices))
     store_dict = None if store is None else _asdict(store)
     learner: Any = remote.remote(config_dict(train), _asdict(dist), store_dict)
     stopping = threading.Event()

@@ -14,7 +14,9 @@ checkpoint with exact counters. Each update:
 
 The update is the single-process trainer's own `Trainer.learn`, keys come from the same per-update split
 (`Trainer.update_keys`), and the checkpoint is the trainer's `TrainState` with one seed, so a `sync` run
-reproduces `cec train` and either can resume the other's checkpoints.
+reproduces `cec train` and either can resume the other's checkpoints. With `devices` > 1 the update is
+data-parallel over the learner's devices (the trainer's mesh: each minibatch split over them, gradients
+averaged); each actor plays its slice on one device.
 
 Every update's metrics row (`metrics.jsonl`, `metrics.csv`, and the TensorBoard events of
 `cec.training.tracking`) holds the trainer's columns plus the learner's own (`DISTRIBUTED_COLUMNS`): the
@@ -42,6 +44,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import NamedSharding, PartitionSpec
 
 from cec.config import from_dict
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
@@ -211,6 +214,10 @@ class Learner:
         meter = Progress(total, cfg.steps_per_update, out)
         template = self._slice_template()
         params, opt_state, key = one.params, one.opt_state, one.key
+        if self.trainer.mesh is not None:  # data-parallel update: one copy of the state on every device
+            params, opt_state = jax.device_put(
+                (params, opt_state), NamedSharding(self.trainer.mesh, PartitionSpec())
+            )
         version = done
         weights = self._publish(params, version)
         pending: dict[Any, int] = {}  # async: in-flight rollout -> slot index
@@ -280,6 +287,8 @@ class Learner:
             )
         remote = ray.remote(RolloutActor).options(
             num_cpus=d.actor_cpus,
+            resources={d.actor_resource: 1} if d.actor_resource else None,
+            scheduling_strategy="SPREAD" if d.actor_spread else "DEFAULT",
             max_restarts=d.actor_max_restarts,
             max_task_retries=0,
             runtime_env={"env_vars": env_vars},
@@ -288,7 +297,7 @@ class Learner:
         self.slots = []
         for i in range(d.num_actors):
             handle = remote.remote(
-                self.train_dict,
+                {**self.train_dict, "devices": 1},  # an actor plays its slice on its one device
                 i,
                 i * n,
                 (i + 1) * n,
