@@ -146,7 +146,8 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
         want = [f"nodes/update_{u:09d}" for u in range(UPDATES + 1)]  # the initial policy's too
         events = [e.checkpoint_id for e in plane.list_checkpoints("nodes")]
         assert events == want, "every checkpoint event, once, in order"
-        assert plane.get_run("nodes").status == "finished"
+        run = plane.get_run("nodes")
+        assert run is not None and run.status == "finished"
         _wait("the evaluator scoring every checkpoint", lambda: all(plane.is_scored(c) for c in want), 240)
         plane.close()
     finally:
