@@ -25,13 +25,12 @@ demo: install
 	$(BIN)/cec demo --out out/demo.gif
 
 ## Lint, type checks and the whole test suite (unit + JaxMARL parity)
-# The library, parity, learning and services layers run on every core (each worker has its own Redis and
-# JAX cache; servers bind free ports); the end-to-end layer, whole stacks of Ray processes timing their
-# recoveries, runs one test at a time.
+# Every layer runs on every core (each worker has its own Redis and JAX cache; servers bind free ports),
+# except that the end-to-end tests, whole stacks of Ray processes timing their recoveries, run one at a
+# time on one worker (their xdist group, tests/conftest.py), listed first so that they start first.
 TEST_WORKERS ?= auto
 test: lint typecheck
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) tests/unit tests/parity tests/learning tests/services
-	$(BIN)/python -m pytest -q tests/e2e
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup tests/e2e tests/unit tests/parity tests/learning tests/services
 
 lint: install
 	$(BIN)/ruff check .

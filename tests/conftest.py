@@ -51,6 +51,16 @@ def pytest_configure(config: pytest.Config) -> None:
 _own_cache = pytest.StashKey[str]()
 
 
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The end-to-end tests (whole stacks of Ray processes, `cec up`, a browser, timing their recoveries)
+    form one xdist group: under `--dist loadgroup` one worker runs them one at a time while the other
+    workers take the rest of the suite."""
+    e2e = Path(__file__).parent / "e2e"
+    for item in items:
+        if e2e in Path(str(item.path)).parents:
+            item.add_marker(pytest.mark.xdist_group("e2e"))
+
+
 def pytest_unconfigure(config: pytest.Config) -> None:
     folder = config.stash.get(_own_cache, None)
     if folder is not None:
