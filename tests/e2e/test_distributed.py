@@ -205,7 +205,7 @@ def test_bad_inputs_stop_start_up_with_the_fix(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="num_actors"):
         check_start(cfg, DistributedConfig(num_actors=3), None, resume=False)
     with pytest.raises(ConfigError, match="learner_gpus=1; give it as many GPUs"):
-        check_start(dataclasses.replace(cfg, devices=2), DistributedConfig(learner_gpus=1), None, resume=False)
+        check_start(dataclasses.replace(cfg, devices=2), DistributedConfig(learner_gpus=1), None, False)
     # a checkpoint written by another config is refused before anything starts
     train(
         load_config(TrainConfig, DD_QUICK, [f"run_dir={tmp_path}", "name=bad", "total_env_steps=12800"]),
