@@ -1,14 +1,16 @@
 """Several Ray nodes on this machine, each its own raylet and worker processes as on separate machines
 (Ray's `ray.cluster_utils.Cluster`, over loopback): the learner pinned to the head and updating over two
 (CPU) devices, one actor on each of two worker nodes, the level server streaming kitchens and the
-evaluator scoring every checkpoint from Redis. Redis crashes, then a worker node dies (its raylet and
-workers killed): the dead node's actor comes back on the surviving node, Redis comes back, and nothing is
-lost: every update, every checkpoint event once and in order, every checkpoint scored."""
+evaluator scoring every checkpoint from Redis. Redis and the level server die (the actors train on, replaying
+kitchens they have), then a worker node (its raylet and workers killed): the dead node's actor comes back on
+the surviving node, Redis and the level server come back, and nothing is lost: every update, every
+checkpoint event once and in order, every checkpoint scored."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
+import signal
 import threading
 import time
 import urllib.request
@@ -33,7 +35,7 @@ from services.store import ControlPlane, LocalRedis  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
 REPO = Path(__file__).resolve().parents[2]
-UPDATES = 30
+UPDATES = 40
 
 
 def _rows(run_dir: Path) -> list[dict]:
@@ -65,13 +67,14 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
     redis = LocalRedis(tmp_path / "redis").start()
     done = threading.Event()
     port = free_port()
-    level_server = ServiceProcess(
-        "level server",
-        ["-m", "services.level_server", f"port={port}", "metrics_port=-1", "seed=1"],
-        tmp_path / "level_server.log",
-        "level server ready on",
-        120,
-    )
+
+    def level_server() -> ServiceProcess:
+        args = ["-m", "services.level_server", f"port={port}", "metrics_port=-1", "seed=1"]
+        return ServiceProcess(
+            "level server", args, tmp_path / "level_server.log", "level server ready on", 120
+        )
+
+    servers = {"level": level_server()}
     evaluator = ServiceProcess(
         "evaluator",
         ["-m", "services.evaluator", "--config", str(REPO / "tests/e2e/evaluator_small.yaml"),
@@ -99,10 +102,12 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
              f"run_dir={tmp_path}", "name=nodes"],
         )  # fmt: skip
         metrics_port = free_port()
+        metrics = f"http://127.0.0.1:{metrics_port}/metrics"
         dist = DistributedConfig(
             num_actors=2,
             metrics_port=metrics_port,
             level_server=f"127.0.0.1:{port}",
+            level_buffer_rollouts=2,  # drained by the outage below, so that the actors replay kitchens
             learner_resource="learner",
             actor_resource="rollout",
         )
@@ -115,17 +120,24 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
             try:
                 _wait("two metrics rows", lambda: len(_rows(run_dir)) >= 2, poll=0.02)
                 seen["before"] = _actor_nodes()  # SPREAD: one actor on each worker node
-                redis.stop(kill=True)  # Redis crashes: checkpoint events go to the learner's outbox ...
+                redis.stop(kill=True)  # Redis crashes: checkpoint events go to the learner's outbox,
+                servers["level"].proc.send_signal(signal.SIGKILL)  # the level server dies: actors replay,
+                servers["level"].stop()
                 outbox = ControlPlane(redis.config(), outbox_dir=run_dir)
                 _wait("an event in the outbox", lambda: len(outbox.pending_outbox()) > 0, poll=0.02)
-                cluster.remove_node(workers[0], allow_graceful=False)  # ... and a worker node dies
+                _wait(
+                    "kitchens replayed",
+                    lambda: _counter(metrics, "cec_actor_levels_reused_total") > 0,
+                    poll=0.02,
+                )
+                cluster.remove_node(workers[0], allow_graceful=False)  # and a worker node dies
                 survivor = [workers[1].node_id] * 2
                 _wait("both actors on the surviving node", lambda: [n for n, _ in _actor_nodes()] == survivor)
                 seen["after"] = _actor_nodes()
-                seen["restarts"] = _counter(
-                    f"http://127.0.0.1:{metrics_port}/metrics", "cec_actor_restarts_total"
-                )
-                redis.start()  # Redis is back: the outbox is flushed at the learner's next heartbeat
+                seen["restarts"] = _counter(metrics, "cec_actor_restarts_total")
+                seen["reconnects"] = _counter(metrics, "cec_actor_level_server_reconnects_total")
+                servers["level"] = level_server()  # both back: the actors' streams reconnect, and the
+                redis.start()  # outbox is flushed at the learner's next heartbeat
             except BaseException as err:  # surfaced by the test
                 seen["error"] = err
             done.wait(600)  # Redis dies with the thread that started it (`with_parent_death`)
@@ -141,6 +153,7 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
         assert [n for n, _ in seen["before"]] == sorted(ids), "the actors were spread over both worker nodes"
         assert seen["after"] == [(ids[1], 0), (ids[1], 1)], "the dead node's actor came back on the other"
         assert seen["restarts"] == 1, "the learner's metrics count the restart"
+        assert seen["reconnects"] > 0, "the surviving actor's level stream kept trying to reconnect"
         assert [r["update"] for r in _rows(run_dir)] == list(range(1, UPDATES + 1))
         plane = ControlPlane.connect(redis.config())
         want = [f"nodes/update_{u:09d}" for u in range(UPDATES + 1)]  # the initial policy's too
@@ -155,5 +168,5 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
         ray.shutdown()
         cluster.shutdown()
         evaluator.stop()
-        level_server.stop()
+        servers["level"].stop()
         redis.stop()
