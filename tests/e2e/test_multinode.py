@@ -97,7 +97,7 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
              "network_overrides.encoder_features=[32]", "network_overrides.lstm_features=0",
              "network_overrides.actor_features=[32]", "network_overrides.critic_features=[32]",
              "num_envs=8", "num_steps=64", f"total_env_steps={8 * 64 * UPDATES}", "updates_per_call=1",
-             "env.overcooked.max_steps=16", "ppo.num_minibatches=2", "checkpoint.every_updates=1",
+             "env.overcooked.max_steps=16", "ppo.num_minibatches=2", "checkpoint.every_updates=4",
              f"checkpoint.keep_last={UPDATES}", "devices=2",
              f"run_dir={tmp_path}", "name=nodes"],
         )  # fmt: skip
@@ -156,7 +156,7 @@ def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_p
         assert seen["reconnects"] > 0, "the surviving actor's level stream kept trying to reconnect"
         assert [r["update"] for r in _rows(run_dir)] == list(range(1, UPDATES + 1))
         plane = ControlPlane.connect(redis.config())
-        want = [f"nodes/update_{u:09d}" for u in range(UPDATES + 1)]  # the initial policy's too
+        want = [f"nodes/update_{u:09d}" for u in range(0, UPDATES + 1, 4)]  # the initial policy's too
         events = [e.checkpoint_id for e in plane.list_checkpoints("nodes")]
         assert events == want, "every checkpoint event, once, in order"
         run = plane.get_run("nodes")
