@@ -246,6 +246,13 @@ class Trainer:
             return state
         return jax.device_put(state, self.state_shardings(state))
 
+    def replicate(self, tree: Any) -> Any:
+        """`tree` copied onto every device of the mesh (the parameters and Adam state the Ray learner's
+        data-parallel update takes). One device: unchanged."""
+        if self.mesh is None:
+            return tree
+        return jax.device_put(tree, NamedSharding(self.mesh, PartitionSpec()))
+
     def initial_params(self) -> Any:
         """The parameters of `init_from` (checked against this run's game, observations and network)."""
         cfg = self.config

@@ -44,7 +44,6 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import NamedSharding, PartitionSpec
 
 from cec.config import from_dict
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
@@ -213,11 +212,8 @@ class Learner:
             self._checkpoint(one, 0, True)
         meter = Progress(total, cfg.steps_per_update, out)
         template = self._slice_template()
-        params, opt_state, key = one.params, one.opt_state, one.key
-        if self.trainer.mesh is not None:  # data-parallel update: one copy of the state on every device
-            params, opt_state = jax.device_put(
-                (params, opt_state), NamedSharding(self.trainer.mesh, PartitionSpec())
-            )
+        params, opt_state = self.trainer.replicate((one.params, one.opt_state))  # for `devices` > 1
+        key = one.key
         version = done
         weights = self._publish(params, version)
         pending: dict[Any, int] = {}  # async: in-flight rollout -> slot index

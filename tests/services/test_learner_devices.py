@@ -29,7 +29,6 @@ CHILD = textwrap.dedent(
     """
     import json, sys
     import jax, jax.numpy as jnp, numpy as np
-    from jax.sharding import NamedSharding, PartitionSpec
     from cec.config import load_config
     from cec.training.compact import from_bytes, to_bytes
     from cec.training.config import TrainConfig
@@ -51,12 +50,10 @@ CHILD = textwrap.dedent(
     _, k_levels, k_roll, k_update = one.trainer.update_keys(state.key)
     _, _, raw = decode_batch(actor.rollout(to_bytes(state.params), 0, k_levels, k_roll))
     rollout = from_bytes(one._slice_template(), raw)
-    replicated = NamedSharding(two.trainer.mesh, PartitionSpec())
     results = {}
     for name, lrn in (("one", one), ("two", two)):
-        params, opt_state = jax.tree.map(jnp.copy, (state.params, state.opt_state))  # donated
-        if lrn.trainer.mesh is not None:  # as `Learner.run` places them
-            params, opt_state = jax.device_put((params, opt_state), replicated)
+        copies = jax.tree.map(jnp.copy, (state.params, state.opt_state))  # `_learn` donates them
+        params, opt_state = lrn.trainer.replicate(copies)  # as `Learner.run` places them
         results[name] = lrn._learn(params, opt_state, jnp.int32(0), rollout, k_update)
     diffs = jax.tree.map(lambda a, b: float(np.max(np.abs(np.asarray(a) - np.asarray(b)))),
                          results["one"][0], results["two"][0])
