@@ -11,6 +11,8 @@ The spec names what to train, one entry per preset (docs/training.md):
                seeds are one run (`num_seeds` vmapped seeds), others one run per seed
     overrides  `key=value` overrides of the preset (not `seed`, `num_seeds`, `run_dir`, `name`)
     name       optional run-name stem (default `<algorithm>-<env>-<levels>`); runs are `<stem>-s<first seed>`
+    label      optional algorithm label its policies get in the manifest (default: the preset's `algorithm`),
+               e.g. `cec_nolstm` for an ablation that reports apart from the algorithm it varies
 
 Runs go to `ZOO_DIR/runs/`, in spec order. Paths in a preset under its own `run_dir` (FCP's
 `partner.population[].run`, CEC-Finetune's `init_from`, e.g. `runs/ippo-dual_destination-fixed-s0`) are
@@ -46,7 +48,7 @@ from cec.config import ConfigError
 if TYPE_CHECKING:
     from cec.training.config import TrainConfig
 
-ENTRY_KEYS = ("preset", "seeds", "overrides", "name")
+ENTRY_KEYS = ("preset", "seeds", "overrides", "name", "label")
 RESERVED_OVERRIDES = ("seed", "num_seeds", "run_dir", "name")
 MANIFEST = "zoo.yaml"
 
@@ -61,6 +63,7 @@ class PlannedRun:
         config: the run's full config (run_dir under the zoo, seeds set, paths re-rooted).
         seeds: the seeds it trains (`config.seed` .. `config.seed + config.num_seeds - 1`).
         policy_names: the manifest name of each seed's policy.
+        algorithm: the manifest's algorithm label of its policies (the entry's `label`, else the config's).
         depends_on: (what, run directory, seeds it needs or () for any) it reads when it starts (FCP
             populations, init_from).
     """
@@ -71,6 +74,7 @@ class PlannedRun:
     seeds: tuple[int, ...]
     policy_names: tuple[str, ...]
     depends_on: tuple[tuple[str, Path, tuple[int, ...]], ...]
+    algorithm: str
 
     @property
     def run_dir(self) -> Path:
@@ -105,7 +109,7 @@ def load_spec(path: str | Path) -> list[dict[str, Any]]:
         got = sorted(data) if isinstance(data, Mapping) else type(data).__name__
         raise ConfigError(
             f"zoo spec {p}: expected one top-level key `entries` (a list of {{preset, seeds, overrides, "
-            f"name}}), got {got}"
+            f"name, label}}), got {got}"
         )
     entries = data["entries"]
     if not isinstance(entries, list) or not entries:
@@ -144,6 +148,9 @@ def load_spec(path: str | Path) -> list[dict[str, Any]]:
         name = item.get("name")
         if name is not None and (not isinstance(name, str) or not name or "/" in name):
             raise ConfigError(f"{at}: `name` must be a non-empty string without '/', got {name!r}")
+        label = item.get("label")
+        if label is not None and (not isinstance(label, str) or not label):
+            raise ConfigError(f"{at}: `label` must be a non-empty string, got {label!r}")
         out.append(dict(item))
     return out
 
@@ -215,7 +222,8 @@ def plan_zoo(spec_path: str | Path, out_dir: str | Path) -> list[PlannedRun]:
             except ConfigError as err:
                 raise ConfigError(f"{at}: {err}") from err
             names = tuple(f"{stem}-s{s}" for s in group)
-            plan.append(PlannedRun(i, label, config, group, names, deps))
+            algorithm = item.get("label") or config.algorithm
+            plan.append(PlannedRun(i, label, config, group, names, deps, algorithm))
     _check_plan(plan, spec_path)
     from cec.training.run import trains_as
 
@@ -373,7 +381,7 @@ def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[s
         for seed, name in zip(run.seeds, run.policy_names, strict=True):
             entry: dict[str, Any] = {
                 "name": name,
-                "algorithm": cfg.algorithm,
+                "algorithm": run.algorithm,
                 "seed": seed,
                 "checkpoint": str(final.path.relative_to(root)),
                 "env": cfg.env.name,

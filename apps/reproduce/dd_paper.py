@@ -26,6 +26,34 @@ VARIANT_TITLES = {
     "multi_task": "Multi-task (green and pink pairs)",
 }
 ALGORITHMS = ("ippo", "fcp", "cec")
+
+
+@dataclass(frozen=True)
+class Ablation:
+    """A variation of one algorithm that a version may train beside it (its preset with `overrides` last),
+    reported as its own row and tested against that algorithm, not in the paper's orderings.
+
+    Attributes:
+        algorithm: the algorithm it varies; title: what it is, for the report; claim: what the paper says
+            about it; overrides: what it changes.
+    """
+
+    algorithm: str
+    title: str
+    claim: str
+    overrides: tuple[str, ...]
+
+
+ABLATIONS = {
+    "cec_nolstm": Ablation(
+        "cec",
+        "CEC without an LSTM",
+        "In 300 million timesteps, CEC without an LSTM cannot achieve a positive reward on the Dual "
+        "Destination problem (the paper's appendix; with the LSTM it converges to the maximum reward)",
+        ("network_overrides.lstm_features=0",),
+    )
+}
+ROWS = (*ALGORITHMS, *ABLATIONS)  # every algorithm label a report may show
 ORACLE = "oracle"
 LEVEL_SETS = ("fixed", "generated")  # the fixed task (multi_task layout in that variant); 100 generated tasks
 LEVEL_SET_TITLES = {"fixed": "fixed task", "generated": "held-out generated tasks"}

@@ -14,18 +14,20 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from apps.reproduce.dd_paper import (
+    ABLATIONS,
     ALGORITHMS,
     LEVEL_SET_TITLES,
     LEVEL_SETS,
     ORACLE,
     ORACLE_FIXED,
     PAPER,
+    ROWS,
     VARIANT_TITLES,
     VARIANTS,
     PaperNumber,
     paper_number,
 )
-from apps.reproduce.dd_summary import ALPHA, ClaimResult, Score, check_claims
+from apps.reproduce.dd_summary import ALPHA, ClaimResult, Score, check_ablations, check_claims
 
 if TYPE_CHECKING:  # the modes are the command's (dual_destination.py imports this module)
     from apps.reproduce.dual_destination import Mode
@@ -138,13 +140,18 @@ def write_report(
         "(both fixed tasks and the 100 generated evaluation tasks are excluded from its generator).\n"
     )
     budget = ", ".join(
-        f"{a.upper()} {len(mode.seeds[a])} seeds x {mode.steps['full_obs'][a]:,} steps ({mode.presets[a]})"
-        for a in ALGORITHMS
+        f"{a.upper()} {len(mode.seeds[a])} seeds x {mode.steps['full_obs'][a]:,} steps ("
+        + (
+            f"{mode.presets[a]})"
+            if a in mode.presets
+            else f"{mode.presets[ABLATIONS[a].algorithm]} with {', '.join(ABLATIONS[a].overrides)})"
+        )
+        for a in mode.rows
     )
     md.append(
         f"Budget per variant: {budget}; partial-obs and multi-task steps: "
         + "; ".join(
-            f"{v}: " + ", ".join(f"{a} {mode.steps[v][a]:,}" for a in ALGORITHMS) for v in VARIANTS[1:]
+            f"{v}: " + ", ".join(f"{a} {mode.steps[v][a]:,}" for a in mode.rows) for v in VARIANTS[1:]
         )
         + f". Episodes per pair, seat order and level: {mode.episodes['fixed']} on the fixed task, "
         f"{mode.episodes['generated']} on each of {min(mode.generated_levels, 100)} held-out generated "
@@ -169,8 +176,10 @@ def write_report(
     for variant in [v for v in VARIANTS if v in summaries]:
         for level_set in LEVEL_SETS:
             kinds = summaries.get(variant, {}).get(level_set, {})
-            for algo in ALGORITHMS:
+            for algo in ROWS:
                 s = kinds.get("xp", {}).get(algo)
+                if s is None:
+                    continue
                 clipped = kinds.get("xp_clipped", {}).get(algo)
                 p = paper_number(variant, level_set, algo)
                 n = "—" if s is None else str(s.n)
@@ -231,6 +240,7 @@ def write_report(
         md.append("## CEC, fully observable, against the paper's values\n")
         md.extend(lines)
         md.append("")
+    md.extend(ablation_section(summaries, meta.get("training", {})))
     md.append("## Where our numbers differ from the paper's by more than 0.05\n")
     diffs = []
     for variant in VARIANTS:
@@ -277,7 +287,7 @@ def write_report(
         )
         md.append("|---|---|---|---|---|---|---|")
         for variant, per in meta["training"].items():
-            for algo in ALGORITHMS:
+            for algo in ROWS:
                 t = per.get(algo)
                 if t is not None:
                     md.append(
@@ -301,7 +311,7 @@ def write_report(
         md.append("| variant | algorithm | seed: seat 0's goal | distinct conventions |")
         md.append("|---|---|---|---|")
         for variant, per in meta["conventions"].items():
-            for algo in ALGORITHMS:
+            for algo in ROWS:
                 seeds = per.get(algo, {})
                 if seeds:
                     listed = ", ".join(f"{seed}: {goal}" for seed, goal in sorted(seeds.items()))
@@ -320,7 +330,7 @@ def write_report(
     for variant in VARIANTS:
         for level_set in LEVEL_SETS:
             kinds = summaries.get(variant, {}).get(level_set, {})
-            for algo in (*ALGORITHMS, ORACLE):
+            for algo in (*ROWS, ORACLE):
                 sp, wo = kinds.get("sp", {}).get(algo), kinds.get("oracle", {}).get(algo)
                 if sp is None and wo is None:
                     continue
@@ -360,6 +370,7 @@ def write_report(
                     for v, per in summaries.items()
                 },  # fmt: skip
                 "claims": [c.__dict__ for c in claims],
+                "ablations": [c.__dict__ for c in check_ablations(summaries)],
                 "paper": [p.__dict__ for p in PAPER],
             },
             indent=1,
@@ -368,6 +379,56 @@ def write_report(
         + "\n"
     )
     return path
+
+
+def ablation_section(
+    summaries: dict[str, dict[str, dict[str, dict[str, Score]]]], training: dict[str, dict[str, Any]]
+) -> list[str]:
+    """The report's lines on each ablation present: the paper's claim, the ablation's training return
+    (best and at the end: did it reach a positive reward?) beside its algorithm's, and its XP against the
+    algorithm's with the seed-level test; none when no ablation was trained."""
+    tests = check_ablations(summaries)
+    md: list[str] = []
+    for label, ablation in ABLATIONS.items():
+        trained = [
+            (v, per[label], per.get(ablation.algorithm)) for v, per in training.items() if label in per
+        ]
+        mine = [c for c in tests if c.worse == label]
+        if not trained and not mine:
+            continue
+        a, b = ablation.algorithm.upper(), ablation.title
+        md.append(f"## Ablation: {b}\n")
+        md.append(
+            f"The paper: “{ablation.claim}.” Here: {b} (`{label}`) trained with {a}'s preset and "
+            f"`{' '.join(ablation.overrides)}`, nothing else changed.\n"
+        )
+        if trained:
+            md.append(
+                f"| variant | training return: {b}, best / at the end | {a}, best / at the end | "
+                "positive reward reached |"
+            )
+            md.append("|---|---|---|---|")
+            for variant, t, base in trained:
+                other = "—" if base is None else f"{base['best_return']:.3f} / {base['final_return']:.3f}"
+                mine_t = f"{t['best_return']:.3f} / {t['final_return']:.3f}"
+                positive = "yes" if t["best_return"] > 0 else "no"
+                md.append(f"| {VARIANT_TITLES[variant]} | {mine_t} | {other} | {positive} |")
+            md.append("")
+        if mine:
+            md.append(f"XP of {a} and of {b} (per-seed means, Welch test over seeds as for the orderings):\n")
+            md.append(f"| variant | task set | {a} XP | {b} XP | difference [95% CI] | p | {a} better |")
+            md.append("|---|---|---|---|---|---|---|")
+            for c in mine:
+                xp = summaries[c.variant][c.level_set]["xp"]
+                p_text = "—" if math.isnan(c.p) else f"{c.p:.2g}"
+                verdict = ("yes" if c.holds else "**no**") + (" (significant)" if c.significant else "")
+                where = f"{VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]}"
+                diff = f"{c.diff:+.3f} [{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
+                md.append(
+                    f"| {where} | {_pm(xp[c.better])} | {_pm(xp[c.worse])} | {diff} | {p_text} | {verdict} |"
+                )
+            md.append("")
+    return md
 
 
 #: SP above XP by more than this: the seeds learned the task but do not play one convention.

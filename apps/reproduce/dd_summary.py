@@ -3,7 +3,8 @@
 `summarise`: per task set, kind (XP, SP, with the oracle partner; sampled and greedy) and algorithm, a
 variant's score over seeds, from its cross-play table (`dual_destination.evaluate_variant`); `conventions`:
 the goal each seed sends seat 0 to in greedy self-play. `check_claims`: the paper's
-orderings (`dd_paper.CLAIMS`) tested on per-seed XP. `training_stats`: each algorithm's training time and
+orderings (`dd_paper.CLAIMS`) tested on per-seed XP, `check_ablations` each ablation against its
+algorithm. `training_stats`: each algorithm's training time and
 return at the end, from its runs' metrics. `dd_report.write_report` writes them beside the paper's numbers.
 """
 
@@ -17,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from apps.reproduce.dd_paper import ALGORITHMS, CLAIMS, LEVEL_SETS, ORACLE, fixed_level_name
+from apps.reproduce.dd_paper import ABLATIONS, CLAIMS, LEVEL_SETS, ORACLE, ROWS, fixed_level_name
 
 ALPHA = 0.05  # significance level of the ordering tests
 
@@ -90,7 +91,7 @@ def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
 
     pl = an.pair_level_scores(table, names)
     m = an.pair_scores(pl)
-    seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ALGORITHMS, ORACLE)}
+    seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ROWS, ORACLE)}
     out = {}
     for algo, idx in seeds.items():
         if not idx or (kind == "oracle" and algo == ORACLE):
@@ -157,22 +158,39 @@ class ClaimResult:
 def check_claims(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[ClaimResult]:
     """Every `CLAIMS` ordering present in `summaries`: holds = better's mean > worse's mean; significant =
     holds and two-sided p < ALPHA."""
+    return [r for c in CLAIMS if (r := _ordering(summaries, *c)) is not None]
+
+
+def check_ablations(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[ClaimResult]:
+    """Each ablation (`ABLATIONS`) against the algorithm it varies (`cec > cec_nolstm`), per variant and
+    task set present in `summaries`, tested as `check_claims` tests the paper's orderings."""
+    return [
+        r
+        for variant in summaries
+        for level_set in LEVEL_SETS
+        for label, ablation in ABLATIONS.items()
+        if (r := _ordering(summaries, variant, level_set, ablation.algorithm, label)) is not None
+    ]
+
+
+def _ordering(
+    summaries: dict[str, dict[str, dict[str, dict[str, Score]]]],
+    variant: str,
+    level_set: str,
+    better: str,
+    worse: str,
+) -> ClaimResult | None:
     from cec.evaluation.stats import compare
 
-    out = []
-    for variant, level_set, better, worse in CLAIMS:
-        xp = summaries.get(variant, {}).get(level_set, {}).get("xp", {})
-        if better not in xp or worse not in xp:
-            continue
-        c = compare(np.asarray(xp[better].samples), np.asarray(xp[worse].samples))
-        holds = c.diff > 0
-        out.append(
-            ClaimResult(
-                variant, level_set, better, worse, c.diff, c.ci_low, c.ci_high, c.p, holds,
-                bool(holds and not math.isnan(c.p) and c.p < ALPHA),
-            )
-        )  # fmt: skip
-    return out
+    xp = summaries.get(variant, {}).get(level_set, {}).get("xp", {})
+    if better not in xp or worse not in xp:
+        return None
+    c = compare(np.asarray(xp[better].samples), np.asarray(xp[worse].samples))
+    holds = c.diff > 0
+    significant = bool(holds and not math.isnan(c.p) and c.p < ALPHA)
+    return ClaimResult(
+        variant, level_set, better, worse, c.diff, c.ci_low, c.ci_high, c.p, holds, significant
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -192,6 +210,8 @@ class TrainingStats:
             the partner it trained with (itself; FCP: its population).
         final_entropy: policy entropy (nats; log 5 = 1.61 is uniform) at the end, the same way; low means
             the seeds act almost deterministically, so sampled and greedy play agree.
+        best_return: the highest normalised training return of any update (mean over seeds); above 0 means
+            the seeds reached a positive reward (the paper's criterion for its no-LSTM ablation).
     """
 
     seeds: int
@@ -199,6 +219,7 @@ class TrainingStats:
     seconds: float
     final_return: float
     final_entropy: float = math.nan
+    best_return: float = math.nan
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
@@ -207,7 +228,7 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
     for metrics in sorted(zoo_dir.glob("runs/*/metrics.jsonl")):
         algo = metrics.parent.name.rsplit("-s", 1)[0]
         rows = [json.loads(line) for line in metrics.read_text().splitlines() if line.strip()]
-        if algo not in ALGORITHMS or not rows:
+        if algo not in ROWS or not rows:
             continue
         seeds = sorted({r["seed"] for r in rows})
         per_update = {r["update"]: r for r in rows}
@@ -222,11 +243,16 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
         last = sorted(per_update)[-5:]
         final = [r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r]
         entropy = [r["entropy"] for r in rows if r["update"] in last and r.get("entropy") is not None]
+        by_update: dict[int, list[float]] = {}
+        for r in rows:
+            if "normalised_return" in r:
+                by_update.setdefault(r["update"], []).append(r["normalised_return"])
         out[algo] = TrainingStats(
             len(seeds),
             int(steps[-1]),
             float(seconds),
             float(np.mean(final)) if final else math.nan,
             float(np.mean(entropy)) if entropy else math.nan,
+            max((float(np.mean(v)) for v in by_update.values()), default=math.nan),
         )
     return out

@@ -43,7 +43,7 @@ import yaml
 
 from apps.machine import duration, log_line, machine_info
 from apps.reproduce.dd_paper import (
-    ALGORITHMS,
+    ABLATIONS,
     LEVEL_SET_TITLES,
     LEVEL_SETS,
     ORACLE,
@@ -78,9 +78,10 @@ class Mode:
 
     Attributes:
         name: `quick` or `full`.
-        presets: training preset per algorithm (`configs/train/...`).
-        seeds: seeds per algorithm (FCP's population is every IPPO seed, as in the paper's code).
-        steps: env steps per seed, per variant and algorithm.
+        presets: training preset per algorithm (`configs/train/...`), in training order.
+        seeds: seeds per algorithm and ablation (FCP's population is every IPPO seed, as in the paper's
+            code).
+        steps: env steps per seed, per variant and algorithm (and ablation).
         episodes: episodes per pairing, seat order and level, per level set.
         seconds_per_update: measured seconds of one training update per algorithm's preset (one seed;
             `num_seeds` seeds vmapped in one process take about that many times as long on a CPU); the
@@ -92,6 +93,8 @@ class Mode:
         why: the report's paragraph after the differences from the paper's numbers: what this version is
             (its sizes against the paper's budgets), so what its differences can and cannot show; none
             when empty.
+        ablations: `dd_paper.ABLATIONS` it trains after the algorithms (each its algorithm's preset with
+            the ablation's overrides last) and reports as more rows.
     """
 
     name: str
@@ -105,6 +108,17 @@ class Mode:
     generated_levels: int = 100
     variants: tuple[str, ...] = VARIANTS
     why: str = ""
+    ablations: tuple[str, ...] = ()
+
+    @property
+    def rows(self) -> tuple[str, ...]:
+        """The algorithms and ablations this version trains and reports, in training order."""
+        return (*self.presets, *self.ablations)
+
+
+def algorithm_of(row: str) -> str:
+    """The algorithm a row trains: an ablation's (`cec_nolstm` -> `cec`), else the row itself."""
+    return ABLATIONS[row].algorithm if row in ABLATIONS else row
 
 
 QUICK = Mode(
@@ -137,18 +151,25 @@ FULL = Mode(
         "fcp": "configs/train/dd_fcp_cpu.yaml",
         "cec": "configs/train/dd_cec_cpu.yaml",
     },
-    seeds={"ippo": (0, 1, 2, 3, 4, 5), "fcp": (100, 101, 102, 103), "cec": (200, 201, 202, 203)},
-    steps={v: {"ippo": 512_000, "fcp": 512_000, "cec": 2_048_000} for v in VARIANTS},
+    ablations=("cec_nolstm",),
+    seeds={
+        "ippo": (0, 1, 2, 3, 4, 5),
+        "fcp": (100, 101, 102, 103),
+        "cec": (200, 201, 202, 203),
+        "cec_nolstm": (300, 301, 302, 303),
+    },
+    steps={
+        v: {"ippo": 3_000_000, "fcp": 3_000_000, "cec": 3_000_000, "cec_nolstm": 3_000_000} for v in VARIANTS
+    },
     episodes={"fixed": 16, "generated": 2},
-    # CEC measured with `cec train`, one seed alone on the idle machine (4.8k env steps/s); IPPO has the same
-    # network and cost, FCP ~10% more for its partners' forward passes (estimates; in the full run, sharing
-    # the cores with a second run, IPPO and FCP ran at the same speed, 2.5k env steps/s)
-    seconds_per_update={"ippo": 2.7, "fcp": 3.0, "cec": 2.7},
-    measured_on="the project's 2-core AMD EPYC CPU (no GPU), one seed, 2026-11-21",
-    why="Why, in general: this version is sized for a CPU (docs/reproduce.md): one CNN without an LSTM "
-    "for all three algorithms and 5e5-2e6 env steps per seed, against the paper's CNN + LSTM and "
-    "1e8-3e8 steps. Each line above says what the same seeds' self-play and oracle-partner scores "
-    "show.",
+    # CEC with its preset, one seed on one core beside a second run (3.0k env steps/s); IPPO and FCP have the
+    # same network (estimates), the ablation without the LSTM measured at 4.8k env steps/s alone
+    seconds_per_update={"ippo": 4.2, "fcp": 4.6, "cec": 4.2, "cec_nolstm": 2.7},
+    measured_on="the project's 2-core Intel Xeon CPU (no GPU), one seed, 2026-11-24",
+    why="Why, in general: this version is sized for a CPU (docs/reproduce.md): a small version of the "
+    "paper's CNN + LSTM for all three algorithms, 3e6 env steps per seed against the paper's 1e8-3e8, LR "
+    "1e-3 with 8 x 8 minibatch updates per rollout, and gamma 0.9 for CEC (0.99 for IPPO and FCP, as in "
+    "the paper). Each line above says what the same seeds' self-play and oracle-partner scores show.",
 )
 
 PAPER_SCALE = Mode(
@@ -180,7 +201,7 @@ def _variant_overrides(variant: str, algorithm: str) -> list[str]:
     if variant == "partial_obs":
         return ["env.dual_destination.partial_obs=true"]
     if variant == "multi_task":
-        levels = "procedural_multi_task" if algorithm == "cec" else "multi_task"
+        levels = "procedural_multi_task" if algorithm_of(algorithm) == "cec" else "multi_task"
         return ["env.dual_destination.multi_task=true", f"env.levels={levels}"]
     return []
 
@@ -194,21 +215,22 @@ def zoo_spec(mode: Mode, variant: str) -> dict[str, Any]:
     extra = {
         "ippo": ["checkpoint.milestones=[0.0,0.5,1.0]"],  # FCP's early, middle and final partners
         "fcp": [f"partner.population={population}"],
-        "cec": [],
     }
     entries = []
-    for algo in ALGORITHMS:
-        overrides = [
-            f"total_env_steps={mode.steps[variant][algo]}",
-            *_variant_overrides(variant, algo),
-            *extra[algo],
-            *mode.overrides,
-        ]
-        preset = str(ROOT / mode.presets[algo])  # absolute: the spec works from any directory
-        entries.append(
-            {"preset": preset, "seeds": list(mode.seeds[algo]), "name": algo, "overrides": overrides}
-        )
+    for row in mode.rows:
+        preset, overrides = _run_config(mode, variant, row, extra.get(row, []))
+        entry = {"preset": preset, "seeds": list(mode.seeds[row]), "name": row, "overrides": overrides}
+        entries.append(entry | ({"label": row} if row in ABLATIONS else {}))
     return {"entries": entries}
+
+
+def _run_config(mode: Mode, variant: str, row: str, extra: Sequence[str] = ()) -> tuple[str, list[str]]:
+    """The preset (absolute: a spec that names it works from any directory) and the overrides of one row's
+    run: its budget, the variant's settings, `extra`, the mode's overrides, and an ablation's last."""
+    ablation = list(ABLATIONS[row].overrides) if row in ABLATIONS else []
+    budget = f"total_env_steps={mode.steps[variant][row]}"
+    overrides = [budget, *_variant_overrides(variant, row), *extra, *mode.overrides, *ablation]
+    return str(ROOT / mode.presets[algorithm_of(row)]), overrides
 
 
 @dataclass(frozen=True)
@@ -231,14 +253,12 @@ def plan_lines(mode: Mode, variants: Sequence[str] = VARIANTS) -> list[PlanLine]
 
     lines = []
     for variant in variants:
-        for algo in ALGORITHMS:
-            overrides = [*_variant_overrides(variant, algo), *mode.overrides]
-            cfg = load_config(TrainConfig, ROOT / mode.presets[algo], overrides)
-            steps = mode.steps[variant][algo]
-            updates = math.ceil(steps / cfg.steps_per_update)
-            n = len(mode.seeds[algo])
-            per = mode.seconds_per_update.get(algo, math.nan)
-            lines.append(PlanLine(variant, algo, n, steps, updates, per * updates * n))
+        for row in mode.rows:
+            cfg = load_config(TrainConfig, *_run_config(mode, variant, row))
+            updates = math.ceil(cfg.total_env_steps / cfg.steps_per_update)
+            n = len(mode.seeds[row])
+            per = mode.seconds_per_update.get(row, math.nan)
+            lines.append(PlanLine(variant, row, n, cfg.total_env_steps, updates, per * updates * n))
     return lines
 
 
@@ -302,7 +322,7 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
             config = EvalConfig(
                 levels=spec, episodes=mode.episodes[level_set], seed=seed, games_per_call=1, greedy=greedy
             )
-            for k, algo in enumerate(ALGORITHMS):
+            for k, algo in enumerate(mode.rows):
                 group = [p for p in policies if p.algorithm == algo]
                 t0 = time.perf_counter()
                 # greedy: the seeds among themselves (XP, SP); sampled: with the oracle partner too
@@ -412,14 +432,14 @@ def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file
     lines = plan_lines(mode, variants)
     print(f"cec reproduce dual-destination ({mode.name}): work {work}, report {out}", file=file)
     print(
-        f"{'variant':12s} {'algorithm':9s} {'seeds':>5s} {'steps/seed':>12s} {'updates':>8s} "
+        f"{'variant':12s} {'algorithm':10s} {'seeds':>5s} {'steps/seed':>12s} {'updates':>8s} "
         f"{'estimate':>10s}",
         file=file,
     )
     for ln in lines:
         est = "?" if math.isnan(ln.estimate_s) else duration(ln.estimate_s)
         print(
-            f"{ln.variant:12s} {ln.algorithm:9s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
+            f"{ln.variant:12s} {ln.algorithm:10s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
             f"{est:>10s}",
             file=file,
         )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import io
 import json
 import math
@@ -31,7 +32,7 @@ TINY = rp.Mode(
     name="tiny",
     presets=rp.QUICK.presets,
     seeds={"ippo": (0, 1, 2), "fcp": (100, 101, 102), "cec": (200, 201, 202)},
-    steps={v: {a: 1_600 for a in rp.ALGORITHMS} for v in rp.VARIANTS},  # 2 updates of 8 envs x 100 steps
+    steps={v: {a: 1_600 for a in dd_paper.ALGORITHMS} for v in rp.VARIANTS},  # 2 updates of 8 envs x 100 steps
     episodes={"fixed": 2, "generated": 1},
     overrides=("num_envs=8", "ppo.num_minibatches=2", "ppo.update_epochs=1", "updates_per_call=1", TINY_NET),
     generated_levels=2,
@@ -47,8 +48,8 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
             path = tmp_path / f"{mode.name}_{variant}.yaml"
             path.write_text(yaml.safe_dump(spec))
             plan = plan_zoo(path, tmp_path / f"zoo_{mode.name}_{variant}")  # the spec is valid as it stands
-            by_algo = {run.config.algorithm: run for run in plan}
-            assert set(by_algo) == set(rp.ALGORITHMS)
+            by_algo = {run.algorithm: run for run in plan}  # the manifest's labels: ablations apart
+            assert set(by_algo) == set(mode.rows) >= set(dd_paper.ALGORITHMS)
             ippo, fcp, cec = by_algo["ippo"], by_algo["fcp"], by_algo["cec"]
             assert ippo.seeds == mode.seeds["ippo"] and cec.seeds == mode.seeds["cec"]
             (population,) = fcp.config.partner.population
@@ -58,13 +59,19 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
                 p = run.config.env.dual_destination
                 assert bool(p.partial_obs) == (variant == "partial_obs")
                 assert bool(p.multi_task) == (variant == "multi_task")
-                assert run.config.total_env_steps == mode.steps[variant][run.config.algorithm]
+                assert run.config.total_env_steps == mode.steps[variant][run.algorithm]
             multi = variant == "multi_task"
             assert cec.config.env.levels == ("procedural_multi_task" if multi else "procedural")
+            if "cec_nolstm" in by_algo:  # the ablation: CEC's config without its LSTM, nothing else changed
+                ablation = by_algo["cec_nolstm"].config
+                assert ablation.network_overrides.lstm_features == 0 < cec.config.network_overrides.lstm_features
+                same = dataclasses.replace(ablation, network_overrides=cec.config.network_overrides)
+                assert dataclasses.replace(same, seed=cec.config.seed, name=cec.config.name) == cec.config
             assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
     for mode in (rp.FULL, rp.PAPER_SCALE):
         lines = rp.plan_lines(mode)
-        assert len(lines) == 9 and all(ln.estimate_s > 0 for ln in lines)
+        assert len(lines) == 3 * len(mode.rows) and all(ln.estimate_s > 0 for ln in lines)
+    assert "cec_nolstm" in rp.FULL.rows
 
 
 def test_the_paper_numbers_are_data_and_a_malformed_file_names_the_file_and_the_key(tmp_path: Path) -> None:
@@ -197,7 +204,9 @@ def _score(mean: float, n_seeds: int = 4, spread: float = 0.01) -> rp.Score:
 
 def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings(tmp_path: Path) -> None:
     fixed = {"cec": _score(0.94), "fcp": _score(0.60), "ippo": _score(0.70)}
-    generated = {"cec": _score(0.80), "fcp": _score(0.0), "ippo": _score(0.0)}
+    # the no-LSTM ablation: on generated tasks clearly below CEC; on the fixed task, above it
+    generated = {"cec": _score(0.80), "fcp": _score(0.0), "ippo": _score(0.0), "cec_nolstm": _score(0.3)}
+    fixed["cec_nolstm"] = _score(0.95)
     summaries = {
         "full_obs": {
             "fixed": {
@@ -229,6 +238,12 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         "eval_s": 10.0,
         "why": "Why: a test.",
         "conventions": {"full_obs": {"ippo": {0: "green (4, 2)", 1: "green (0, 2)", 2: "green (0, 2)"}}},
+        "training": {
+            "full_obs": {
+                algo: {"seeds": 4, "env_steps": 10, "seconds": 60.0, "final_return": end, "best_return": best}
+                for algo, end, best in (("cec", 0.9, 0.92), ("cec_nolstm", -0.2, 0.05))
+            }
+        },
     }
     text = rp.write_report(tmp_path, rp.FULL, summaries, meta).read_text()
     cec_fixed = next(
@@ -265,3 +280,13 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "FCP also plays the task less well with itself than IPPO does" in reason
     assert "greedy, IPPO XP 0.350 vs SP 0.590: its seeds' conventions differ, and sampling hides it" in reason
     assert "IPPO's seeds send seat 0 to green (0, 2) (2), green (4, 2) (1)" in reason
+    # the ablation: its own rows, its training return against the paper's claim, its seed-level tests
+    # against CEC, outside the paper's orderings (still 8)
+    section = text.split("## Ablation: CEC without an LSTM")[1].split("\n## ")[0]
+    assert "cannot achieve a positive reward" in section and "`network_overrides.lstm_features=0`" in section
+    assert "| Fully observable | 0.050 / -0.200 | 0.920 / 0.900 | yes |" in section
+    gen = next(ln for ln in section.splitlines() if ln.startswith("| Fully observable | held-out"))
+    assert "| 0.800 ± 0.004 | 0.300 ± 0.004 | +0.500" in gen and gen.endswith("| yes (significant) |")
+    fix = next(ln for ln in section.splitlines() if ln.startswith("| Fully observable | fixed task"))
+    assert fix.endswith("| **no** |")
+    assert "| Fully observable | held-out generated tasks | CEC_NOLSTM | 0.300 ± 0.004 |" in text

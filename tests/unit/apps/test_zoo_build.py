@@ -194,6 +194,7 @@ def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_
         ({"preset": "dd_ippo_quick.yaml", "seed": [0]}, "unknown key(s) ['seed']"),
         ({"preset": "dd_ippo_quick.yaml", "overrides": ["seed=3"]}, "use the entry's `seeds`"),
         ({"preset": "dd_ippo_quick.yaml", "seeds": [1, 1]}, "distinct integers"),
+        ({"preset": "dd_ippo_quick.yaml", "label": ""}, "`label` must be a non-empty string"),
         ({"preset": "dd_fcp_quick.yaml"}, "partner.population run"),
     ],
 )
@@ -215,12 +216,16 @@ def test_plan_checks_names_and_order(tmp_path):
     pop = "partner.population=[{run: runs/ippo-dual_destination-fixed-s0, seeds: [5]}]"
     with pytest.raises(ConfigError, match=r"needs seeds \[5\], but entries\[0\]"):
         plan_zoo(_spec(tmp_path, [{**ippo, "seeds": [0, 1]}, {**fcp, "overrides": [pop]}]), tmp_path / "zoo")
-    # non-consecutive seeds: one run per seed; a `name` renames runs and policies
-    plan = plan_zoo(_spec(tmp_path, [{**ippo, "seeds": [4, 2], "name": "short"}]), tmp_path / "zoo")
-    assert [(r.config.run_name, r.seeds, r.policy_names) for r in plan] == [
-        ("short-s2", (2,), ("short-s2",)),
-        ("short-s4", (4,), ("short-s4",)),
+    # non-consecutive seeds: one run per seed; a `name` renames runs and policies, a `label` relabels the
+    # policies' algorithm (an ablation reported apart), which is otherwise the preset's
+    entries = [{**ippo, "seeds": [4, 2], "name": "short", "label": "ippo_ablation"}, {**ippo, "seeds": [0]}]
+    plan = plan_zoo(_spec(tmp_path, entries), tmp_path / "zoo")
+    assert [(r.config.run_name, r.seeds, r.policy_names, r.algorithm) for r in plan] == [
+        ("short-s2", (2,), ("short-s2",), "ippo_ablation"),
+        ("short-s4", (4,), ("short-s4",), "ippo_ablation"),
+        ("ippo-dual_destination-fixed-s0", (0,), ("ippo-dual_destination-fixed-s0",), "ippo"),
     ]
+    assert {r.config.algorithm for r in plan} == {"ippo"}
 
 
 def test_a_changed_spec_is_refused_before_training(zoo, tmp_path):
