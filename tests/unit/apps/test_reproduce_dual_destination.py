@@ -32,7 +32,9 @@ TINY = rp.Mode(
     name="tiny",
     presets=rp.QUICK.presets,
     seeds={"ippo": (0, 1, 2), "fcp": (100, 101, 102), "cec": (200, 201, 202)},
-    steps={v: {a: 1_600 for a in dd_paper.ALGORITHMS} for v in rp.VARIANTS},  # 2 updates of 8 envs x 100 steps
+    steps={
+        v: dict.fromkeys(dd_paper.ALGORITHMS, 1_600) for v in rp.VARIANTS
+    },  # 2 updates, 8 envs x 100 steps
     episodes={"fixed": 2, "generated": 1},
     overrides=("num_envs=8", "ppo.num_minibatches=2", "ppo.update_epochs=1", "updates_per_call=1", TINY_NET),
     generated_levels=2,
@@ -63,9 +65,9 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
             multi = variant == "multi_task"
             assert cec.config.env.levels == ("procedural_multi_task" if multi else "procedural")
             if "cec_nolstm" in by_algo:  # the ablation: CEC's config without its LSTM, nothing else changed
-                ablation = by_algo["cec_nolstm"].config
-                assert ablation.network_overrides.lstm_features == 0 < cec.config.network_overrides.lstm_features
-                same = dataclasses.replace(ablation, network_overrides=cec.config.network_overrides)
+                ablation, net = by_algo["cec_nolstm"].config, cec.config.network_overrides
+                assert ablation.network_overrides.lstm_features == 0 < net.lstm_features
+                same = dataclasses.replace(ablation, network_overrides=net)
                 assert dataclasses.replace(same, seed=cec.config.seed, name=cec.config.name) == cec.config
             assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
     for mode in (rp.FULL, rp.PAPER_SCALE):
