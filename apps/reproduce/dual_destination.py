@@ -154,7 +154,7 @@ FULL = Mode(
     ablations=("cec_nolstm",),
     seeds={
         "ippo": (0, 1, 2, 3, 4, 5),
-        "fcp": (100, 101, 102, 103),
+        "fcp": (100, 102, 104, 106),  # not consecutive: one run per seed, so two processes can share them
         "cec": (200, 201, 202, 203),
         "cec_nolstm": (300, 301, 302, 303),
     },
