@@ -301,6 +301,8 @@ def write_report(
             "often off its convention, and a partner that sees it re-plans: sampled XP then hides a "
             "mismatch that greedy XP shows.\n"
         )
+        for variant, name in meta.get("curves", {}).items():
+            md.append(f"![{VARIANT_TITLES[variant]}: learning curves]({name})\n")
     if meta.get("conventions"):
         md.append("## Conventions\n")
         md.append(

@@ -47,6 +47,7 @@ from apps.reproduce.dd_paper import (
     LEVEL_SET_TITLES,
     LEVEL_SETS,
     ORACLE,
+    VARIANT_TITLES,
     VARIANTS,
     fixed_level_name,
 )
@@ -387,6 +388,7 @@ def reproduce_dual_destination(
     trained: dict[str, dict[str, Any]] = {}
     seat0: dict[str, dict[str, dict[int, str]]] = {}
     skipped_runs: list[str] = []
+    curves: dict[str, str] = {}
     train_s = eval_s = 0.0
     for variant in variants:
         t0 = time.perf_counter()
@@ -400,6 +402,7 @@ def reproduce_dual_destination(
         summaries[variant] = summarise(table, variant)
         seat0[variant] = conventions(variant, manifest)
         trained[variant] = {a: t.__dict__ for a, t in training_stats(manifest.parent).items()}
+        curves[variant] = plot_curves(mode, manifest.parent, variant, out).name
         stages[f"{variant}: evaluate"] = time.perf_counter() - t0
         eval_s += stages[f"{variant}: evaluate"]
     machine = machine_info(load_average=True)
@@ -415,12 +418,30 @@ def reproduce_dual_destination(
         "stages": stages,
         "training": trained,
         "conventions": seat0,
+        "curves": curves,
         "skipped_runs": skipped_runs,
         "work": str(work),
     }
     path = write_report(out, mode, summaries, meta)
     _log(log, f"wrote {path}")
     return path
+
+
+def plot_curves(mode: Mode, zoo_dir: Path, variant: str, out: Path) -> Path:
+    """`out/curves_<variant>.png`: every row's normalised training return and policy entropy per seed
+    against env steps, from its runs' metrics (`zoo_dir/runs/<row>-s<seed>`)."""
+    from cec.evaluation.curves import plot_learning_curves
+
+    runs = {row.upper(): sorted(zoo_dir.glob(f"runs/{row}-s*")) for row in mode.rows}
+    panels = (("normalised_return", "normalised training return"), ("entropy", "policy entropy"))
+    title = f"Dual Destination, {VARIANT_TITLES[variant].lower()}: training (IPPO, FCP on the fixed task)"
+    return plot_learning_curves(
+        {k: v for k, v in runs.items() if v},
+        out / f"curves_{variant}.png",
+        smooth=5,
+        title=title,
+        panels=panels,
+    )
 
 
 def command_of(mode: Mode) -> str:

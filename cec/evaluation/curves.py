@@ -49,14 +49,15 @@ def trailing_mean(values: np.ndarray, window: int) -> np.ndarray:
 
 
 def plot_learning_curves(
-    runs: Mapping[str, str | Path],
+    runs: Mapping[str, str | Path | Sequence[str | Path]],
     path: str | Path,
     *,
     smooth: int = 20,
     title: str = "",
     panels: Sequence[tuple[str, str]] = PANELS,
 ) -> Path:
-    """One PNG with a panel per metric and a line per (run, seed), labelled by the keys of `runs`."""
+    """One PNG with a panel per metric and a line per (run, seed), labelled by the keys of `runs` (a key
+    may name several run directories, e.g. one per seed: they share its colour)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -64,10 +65,12 @@ def plot_learning_curves(
 
     fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 3.8), squeeze=False)
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for k, (label, run_dir) in enumerate(runs.items()):
+    for k, (label, dirs) in enumerate(runs.items()):
         color = colors[k % len(colors)]
+        dirs = [dirs] if isinstance(dirs, str | Path) else list(dirs)
         for ax, (column, panel_title) in zip(axes[0], panels, strict=True):
-            for i, (_, (steps, values)) in enumerate(sorted(read_curve(run_dir, column).items())):
+            curves = [c for d in dirs for _, c in sorted(read_curve(d, column).items())]
+            for i, (steps, values) in enumerate(curves):
                 ax.plot(
                     steps / 1e6,
                     trailing_mean(values, smooth),

@@ -137,6 +137,7 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
     assert len(orderings) == 3
     assert "CEC, fully observable, fixed task:" in text and "Machine:" in text
     assert (tmp_path / "out" / "bars_full_obs.png").stat().st_size > 1000
+    assert (tmp_path / "out" / "curves_full_obs.png").stat().st_size > 1000 and "(curves_full_obs.png)" in text
 
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     claims = summary["claims"]

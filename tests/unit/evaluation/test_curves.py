@@ -49,3 +49,8 @@ def test_trailing_mean_and_plot(tmp_path: Path) -> None:
         {"a run": _write_run(tmp_path / "run")}, tmp_path / "c" / "curves.png", smooth=2
     )
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    # one label over several run directories (one run per seed): each is read
+    two = [tmp_path / "run", _write_run(tmp_path / "run2")]
+    assert plot_learning_curves({"runs": two}, tmp_path / "two.png").read_bytes()[:4] == b"\x89PNG"
+    with pytest.raises(FileNotFoundError, match="training run directory"):
+        plot_learning_curves({"runs": [*two, tmp_path / "c"]}, tmp_path / "three.png")
