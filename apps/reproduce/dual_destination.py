@@ -155,22 +155,23 @@ FULL = Mode(
     ablations=("cec_nolstm",),
     seeds={
         "ippo": (0, 1, 2, 3, 4, 5),
-        "fcp": (100, 102, 104, 106),  # not consecutive: one run per seed, so two processes can share them
+        "fcp": (100, 102, 104, 106),  # not consecutive: one run per seed, which two processes can share
         "cec": (200, 201, 202, 203),
-        "cec_nolstm": (300, 301, 302, 303),
+        "cec_nolstm": (300, 302, 304, 306),
     },
     steps={
         v: {"ippo": 3_000_000, "fcp": 3_000_000, "cec": 3_000_000, "cec_nolstm": 3_000_000} for v in VARIANTS
     },
     episodes={"fixed": 16, "generated": 2},
-    # CEC with its preset, one seed on one core beside a second run (3.0k env steps/s); IPPO and FCP have the
-    # same network (estimates), the ablation without the LSTM measured at 4.8k env steps/s alone
-    seconds_per_update={"ippo": 4.2, "fcp": 4.6, "cec": 4.2, "cec_nolstm": 2.7},
-    measured_on="the project's 2-core Intel Xeon CPU (no GPU), one seed, 2026-11-24",
-    why="Why, in general: this version is sized for a CPU (docs/reproduce.md): a small version of the "
-    "paper's CNN + LSTM for all three algorithms, 3e6 env steps per seed against the paper's 1e8-3e8, LR "
-    "1e-3 with 8 x 8 minibatch updates per rollout, and gamma 0.9 for CEC (0.99 for IPPO and FCP, as in "
-    "the paper). Each line above says what the same seeds' self-play and oracle-partner scores show.",
+    # measured on one core each, beside a second run: IPPO 8 vmapped seeds at 8.7k env steps/s (the
+    # ippo_lstm_3m run, same preset), CEC 4 vmapped seeds at 2.1k; FCP and the ablation estimated from them
+    seconds_per_update={"ippo": 1.5, "fcp": 2.0, "cec": 6.2, "cec_nolstm": 4.0},
+    measured_on="the project's 2-core Intel Xeon CPU (no GPU), vmapped seeds, 2026-11-24",
+    why="Why, in general: this version is sized for a CPU (docs/reproduce.md): an LSTM for every algorithm "
+    "(CEC with a small version of the paper's CNN, IPPO and FCP with an MLP encoder), 3e6 env steps per "
+    "seed against the paper's 1e8-3e8, LR 1e-3 with 8 x 8 minibatch updates per rollout, and gamma 0.9 for "
+    "CEC (0.99 for IPPO and FCP, as in the paper). Each line above says what the same seeds' self-play and "
+    "oracle-partner scores show.",
 )
 
 PAPER_SCALE = Mode(
