@@ -210,8 +210,14 @@ def write_report(
     sig = sum(c.significant for c in claims)
     md.append(f"{held} of {len(claims)} orderings hold, {sig} of them significantly.\n")
     conventions = meta.get("conventions", {})
+    training = meta.get("training", {})
     failed = [
-        ordering_reason(c, summaries[c.variant][c.level_set], conventions.get(c.variant, {}).get(c.worse))
+        ordering_reason(
+            c,
+            summaries[c.variant][c.level_set],
+            conventions.get(c.variant, {}).get(c.worse),
+            {a: t.get("final_entropy", math.nan) for a, t in training.get(c.variant, {}).items()},
+        )
         for c in claims
         if not c.holds
     ]
@@ -471,12 +477,16 @@ def difference_reason(
 
 
 def ordering_reason(
-    claim: ClaimResult, kinds: dict[str, dict[str, Score]], conventions: dict[int, str] | None = None
+    claim: ClaimResult,
+    kinds: dict[str, dict[str, Score]],
+    conventions: dict[int, str] | None = None,
+    entropy: dict[str, float] | None = None,
 ) -> str:
     """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
     as well as with itself (the coordination failure the ordering rests on did not occur), whether greedy
-    play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, and whether
-    `better` learned the task as well as `worse` did (SP)."""
+    play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, how random
+    both policies still were at the end of training (`entropy`, per algorithm), and whether `better`
+    learned the task as well as `worse` did (SP)."""
     xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
     b, w = claim.better, claim.worse
     head = (
@@ -503,6 +513,10 @@ def ordering_reason(
     if conventions:
         counts = sorted(Counter(conventions.values()).items())
         parts.append(f"{w.upper()}'s seeds send seat 0 to " + ", ".join(f"{g} ({n})" for g, n in counts))
+    known = {a: e for a, e in (entropy or {}).items() if a in (w, b) and not math.isnan(e)}
+    if known:
+        listed = ", ".join(f"{a.upper()} {e:.2f}" for a, e in sorted(known.items(), key=lambda x: x[0] != w))
+        parts.append(f"policy entropy at the end of training {listed} (uniform: 1.61)")
     if sp[b].mean < sp[w].mean - TOLERANCE:
         parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
     return head + "; ".join(parts) + "."

@@ -246,7 +246,8 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         "training": {
             "full_obs": {
                 algo: {"seeds": 4, "env_steps": 10, "seconds": 60.0, "final_return": end, "best_return": best}
-                for algo, end, best in (("cec", 0.9, 0.92), ("cec_nolstm", -0.2, 0.05))
+                | ({"final_entropy": 0.45} if algo == "ippo" else {})
+                for algo, end, best in (("cec", 0.9, 0.92), ("cec_nolstm", -0.2, 0.05), ("ippo", 0.9, 0.95))
             }
         },
     }
@@ -285,6 +286,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "FCP also plays the task less well with itself than IPPO does" in reason
     assert "greedy, IPPO XP 0.350 vs SP 0.590: its seeds' conventions differ, and sampling hides it" in reason
     assert "IPPO's seeds send seat 0 to green (0, 2) (2), green (4, 2) (1)" in reason
+    assert "policy entropy at the end of training IPPO 0.45 (uniform: 1.61)" in reason  # FCP's not known
     # the ablation: its own rows, its training return against the paper's claim, its seed-level tests
     # against CEC, outside the paper's orderings (still 8)
     section = text.split("## Ablation: CEC without an LSTM")[1].split("\n## ")[0]
