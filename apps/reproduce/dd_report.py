@@ -27,7 +27,7 @@ from apps.reproduce.dd_paper import (
     PaperNumber,
     paper_number,
 )
-from apps.reproduce.dd_summary import ALPHA, ClaimResult, Score, check_ablations, check_claims
+from apps.reproduce.dd_summary import ALPHA, LEARNED, ClaimResult, Score, check_ablations, check_claims
 
 if TYPE_CHECKING:  # the modes are the command's (dual_destination.py imports this module)
     from apps.reproduce.dual_destination import Mode
@@ -45,6 +45,10 @@ def _pm(s: Score | None) -> str:
         return "—"
     err = "" if math.isnan(s.sem) else f" ± {s.sem:.3f}"
     return f"{s.mean:.3f}{err}"
+
+
+def _p(p: float) -> str:
+    return "p —" if math.isnan(p) else f"p {p:.2g}"
 
 
 def _paper_cell(p: PaperNumber | None) -> str:
@@ -166,13 +170,15 @@ def write_report(
         "return clipped at 0 before normalising (a pair that never meets on a goal pair scores 0, not "
         "-0.5); *greedy*: every seed acting with its most likely action, which shows its convention without "
         "the re-planning that sampling allows after a clash. *fits*: the scale (raw or clipped) whose XP is "
-        "nearer the paper's number.\n"
+        "nearer the paper's number. *XP, learned seeds*: XP among the seeds whose self-play reached "
+        f"{LEARNED} (how many in brackets): a seed that never learned the task lowers XP for a reason "
+        "other than conventions.\n"
     )
     md.append(
         "| variant | task set | algorithm | ours: XP mean ± SE | XP clipped | greedy XP | greedy SP | seeds "
-        "| paper | ours − paper | fits |"
+        "| paper | ours − paper | fits | XP, learned seeds |"
     )
-    md.append("|---|---|---|---|---|---|---|---|---|---|---|")
+    md.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for variant in [v for v in VARIANTS if v in summaries]:
         for level_set in LEVEL_SETS:
             kinds = summaries.get(variant, {}).get(level_set, {})
@@ -185,25 +191,37 @@ def write_report(
                 n = "—" if s is None else str(s.n)
                 where = f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo.upper()} |"
                 greedy = " | ".join(_pm(kinds.get(k, {}).get(algo)) for k in ("greedy_xp", "greedy_sp"))
+                learned = kinds.get("xp_learned", {}).get(algo)
                 md.append(
                     f"{where} {_pm(s)} | {_pm(clipped)} | {greedy} | {n} | {_paper_cell(p)} | "
-                    f"{_verdict(s, p)} | {_fits(s, clipped, p)} |"
+                    f"{_verdict(s, p)} | {_fits(s, clipped, p)} | "
+                    f"{_pm(learned)}{'' if learned is None else f' ({learned.n})'} |"
                 )
     md.append("")
     md.append("## The paper's orderings\n")
     md.append(
         f"Welch two-sided t-test on the per-seed XP and a 95% bootstrap interval of the difference; "
-        f"*significant* = the ordering holds and p < {ALPHA}.\n"
+        f"*significant* = the ordering holds and p < {ALPHA}. *Learned seeds only*: the same test on XP "
+        f"among the seeds whose self-play reached {LEARNED} (an ordering that holds only with the seeds that "
+        "never learned rests on them, not on conventions).\n"
     )
-    md.append("| variant | task set | ordering | difference [95% CI] | p | holds | significant |")
-    md.append("|---|---|---|---|---|---|---|")
+    md.append(
+        "| variant | task set | ordering | difference [95% CI] | p | holds | significant | learned seeds "
+        "only: difference, p, holds |"
+    )
+    md.append("|---|---|---|---|---|---|---|---|")
+    by_learned = {
+        (c.variant, c.level_set, c.better, c.worse): c for c in check_claims(summaries, "xp_learned")
+    }
     for c in claims:
         p_text = "—" if math.isnan(c.p) else f"{c.p:.2g}"
         ci = "—" if math.isnan(c.ci_low) else f"[{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
+        lc = by_learned.get((c.variant, c.level_set, c.better, c.worse))
+        among = "—" if lc is None else f"{lc.diff:+.3f}, {_p(lc.p)}, {'yes' if lc.holds else '**no**'}"
         md.append(
             f"| {VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]} | {c.better.upper()} > "
             f"{c.worse.upper()} | {c.diff:+.3f} {ci} | {p_text} | {'yes' if c.holds else '**no**'} | "
-            f"{'yes' if c.significant else 'no'} |"
+            f"{'yes' if c.significant else 'no'} | {among} |"
         )
     md.append("")
     held = sum(c.holds for c in claims)
@@ -314,15 +332,21 @@ def write_report(
         md.append(
             "The goal seat 0 stands on at the end of each seed's greedy self-play on the variant's fixed "
             "task (row, column; `green (0, 2)` is the top goal of the fixed task, `green (4, 2)` the "
-            "bottom one). Seeds that differ here cannot all coordinate with each other greedily.\n"
+            "bottom one), and in brackets the seed's sampled self-play there. Seeds that differ here cannot "
+            "all coordinate with each other greedily.\n"
         )
-        md.append("| variant | algorithm | seed: seat 0's goal | distinct conventions |")
+        md.append("| variant | algorithm | seed: seat 0's goal (SP) | distinct conventions |")
         md.append("|---|---|---|---|")
         for variant, per in meta["conventions"].items():
             for algo in ROWS:
                 seeds = per.get(algo, {})
+                sp = summaries.get(variant, {}).get("fixed", {}).get("sp", {}).get(algo)
+                own = {} if sp is None else dict(zip(sp.seeds, sp.samples, strict=False))
                 if seeds:
-                    listed = ", ".join(f"{seed}: {goal}" for seed, goal in sorted(seeds.items()))
+                    listed = ", ".join(
+                        f"{seed}: {goal}" + (f" ({own[int(seed)]:.2f})" if int(seed) in own else "")
+                        for seed, goal in sorted(seeds.items())
+                    )
                     distinct = len({g for g in seeds.values() if g != "no goal"})
                     md.append(f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {listed} | {distinct} |")
         md.append("")
@@ -510,6 +534,13 @@ def ordering_reason(
             f"greedy, {w.upper()} XP {gxp.mean:.3f} vs SP {gsp.mean:.3f}"
             + (": its seeds' conventions differ, and sampling hides it" if hidden else "")
         )
+    for a in (w, b):
+        unlearned = [seed for seed, v in zip(sp[a].seeds, sp[a].samples, strict=False) if v < LEARNED]
+        if unlearned:
+            parts.append(
+                f"{len(unlearned)} of {sp[a].n_seeds} {a.upper()} seeds did not learn the task (SP < "
+                f"{LEARNED}: seed {', '.join(map(str, unlearned))})"
+            )
     if conventions:
         counts = sorted(Counter(conventions.values()).items())
         parts.append(f"{w.upper()}'s seeds send seat 0 to " + ", ".join(f"{g} ({n})" for g, n in counts))

@@ -21,6 +21,7 @@ import numpy as np
 from apps.reproduce.dd_paper import ABLATIONS, CLAIMS, LEVEL_SETS, ORACLE, ROWS, fixed_level_name
 
 ALPHA = 0.05  # significance level of the ordering tests
+LEARNED = 0.5  # a seed whose sampled self-play reaches this normalised score has learned the task set
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -37,6 +38,7 @@ class Score:
         n_seeds: the algorithm's seeds; n: the samples, one per seed (`xp`: the seed's mean with the other
             seeds, `cec.evaluation.stats.seed_means`; `sp`: with itself; `oracle`: with the oracle).
         samples: the samples themselves (normalised scores); tests compare them, seeds being the units.
+        seeds: the seed of each sample (`oracle`: one per seed and oracle partner).
     """
 
     mean: float
@@ -44,6 +46,7 @@ class Score:
     n_seeds: int
     n: int
     samples: tuple[float, ...]
+    seeds: tuple[int, ...] = ()
 
 
 #: The kinds of score `summarise` gives: (kind, actions played, episode returns clipped at 0).
@@ -54,6 +57,7 @@ KINDS = (
     ("xp_clipped", "sampled", True),  # each episode's return clipped at 0 before normalising
     ("greedy_xp", "greedy", False),  # each seed's most likely action: its convention, unblurred
     ("greedy_sp", "greedy", False),
+    ("xp_learned", "sampled", False),  # `xp` among the seeds whose self-play reached LEARNED
 )
 
 
@@ -62,7 +66,9 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
     its mean with the algorithm's other seeds: the paper's measure, with seeds as the units), `sp` (each
     seed with itself), `oracle` (each seed with the oracle partner; the oracle's own self-play is under
     `sp` as `oracle`), `xp_clipped` (`xp` with every episode's return clipped at 0, the scale on which a
-    failed episode scores 0 rather than -0.5), and `greedy_xp`/`greedy_sp` (the table's greedy episodes)."""
+    failed episode scores 0 rather than -0.5), `greedy_xp`/`greedy_sp` (the table's greedy episodes), and
+    `xp_learned` (`xp` among the seeds whose sampled self-play reached `LEARNED`: a seed that never learned
+    the task lowers XP for a reason other than conventions)."""
     import dataclasses
 
     out: dict[str, dict[str, dict[str, Score]]] = {}
@@ -96,15 +102,20 @@ def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
     for algo, idx in seeds.items():
         if not idx or (kind == "oracle" and algo == ORACLE):
             continue
-        if kind == "xp":
-            vals = [x for x in seed_means(m[np.ix_(idx, idx)]) if not math.isnan(x)]  # seeds: the units
+        if kind == "xp_learned":
+            kept = [i for i in idx if m[i, i] >= LEARNED]
+            pairs = list(zip(kept, seed_means(m[np.ix_(kept, kept)]), strict=True)) if len(kept) > 1 else []
+        elif kind == "xp":
+            pairs = list(zip(idx, seed_means(m[np.ix_(idx, idx)]), strict=True))  # seeds: the units
         elif kind == "sp":
-            vals = [m[i, i] for i in idx if not math.isnan(m[i, i])]
+            pairs = [(i, m[i, i]) for i in idx]
         else:
-            vals = [m[i, o] for i in idx for o in seeds[ORACLE] if not math.isnan(m[i, o])]
-        if vals:
-            arr = np.asarray(vals, np.float64)
-            out[algo] = Score(float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist()))
+            pairs = [(i, m[i, o]) for i in idx for o in seeds[ORACLE]]
+        pairs = [(i, v) for i, v in pairs if not math.isnan(v)]
+        if pairs:
+            arr = np.asarray([v for _, v in pairs], np.float64)
+            ids = tuple(int(pl.policies[i].seed) for i, _ in pairs)
+            out[algo] = Score(float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist()), ids)
     return out
 
 
@@ -155,10 +166,13 @@ class ClaimResult:
     significant: bool
 
 
-def check_claims(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[ClaimResult]:
-    """Every `CLAIMS` ordering present in `summaries`: holds = better's mean > worse's mean; significant =
-    holds and two-sided p < ALPHA."""
-    return [r for c in CLAIMS if (r := _ordering(summaries, *c)) is not None]
+def check_claims(
+    summaries: dict[str, dict[str, dict[str, dict[str, Score]]]], kind: str = "xp"
+) -> list[ClaimResult]:
+    """Every `CLAIMS` ordering present in `summaries`, on per-seed scores of `kind` (`xp`; `xp_learned`:
+    among the seeds that learned): holds = better's mean > worse's mean; significant = holds and
+    two-sided p < ALPHA."""
+    return [r for c in CLAIMS if (r := _ordering(summaries, *c, kind=kind)) is not None]
 
 
 def check_ablations(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[ClaimResult]:
@@ -179,10 +193,11 @@ def _ordering(
     level_set: str,
     better: str,
     worse: str,
+    kind: str = "xp",
 ) -> ClaimResult | None:
     from cec.evaluation.stats import compare
 
-    xp = summaries.get(variant, {}).get(level_set, {}).get("xp", {})
+    xp = summaries.get(variant, {}).get(level_set, {}).get(kind, {})
     if better not in xp or worse not in xp:
         return None
     c = compare(np.asarray(xp[better].samples), np.asarray(xp[worse].samples))

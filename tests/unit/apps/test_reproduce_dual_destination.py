@@ -17,12 +17,12 @@ import pytest
 import yaml
 
 from apps.cli import main
-from apps.reproduce import dd_paper
+from apps.reproduce import dd_paper, dd_summary
 from apps.reproduce import dual_destination as rp
 from apps.zoo_build import plan_zoo
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
-from cec.evaluation.results import read_csv
+from cec.evaluation.results import make_table, read_csv
 
 TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 4, actor_features: [8], "
@@ -201,10 +201,32 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
     assert len(table.returns[sp]) == 3 * 1 + 1 * 2  # now 3 episodes on the fixed task
 
 
-def _score(mean: float, n_seeds: int = 4, spread: float = 0.01) -> rp.Score:
+def _score(mean: float, n_seeds: int = 4, spread: float = 0.01, seeds: tuple[int, ...] = ()) -> rp.Score:
     samples = tuple(mean + spread * np.linspace(-1, 1, n_seeds))  # one per seed
     err = float(np.std(samples, ddof=1) / math.sqrt(len(samples)))
-    return rp.Score(float(np.mean(samples)), err, n_seeds, len(samples), samples)
+    return rp.Score(
+        float(np.mean(samples)), err, n_seeds, len(samples), samples, seeds or tuple(range(n_seeds))
+    )
+
+
+def test_xp_among_learned_seeds_leaves_out_a_seed_that_never_learned() -> None:
+    """Three CEC seeds on one generated task: seeds 0 and 1 learned (SP 0.9) and play 0.9 together; seed 2
+    never did (-0.5 with anyone). XP counts seed 2; XP among learned seeds does not."""
+    names = "policy_a algorithm_a seed_a policy_b algorithm_b seed_b level seat episode returns deliveries"
+    names += " collisions shaped_return env episode_steps actions"
+    cols: dict[str, list[Any]] = {k: [] for k in names.split()}
+    for i in range(3):
+        for j in range(i, 3):
+            ret = 180.0 if 2 not in (i, j) else -100.0
+            row = (f"cec-s{i}", "cec", i, f"cec-s{j}", "cec", j, "generated_000", 0, 0, ret, 0, 0, 0.0,
+                   "dual_destination", 100, "sampled")  # fmt: skip
+            for k, v in zip(cols, row, strict=True):
+                cols[k].append(v)
+    kinds = dd_summary.summarise(make_table(cols), "full_obs")["generated"]
+    assert kinds["sp"]["cec"].samples == (0.9, 0.9, -0.5) and kinds["sp"]["cec"].seeds == (0, 1, 2)
+    assert kinds["xp"]["cec"].samples == pytest.approx((0.2, 0.2, -0.5))
+    learned = kinds["xp_learned"]["cec"]
+    assert (learned.samples, learned.seeds, learned.n, learned.n_seeds) == ((0.9, 0.9), (0, 1), 2, 3)
 
 
 def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings(tmp_path: Path) -> None:
@@ -216,12 +238,13 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         "full_obs": {
             "fixed": {
                 "xp": fixed,
-                "sp": {"fcp": _score(0.62), "ippo": _score(0.72)},
+                "sp": {"fcp": _score(0.62), "ippo": _score(0.72, spread=0.5)},  # IPPO seed 0 at 0.22
                 "oracle": {},
                 "xp_clipped": {"cec": _score(0.95)},
                 # IPPO: greedy, its seeds' conventions clash (XP well below SP); sampled play hides it
                 "greedy_xp": {"ippo": _score(0.35)},
                 "greedy_sp": {"ippo": _score(0.59)},
+                "xp_learned": {"cec": _score(0.94), "fcp": _score(0.60)},
             },
             "generated": {"xp": generated, "sp": {"cec": _score(0.95)}, "oracle": {"cec": _score(0.9)}},
         },
@@ -256,12 +279,15 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         ln for ln in text.splitlines() if ln.startswith("| Fully observable | fixed task | CEC |")
     )
     assert "| 0.940 ± 0.004 | 0.950 ± 0.004 | — | — | 4 | 0.931 ± 0.013 |" in cec_fixed
-    assert cec_fixed.endswith("| raw |")  # 0.940 is nearer the paper's 0.931 than the clipped 0.950
+    assert cec_fixed.endswith(
+        "| raw | 0.940 ± 0.004 (4) |"
+    )  # 0.940 is nearer the paper's 0.931 than the clipped 0.950
     ippo_fixed = next(
         ln for ln in text.splitlines() if ln.startswith("| Fully observable | fixed task | IPPO |")
     )
     assert "| 0.350 ± 0.004 | 0.590 ± 0.004 |" in ippo_fixed
-    assert "| Fully observable | IPPO | 0: green (4, 2), 1: green (0, 2), 2: green (0, 2) | 2 |" in text
+    conventions = "0: green (4, 2) (0.22), 1: green (0, 2) (0.55), 2: green (0, 2) (0.89)"  # with each SP
+    assert f"| Fully observable | IPPO | {conventions} | 2 |" in text
     assert "CEC, fully observable, fixed task: 0.940 vs the paper's 0.931: within 0.05." in text
     assert "generated tasks: 0.800 vs the paper's 0.966: **not within** (by 0.166)" in text
     line = next(ln for ln in text.splitlines() if ln.startswith("- Fully observable, held-out generated"))
@@ -277,7 +303,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "| **no** | no |" in fcp_ippo  # the paper's FCP > IPPO does not hold here
     assert "- Fully observable, fixed task, FCP > IPPO: IPPO XP 0.700 vs SP" in text
     cec_fcp = next(ln for ln in text.splitlines() if "fixed task | CEC > FCP |" in ln)
-    assert cec_fcp.endswith("| yes | yes |")
+    assert cec_fcp.endswith(", yes |") and "| yes | yes | +0.340, p " in cec_fcp  # learned seeds only
     assert "7 of 8 orderings hold, 7 of them significantly." in text
     reason = next(
         ln for ln in text.splitlines() if ln.startswith("- Fully observable, fixed task, FCP > IPPO")
@@ -287,6 +313,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "greedy, IPPO XP 0.350 vs SP 0.590: its seeds' conventions differ, and sampling hides it" in reason
     assert "IPPO's seeds send seat 0 to green (0, 2) (2), green (4, 2) (1)" in reason
     assert "policy entropy at the end of training IPPO 0.45 (uniform: 1.61)" in reason  # FCP's not known
+    assert "1 of 4 IPPO seeds did not learn the task (SP < 0.5: seed 0)" in reason
     # the ablation: its own rows, its training return against the paper's claim, its seed-level tests
     # against CEC, outside the paper's orderings (still 8)
     section = text.split("## Ablation: CEC without an LSTM")[1].split("\n## ")[0]
