@@ -238,33 +238,41 @@ class TrainingStats:
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
-    """Per algorithm, from `zoo_dir/runs/<algorithm>-s<first seed>/metrics.jsonl`."""
-    out = {}
+    """Per algorithm, from its runs' `zoo_dir/runs/<algorithm>-s<first seed>/metrics.jsonl` (one run of
+    vmapped seeds, or one run per seed: their times add up, their seeds pool)."""
+    runs: dict[str, list[list[dict[str, Any]]]] = {}
     for metrics in sorted(zoo_dir.glob("runs/*/metrics.jsonl")):
         algo = metrics.parent.name.rsplit("-s", 1)[0]
         rows = [json.loads(line) for line in metrics.read_text().splitlines() if line.strip()]
-        if algo not in ROWS or not rows:
-            continue
-        seeds = sorted({r["seed"] for r in rows})
-        per_update = {r["update"]: r for r in rows}
-        steps = [r["env_steps"] for r in sorted(per_update.values(), key=lambda r: r["update"])]
-        step_sizes = np.diff([0, *steps])
-        seconds = sum(
-            len(seeds) * size / max(r.get("env_steps_per_s") or math.inf, 1e-9)
-            for size, r in zip(
-                step_sizes, sorted(per_update.values(), key=lambda r: r["update"]), strict=True
-            )
-        )
-        last = sorted(per_update)[-5:]
-        final = [r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r]
-        entropy = [r["entropy"] for r in rows if r["update"] in last and r.get("entropy") is not None]
+        if algo in ROWS and rows:
+            runs.setdefault(algo, []).append(rows)
+    out = {}
+    for algo, per_run in runs.items():
+        seeds, seconds, steps = set(), 0.0, 0
+        final: list[float] = []
+        entropy: list[float] = []
         by_update: dict[int, list[float]] = {}
-        for r in rows:
-            if "normalised_return" in r:
-                by_update.setdefault(r["update"], []).append(r["normalised_return"])
+        for rows in per_run:
+            run_seeds = {r["seed"] for r in rows}
+            seeds |= run_seeds
+            ordered = sorted({r["update"]: r for r in rows}.values(), key=lambda r: r["update"])
+            sizes = np.diff([0, *(r["env_steps"] for r in ordered)])
+            seconds += sum(
+                len(run_seeds) * size / max(r.get("env_steps_per_s") or math.inf, 1e-9)
+                for size, r in zip(sizes, ordered, strict=True)
+            )
+            steps = max(steps, int(ordered[-1]["env_steps"]))
+            last = {r["update"] for r in ordered[-5:]}
+            final += [
+                r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r
+            ]
+            entropy += [r["entropy"] for r in rows if r["update"] in last and r.get("entropy") is not None]
+            for r in rows:
+                if "normalised_return" in r:
+                    by_update.setdefault(r["update"], []).append(r["normalised_return"])
         out[algo] = TrainingStats(
             len(seeds),
-            int(steps[-1]),
+            steps,
             float(seconds),
             float(np.mean(final)) if final else math.nan,
             float(np.mean(entropy)) if entropy else math.nan,

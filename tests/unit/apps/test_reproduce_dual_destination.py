@@ -324,3 +324,16 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     fix = next(ln for ln in section.splitlines() if ln.startswith("| Fully observable | fixed task"))
     assert fix.endswith("| **no** |")
     assert "| Fully observable | held-out generated tasks | CEC_NOLSTM | 0.300 ± 0.004 |" in text
+
+
+def test_training_stats_pool_the_runs_of_one_algorithm(tmp_path: Path) -> None:
+    """FCP trained one run per seed: the Training section counts every run's seeds and time, not the last."""
+    for seed, ret in ((100, 0.2), (102, 0.6)):
+        run = tmp_path / "runs" / f"fcp-s{seed}"
+        run.mkdir(parents=True)
+        speed = {"env_steps_per_s": 100.0, "normalised_return": ret, "entropy": 0.5}
+        rows = [{"update": u, "seed": seed, "env_steps": 1000 * u, **speed} for u in (1, 2)]
+        (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    stats = dd_summary.training_stats(tmp_path)["fcp"]
+    assert (stats.seeds, stats.env_steps, stats.seconds) == (2, 2000, 40.0)  # 2 runs x 2000 steps / 100 per s
+    assert stats.final_return == pytest.approx(0.4) and stats.best_return == pytest.approx(0.4)
