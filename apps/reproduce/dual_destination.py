@@ -163,10 +163,11 @@ FULL = Mode(
         v: {"ippo": 3_000_000, "fcp": 3_000_000, "cec": 3_000_000, "cec_nolstm": 3_000_000} for v in VARIANTS
     },
     episodes={"fixed": 16, "generated": 2},
-    # measured on one core each, beside a second run: IPPO 8 vmapped seeds at 8.7k env steps/s (the
-    # ippo_lstm_3m run, same preset), CEC 4 vmapped seeds at 2.1k; FCP and the ablation estimated from them
-    seconds_per_update={"ippo": 1.5, "fcp": 2.0, "cec": 6.2, "cec_nolstm": 4.0},
-    measured_on="the project's 2-core Intel Xeon CPU (no GPU), vmapped seeds, 2026-11-24",
+    # the full run's own metrics (fully observable, 2026-11-24; two zoo builds, one per core): IPPO 6
+    # vmapped seeds 32.4 min, FCP one run per seed 14.5 min in all, CEC 4 vmapped seeds 107.4 min, the
+    # ablation one run per seed 75.7 min in all
+    seconds_per_update={"ippo": 1.4, "fcp": 0.9, "cec": 6.9, "cec_nolstm": 4.8},
+    measured_on="the project's 2-core Intel Xeon CPU (no GPU), one run per core, 2026-11-24",
     why="Why, in general: this version is sized for a CPU (docs/reproduce.md): an LSTM for every algorithm "
     "(CEC with a small version of the paper's CNN, IPPO and FCP with an MLP encoder), 3e6 env steps per "
     "seed against the paper's 1e8-3e8, LR 1e-3 with 8 x 8 minibatch updates per rollout, and gamma 0.9 for "
