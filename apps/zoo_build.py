@@ -28,6 +28,9 @@ after an interruption continues the build.
 at its run's final checkpoint, paths relative to ZOO_DIR), extended with `env`, `layout` (the training
 level distribution), `env_steps` and `sha256` (of the checkpoint's state file, from its meta.json).
 Single-task Overcooked agents carry `levels: [<kitchen>]` (they meet others on their own kitchen only).
+
+Size: one command's pipeline in the order it runs (spec -> checked plan -> build -> manifest, and the
+export of its policies); the checks, which are most of it, have to see the whole spec at once.
 """
 
 from __future__ import annotations

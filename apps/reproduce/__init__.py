@@ -1,10 +1,12 @@
 """`cec reproduce`: the paper's results end to end, one command per game.
 
-dual_destination.py   `cec reproduce dual-destination` (docs/reproduce.md): its modes, plan, training,
+dual_destination.py   `cec reproduce dual-destination` (docs/reproduce.md): its plan, training,
                       evaluation and the command
-dd_paper.py           the paper's Dual Destination numbers and orderings (paper_dual_destination.yaml)
+dd_modes.py           its versions (quick, full, paper): presets, seeds, budgets, measured speeds
+dd_paper.py           the paper's numbers and orderings (paper_dual_destination.yaml), the ablations
 dd_summary.py         the scores and ordering tests computed from the runs
-dd_report.py          its report (report.md, summary.json, bar plots)
+dd_reasons.py         why a number differs from the paper's or an ordering fails, from the same seeds
+dd_report.py          its report (report.md, summary.json, bar plots, learning curves)
 overcooked.py         `cec reproduce overcooked` (docs/reproduce_overcooked.md; paper_overcooked.yaml)
 common.py             what both share (`cached_table`)
 """

@@ -2,14 +2,13 @@
 
 `write_report` writes `report.md`, `summary.json` and one `bar_plot` per variant from the scores
 `dd_summary` computed, beside the paper's numbers (`dd_paper`), with the reasons it gives where a number
-differs from the paper's (`difference_reason`) or one of the paper's orderings fails (`ordering_reason`).
+differs from the paper's or one of the paper's orderings fails (`dd_reasons`).
 """
 
 from __future__ import annotations
 
 import json
 import math
-from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -27,12 +26,11 @@ from apps.reproduce.dd_paper import (
     PaperNumber,
     paper_number,
 )
-from apps.reproduce.dd_summary import ALPHA, LEARNED, ClaimResult, Score, check_ablations, check_claims
+from apps.reproduce.dd_reasons import TOLERANCE, difference_reason, ordering_reason
+from apps.reproduce.dd_summary import ALPHA, LEARNED, Score, check_ablations, check_claims
 
-if TYPE_CHECKING:  # the modes are the command's (dual_destination.py imports this module)
-    from apps.reproduce.dual_destination import Mode
-
-TOLERANCE = 0.05  # "within 0.05 of the paper's"
+if TYPE_CHECKING:
+    from apps.reproduce.dd_modes import Mode
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -461,93 +459,3 @@ def ablation_section(
                 )
             md.append("")
     return md
-
-
-#: SP above XP by more than this: the seeds learned the task but do not play one convention.
-CONVENTION_GAP = 0.1
-
-
-def difference_reason(
-    xp: Score, paper: float, sp: Score | None, oracle: Score | None, *, trained_on_set: bool = True
-) -> str:
-    """What the other measures of the same seeds say about an XP score that differs from the paper's:
-    whether the seeds learned the task at all (SP), whether they fail only with each other (SP well above
-    XP), and how they play with the oracle partner (a best response to whatever they do)."""
-    facts = []
-    if sp is not None:
-        facts.append(f"with themselves (SP) its seeds score {sp.mean:.3f}")
-    if oracle is not None:
-        facts.append(f"with the oracle partner {oracle.mean:.3f}")
-    said = ("Reading: " + " and ".join(facts) + "; ") if facts else "Reading: "
-    if not trained_on_set:
-        return said + (
-            "it never trained on these tasks and fails on them, as in the paper; a policy that never "
-            "reaches a goal pair scores -0.5 on our scale (return / 200 with a step cost of -1), where the "
-            "paper reports about 0 for the same failure, so this gap looks like one of scale."
-        )
-    if sp is not None and sp.mean - xp.mean > CONVENTION_GAP:
-        return said + (
-            "the seeds learned the task but settled on conventions that do not match across seeds, so "
-            "the gap is in coordination with unseen partners, not in skill."
-        )
-    if sp is not None and sp.mean < paper - TOLERANCE:
-        return said + (
-            "they play about as badly with themselves, so at this budget the policy has not learned the "
-            "task set to the paper's level (see the Training section)."
-        )
-    if xp.mean > paper:
-        return said + "ours is higher: these seeds coordinate with each other better than the paper's did."
-    return said + "the seeds play well with themselves and each other but below the paper's value."
-
-
-def ordering_reason(
-    claim: ClaimResult,
-    kinds: dict[str, dict[str, Score]],
-    conventions: dict[int, str] | None = None,
-    entropy: dict[str, float] | None = None,
-) -> str:
-    """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
-    as well as with itself (the coordination failure the ordering rests on did not occur), whether greedy
-    play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, how random
-    both policies still were at the end of training (`entropy`, per algorithm), and whether `better`
-    learned the task as well as `worse` did (SP)."""
-    xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
-    b, w = claim.better, claim.worse
-    head = (
-        f"- {VARIANT_TITLES[claim.variant]}, {LEVEL_SET_TITLES[claim.level_set]}, {b.upper()} > {w.upper()}: "
-    )
-    if b not in sp or w not in sp:
-        return head + "no self-play scores to compare."
-    parts = [
-        f"{w.upper()} XP {xp[w].mean:.3f} vs SP {sp[w].mean:.3f}, {b.upper()} XP {xp[b].mean:.3f} vs SP "
-        f"{sp[b].mean:.3f}"
-    ]
-    if sp[w].mean - xp[w].mean <= CONVENTION_GAP:
-        parts.append(
-            f"{w.upper()}'s seeds coordinate with each other about as well as with themselves, so the "
-            "failure with unseen partners that the paper's ordering rests on did not occur"
-        )
-    gxp, gsp = kinds.get("greedy_xp", {}).get(w), kinds.get("greedy_sp", {}).get(w)
-    if gxp is not None and gsp is not None:
-        hidden = gsp.mean - gxp.mean > CONVENTION_GAP >= sp[w].mean - xp[w].mean
-        parts.append(
-            f"greedy, {w.upper()} XP {gxp.mean:.3f} vs SP {gsp.mean:.3f}"
-            + (": its seeds' conventions differ, and sampling hides it" if hidden else "")
-        )
-    for a in (w, b):
-        unlearned = [seed for seed, v in zip(sp[a].seeds, sp[a].samples, strict=False) if v < LEARNED]
-        if unlearned:
-            parts.append(
-                f"{len(unlearned)} of {sp[a].n_seeds} {a.upper()} seeds did not learn the task (SP < "
-                f"{LEARNED}: seed {', '.join(map(str, unlearned))})"
-            )
-    if conventions:
-        counts = sorted(Counter(conventions.values()).items())
-        parts.append(f"{w.upper()}'s seeds send seat 0 to " + ", ".join(f"{g} ({n})" for g, n in counts))
-    known = {a: e for a, e in (entropy or {}).items() if a in (w, b) and not math.isnan(e)}
-    if known:
-        listed = ", ".join(f"{a.upper()} {e:.2f}" for a, e in sorted(known.items(), key=lambda x: x[0] != w))
-        parts.append(f"policy entropy at the end of training {listed} (uniform: 1.61)")
-    if sp[b].mean < sp[w].mean - TOLERANCE:
-        parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
-    return head + "; ".join(parts) + "."
