@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from apps.reproduce.dd_modes import algorithm_of
 from apps.reproduce.dd_paper import (
     ABLATIONS,
     ALGORITHMS,
@@ -46,7 +47,7 @@ def _pm(s: Score | None) -> str:
 
 
 def _p(p: float) -> str:
-    return "p —" if math.isnan(p) else f"p {p:.2g}"
+    return "—" if math.isnan(p) else f"{p:.2g}"
 
 
 def _paper_cell(p: PaperNumber | None) -> str:
@@ -142,12 +143,9 @@ def write_report(
         "(both fixed tasks and the 100 generated evaluation tasks are excluded from its generator).\n"
     )
     budget = ", ".join(
-        f"{a.upper()} {len(mode.seeds[a])} seeds x {mode.steps['full_obs'][a]:,} steps ("
-        + (
-            f"{mode.presets[a]})"
-            if a in mode.presets
-            else f"{mode.presets[ABLATIONS[a].algorithm]} with {', '.join(ABLATIONS[a].overrides)})"
-        )
+        f"{a.upper()} {len(mode.seeds[a])} seeds x {mode.steps['full_obs'][a]:,} steps "
+        f"({mode.presets[algorithm_of(a)]}"
+        + (f" with {', '.join(ABLATIONS[a].overrides)})" if a in ABLATIONS else ")")
         for a in mode.rows
     )
     md.append(
@@ -212,13 +210,12 @@ def write_report(
         (c.variant, c.level_set, c.better, c.worse): c for c in check_claims(summaries, "xp_learned")
     }
     for c in claims:
-        p_text = "—" if math.isnan(c.p) else f"{c.p:.2g}"
         ci = "—" if math.isnan(c.ci_low) else f"[{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
         lc = by_learned.get((c.variant, c.level_set, c.better, c.worse))
-        among = "—" if lc is None else f"{lc.diff:+.3f}, {_p(lc.p)}, {'yes' if lc.holds else '**no**'}"
+        among = "—" if lc is None else f"{lc.diff:+.3f}, p {_p(lc.p)}, {'yes' if lc.holds else '**no**'}"
         md.append(
             f"| {VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]} | {c.better.upper()} > "
-            f"{c.worse.upper()} | {c.diff:+.3f} {ci} | {p_text} | {'yes' if c.holds else '**no**'} | "
+            f"{c.worse.upper()} | {c.diff:+.3f} {ci} | {_p(c.p)} | {'yes' if c.holds else '**no**'} | "
             f"{'yes' if c.significant else 'no'} | {among} |"
         )
     md.append("")
@@ -262,7 +259,7 @@ def write_report(
         md.append("## CEC, fully observable, against the paper's values\n")
         md.extend(lines)
         md.append("")
-    md.extend(ablation_section(summaries, meta.get("training", {})))
+    md.extend(ablation_section(summaries, training))
     md.append("## Where our numbers differ from the paper's by more than 0.05\n")
     diffs = []
     for variant in VARIANTS:
@@ -450,12 +447,11 @@ def ablation_section(
             md.append("|---|---|---|---|---|---|---|")
             for c in mine:
                 xp = summaries[c.variant][c.level_set]["xp"]
-                p_text = "—" if math.isnan(c.p) else f"{c.p:.2g}"
                 verdict = ("yes" if c.holds else "**no**") + (" (significant)" if c.significant else "")
                 where = f"{VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]}"
                 diff = f"{c.diff:+.3f} [{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
                 md.append(
-                    f"| {where} | {_pm(xp[c.better])} | {_pm(xp[c.worse])} | {diff} | {p_text} | {verdict} |"
+                    f"| {where} | {_pm(xp[c.better])} | {_pm(xp[c.worse])} | {diff} | {_p(c.p)} | {verdict} |"
                 )
             md.append("")
     return md
