@@ -353,11 +353,22 @@ def build_zoo(
     return BuildResult(manifest, tuple(trained), tuple(skipped), False)
 
 
-def _finished(run: PlannedRun) -> bool:
+def updates_done(run: PlannedRun) -> int:
+    """The updates `run` has checkpointed (0 before its first checkpoint, at most `num_updates`)."""
     from cec import checkpoints
 
     latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
-    return latest is not None and latest.update >= run.config.num_updates
+    return 0 if latest is None else min(latest.update, run.config.num_updates)
+
+
+def done_fraction(runs: Sequence[PlannedRun]) -> float:
+    """The share of `runs`' seed-updates checkpointed so far (1.0 when every run is finished)."""
+    total = sum(r.config.num_updates * len(r.seeds) for r in runs)
+    return sum(updates_done(r) * len(r.seeds) for r in runs) / total if total else 1.0
+
+
+def _finished(run: PlannedRun) -> bool:
+    return updates_done(run) >= run.config.num_updates
 
 
 def _reads(run: PlannedRun, other: PlannedRun) -> bool:

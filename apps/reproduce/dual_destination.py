@@ -116,7 +116,7 @@ def _run_config(mode: Mode, variant: str, row: str, extra: Sequence[str] = ()) -
 
 @dataclass(frozen=True)
 class PlanLine:
-    """One training run of the plan with its size and estimated time."""
+    """One row's training in one variant: its size, estimated time and how much of it is checkpointed."""
 
     variant: str
     algorithm: str
@@ -124,23 +124,40 @@ class PlanLine:
     env_steps: int
     updates: int
     estimate_s: float
+    done: float  # share of its seed-updates checkpointed under the work directory
+
+    @property
+    def left_s(self) -> float:
+        return self.estimate_s * (1.0 - self.done)
 
 
-def plan_lines(mode: Mode, variants: Sequence[str] = VARIANTS) -> list[PlanLine]:
+def plan_lines(mode: Mode, work: Path, variants: Sequence[str] = VARIANTS) -> list[PlanLine]:
     """Every training run of `variants`, with the estimate from `mode.seconds_per_update` (NaN where not
-    measured)."""
-    from cec.config import load_config
-    from cec.training.config import TrainConfig
+    measured) and the share already trained under `work`. Writes each variant's zoo spec there, as
+    training does, and so refuses (`ConfigError`) a finished run trained with another config."""
+    from apps.zoo_build import done_fraction, plan_zoo
 
     lines = []
     for variant in variants:
-        for row in mode.rows:
-            cfg = load_config(TrainConfig, *_run_config(mode, variant, row))
-            updates = math.ceil(cfg.total_env_steps / cfg.steps_per_update)
-            n = len(mode.seeds[row])
+        plan = plan_zoo(_write_spec(mode, variant, work), work / variant / "zoo")
+        for i, row in enumerate(mode.rows):
+            runs = [r for r in plan if r.entry == i]
+            cfg, n = runs[0].config, sum(len(r.seeds) for r in runs)
             per = mode.seconds_per_update.get(row, math.nan)
-            lines.append(PlanLine(variant, row, n, cfg.total_env_steps, updates, per * updates * n))
+            estimate = per * cfg.num_updates * n
+            lines.append(
+                PlanLine(variant, row, n, cfg.total_env_steps, cfg.num_updates, estimate, done_fraction(runs))
+            )
     return lines
+
+
+def _write_spec(mode: Mode, variant: str, work: Path) -> Path:
+    vdir = work / variant
+    vdir.mkdir(parents=True, exist_ok=True)
+    spec = vdir / "spec.yaml"
+    text = yaml.safe_dump(zoo_spec(mode, variant), sort_keys=False)
+    spec.write_text(f"# Written by `cec reproduce dual-destination` ({mode.name}, {variant}).\n" + text)
+    return spec
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -160,12 +177,7 @@ def train_variant(
     command again)."""
     from apps.zoo_build import build_zoo
 
-    vdir = work / variant
-    vdir.mkdir(parents=True, exist_ok=True)
-    spec = vdir / "spec.yaml"
-    text = yaml.safe_dump(zoo_spec(mode, variant), sort_keys=False)
-    spec.write_text(f"# Written by `cec reproduce dual-destination` ({mode.name}, {variant}).\n" + text)
-    result = build_zoo(spec, vdir / "zoo", progress=progress, log=log)
+    result = build_zoo(_write_spec(mode, variant, work), work / variant / "zoo", progress=progress, log=log)
     if result.interrupted or result.manifest is None:
         raise ConfigError(f"training of {variant} was interrupted; run the same command again to continue")
     return result.manifest, result.skipped
@@ -330,23 +342,26 @@ def command_of(mode: Mode) -> str:
 
 
 def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file: TextIO) -> None:
-    lines = plan_lines(mode, variants)
+    lines = plan_lines(mode, work, variants)
     print(f"cec reproduce dual-destination ({mode.name}): work {work}, report {out}", file=file)
     print(
         f"{'variant':12s} {'algorithm':10s} {'seeds':>5s} {'steps/seed':>12s} {'updates':>8s} "
-        f"{'estimate':>10s}",
+        f"{'estimate':>10s} {'done':>6s} {'left':>10s}",
         file=file,
     )
+
+    def time_of(seconds: float) -> str:
+        return "?" if math.isnan(seconds) else duration(seconds)
+
     for ln in lines:
-        est = "?" if math.isnan(ln.estimate_s) else duration(ln.estimate_s)
         print(
             f"{ln.variant:12s} {ln.algorithm:10s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
-            f"{est:>10s}",
+            f"{time_of(ln.estimate_s):>10s} {ln.done:6.0%} {time_of(ln.left_s):>10s}",
             file=file,
         )
-    total = sum(ln.estimate_s for ln in lines)
+    total, left = sum(ln.estimate_s for ln in lines), sum(ln.left_s for ln in lines)
     basis = f" (from seconds per update measured on {mode.measured_on})" if mode.measured_on else ""
-    print(f"training total: {'?' if math.isnan(total) else duration(total)}{basis}", file=file)
+    print(f"training total: {time_of(total)}, left: {time_of(left)}{basis}", file=file)
     print(
         "evaluation: XP within each algorithm and everyone with the oracle partner, "
         f"{mode.episodes['fixed']} episodes on the fixed task and {mode.episodes['generated']} on each of "

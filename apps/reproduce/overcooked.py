@@ -202,24 +202,26 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class PlanLine:
-    """One training run with its size and estimated time."""
+    """One training run with its size, estimated time and how much of it is checkpointed."""
 
     run: str
     seeds: int
     env_steps: int
     updates: int
     estimate_s: float
+    done: float  # share of its updates checkpointed under the work directory
 
 
 def plan_lines(mode: Mode, work: Path) -> list[PlanLine]:
-    """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds)."""
-    from apps.zoo_build import plan_zoo
+    """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds) and the
+    share of it already trained under `work`."""
+    from apps.zoo_build import done_fraction, plan_zoo
 
     spec = _write_spec(mode, work)
     return [
         PlanLine(
             r.config.run_name, len(r.seeds), r.config.total_env_steps, r.config.num_updates,
-            mode.seconds_per_update * r.config.num_updates * len(r.seeds),
+            mode.seconds_per_update * r.config.num_updates * len(r.seeds), done_fraction([r]),
         )
         for r in plan_zoo(spec, work / "zoo")
     ]  # fmt: skip
@@ -616,12 +618,14 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.plan:
         lines = plan_lines(mode, work)
         total = sum(p.estimate_s for p in lines)
+        left = sum(p.estimate_s * (1.0 - p.done) for p in lines)
         print(f"{command}: {len(lines)} training runs into {work}/zoo, report to {out}")
         for p in lines:
             print(f"  {p.run:<36} {p.seeds} seed(s) x {p.env_steps:>13,} steps ({p.updates} updates)"
-                  f"  ~{duration(p.estimate_s)}")  # fmt: skip
-        print(f"training: ~{duration(total)} on one core ({mode.seconds_per_update} s per update, seed; "
-              f"measured on {mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
+                  f"  ~{duration(p.estimate_s)}, {p.done:.0%} done")  # fmt: skip
+        print(f"training: ~{duration(total)} on one core, ~{duration(left)} left "
+              f"({mode.seconds_per_update} s per update, seed; measured on "
+              f"{mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
         return 0
     if args.proxies is not None:
         mode = dataclasses.replace(mode, proxies=args.proxies)

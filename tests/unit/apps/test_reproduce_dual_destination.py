@@ -20,9 +20,11 @@ from apps.cli import main
 from apps.reproduce import dd_paper, dd_summary
 from apps.reproduce import dual_destination as rp
 from apps.zoo_build import plan_zoo
+from cec import checkpoints
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.evaluation.results import make_table, read_csv
+from cec.training.run import config_dict
 
 TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 4, actor_features: [8], "
@@ -72,9 +74,29 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
                 assert dataclasses.replace(same, seed=c.seed, num_seeds=c.num_seeds, name=c.name) == c
             assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
     for mode in (rp.FULL, rp.PAPER_SCALE):
-        lines = rp.plan_lines(mode)
+        lines = rp.plan_lines(mode, tmp_path / mode.name)
         assert len(lines) == 3 * len(mode.rows) and all(ln.estimate_s > 0 for ln in lines)
+        assert all(ln.done == 0.0 and ln.left_s == ln.estimate_s for ln in lines)
     assert "cec_nolstm" in rp.FULL.rows
+
+
+def test_the_plan_says_how_much_of_each_row_is_trained_and_what_is_left(tmp_path: Path) -> None:
+    """A reproduction spans sessions: `--plan` reads the checkpoints under the work directory."""
+    work = tmp_path / "work"
+    plan = plan_zoo(rp._write_spec(rp.FULL, "partial_obs", work), work / "partial_obs" / "zoo")
+    ippo = next(r for r in plan if r.algorithm == "ippo")  # 6 seeds in one run
+    fcp = [r for r in plan if r.algorithm == "fcp"]  # 4 runs of one seed each
+    state = {"w": np.zeros(2, np.float32)}
+    for run, update in ((ippo, ippo.config.num_updates // 2), (fcp[0], fcp[0].config.num_updates)):
+        path = checkpoints.CheckpointStore(run.run_dir, keep_last=1).path(update)
+        checkpoints.save(path, state, update=update, env_steps=0, config=config_dict(run.config), metadata={})
+    lines = {ln.algorithm: ln for ln in rp.plan_lines(rp.FULL, work, ["partial_obs"])}
+    assert lines["ippo"].done == pytest.approx(ippo.config.num_updates // 2 / ippo.config.num_updates)
+    assert lines["fcp"].done == 0.25 and lines["fcp"].left_s == pytest.approx(0.75 * lines["fcp"].estimate_s)
+    assert lines["cec"].done == 0.0
+    out = io.StringIO()
+    rp._print_plan(rp.FULL, ["partial_obs"], work, tmp_path / "out", out)
+    assert re.search(r"partial_obs +fcp .* 25% ", out.getvalue()) and ", left: " in out.getvalue()
 
 
 def test_the_paper_numbers_are_data_and_a_malformed_file_names_the_file_and_the_key(tmp_path: Path) -> None:
@@ -109,11 +131,14 @@ def test_the_paper_numbers_are_data_and_a_malformed_file_names_the_file_and_the_
             dd_paper.load_paper(path)
 
 
-def test_the_plan_command_prints_every_run_and_the_expected_time(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["reproduce", "dual-destination", "--plan"]) == 0
+def test_the_plan_command_prints_every_run_and_the_expected_time(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    assert main(["reproduce", "dual-destination", "--plan", "--work", str(tmp_path / "full")]) == 0
     out = capsys.readouterr().out
     assert out.count("\n") >= 11 and "training total:" in out and "?" not in out.split("training total:")[1]
-    assert main(["reproduce", "dual-destination", "--paper", "--plan"]) == 0
+    paper = ["reproduce", "dual-destination", "--paper", "--plan", "--work", str(tmp_path / "paper")]
+    assert main(paper) == 0
     assert "(paper)" in capsys.readouterr().out
     assert main(["reproduce", "dual-destination", "--variants", "nope", "--plan"]) == 2
     assert "unknown variant" in capsys.readouterr().err

@@ -154,3 +154,4 @@ def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], t
     assert main(["reproduce", "overcooked", "--quick", "--plan", "--work", str(tmp_path)]) == 0
     printed = capsys.readouterr().out
     assert "cec-s200" in printed and "ippo_cramped_room-s0" in printed and "training: ~" in printed
+    assert "0% done" in printed and " left (" in printed
