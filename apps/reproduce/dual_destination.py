@@ -7,7 +7,8 @@
 
 For each variant of the game (fully observable, partially observable 3x3 view, multi-task green + pink):
 
-1. **Train** (`cec zoo build`, resumable: run the same command again after an interruption) IPPO seeds
+1. **Train** (`cec zoo build`, resumable: run the same command again after an interruption; several
+   processes may share it, one per core, and `--train-only` stops each before step 2) IPPO seeds
    and FCP seeds on the fixed task (the multi-task layout for the multi-task variant; FCP's population is
    the IPPO seeds at their first, middle and last milestones), and CEC seeds on procedurally generated
    tasks, the fixed tasks and the 100 evaluation tasks held out of its training.
@@ -181,6 +182,13 @@ def train_variant(
     if result.interrupted or result.manifest is None:
         raise ConfigError(f"training of {variant} was interrupted; run the same command again to continue")
     return result.manifest, result.skipped
+
+
+def train_only(
+    mode: Mode, work: Path, variants: Sequence[str], *, progress: bool = True, log: TextIO = sys.stderr
+) -> dict[str, Path]:
+    """Trains `variants` (step 1 alone, as `--train-only`); returns each one's zoo manifest."""
+    return {v: train_variant(mode, v, work, progress=progress, log=log)[0] for v in variants}
 
 
 def _generated_spec(mode: Mode) -> str:
@@ -383,6 +391,11 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     if args.plan:
         _print_plan(mode, variants, work, out, sys.stdout)
         return 0
+    if args.train_only:
+        for variant, manifest in train_only(mode, work, variants, progress=not args.quiet).items():
+            print(f"{variant}: trained, zoo {manifest}")
+        print("the report: the same command without --train-only (it reuses what was trained)")
+        return 0
     if code_version().endswith("+dirty") and not args.allow_dirty:
         raise ConfigError(
             "the working tree has uncommitted changes, so the report could not name the code it came from; "
@@ -427,6 +440,12 @@ def add_subcommand(rep_sub: Any) -> None:
         "--allow-dirty",
         action="store_true",
         help="write the report from a tree with uncommitted changes (its git revision is marked +dirty)",
+    )
+    dd.add_argument(
+        "--train-only",
+        action="store_true",
+        help="train (resuming) and stop before cross-play and the report: for several processes or "
+        "sessions sharing the training; the run without it reuses what they trained",
     )
     dd.add_argument("--quiet", action="store_true", help="no per-update progress lines")
     dd.set_defaults(func=_cmd_reproduce_dd)

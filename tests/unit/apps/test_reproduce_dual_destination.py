@@ -146,10 +146,14 @@ def test_the_plan_command_prints_every_run_and_the_expected_time(
 
 @pytest.mark.slow
 def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_path: Path) -> None:
+    # training alone (`--train-only`, as several processes or sessions share it), then the report reuses it
+    manifests = rp.train_only(TINY, tmp_path / "work", ("full_obs",), progress=False, log=io.StringIO())
+    assert manifests["full_obs"].is_file() and not (tmp_path / "out").exists()
     log = io.StringIO()
     report = rp.reproduce_dual_destination(
         TINY, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log
     )
+    assert log.getvalue().count("finished, skipping") == 3
     text = report.read_text()
     # our numbers beside the paper's, with the number of seeds (the units of the tests)
     rows = [ln for ln in text.splitlines() if ln.startswith("| Fully observable |")]
