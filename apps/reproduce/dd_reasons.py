@@ -60,8 +60,9 @@ def ordering_reason(
     """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
     as well as with itself (the coordination failure the ordering rests on did not occur), whether greedy
     play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, how random
-    both policies still were at the end of training (`entropy`, per algorithm), and whether `better`
-    learned the task as well as `worse` did (SP)."""
+    both policies still were at the end of training (`entropy`, per algorithm), whether `better`
+    learned the task as well as `worse` did (SP), and whether one that fails with itself plays the task
+    with the oracle partner (it can reach a goal pair; the failure is one of coordination)."""
     xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
     b, w = claim.better, claim.worse
     head = (
@@ -85,12 +86,19 @@ def ordering_reason(
             f"greedy, {w.upper()} XP {gxp.mean:.3f} vs SP {gsp.mean:.3f}"
             + (": its seeds' conventions differ, and sampling hides it" if hidden else "")
         )
+    oracle = kinds.get("oracle", {})
     for a in (w, b):
         unlearned = [seed for seed, v in zip(sp[a].seeds, sp[a].samples, strict=False) if v < LEARNED]
         if unlearned:
             parts.append(
                 f"{len(unlearned)} of {sp[a].n_seeds} {a.upper()} seeds did not learn the task (SP < "
                 f"{LEARNED}: seed {', '.join(map(str, unlearned))})"
+            )
+        if a in oracle and sp[a].mean < LEARNED and oracle[a].mean - sp[a].mean > CONVENTION_GAP:
+            parts.append(
+                f"with the oracle partner, which adapts to what its partner shows, {a.upper()} scores "
+                f"{oracle[a].mean:.3f} against SP {sp[a].mean:.3f}: it can reach a goal pair, but does not "
+                "coordinate even with a copy of itself"
             )
     if conventions:
         counts = sorted(Counter(conventions.values()).items())

@@ -267,8 +267,8 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         "full_obs": {
             "fixed": {
                 "xp": fixed,
-                "sp": {"fcp": _score(0.62), "ippo": _score(0.72, spread=0.5)},  # IPPO seed 0 at 0.22
-                "oracle": {},
+                "sp": {"fcp": _score(0.42), "ippo": _score(0.72, spread=0.5)},  # IPPO seed 0 at 0.22
+                "oracle": {"fcp": _score(0.86), "ippo": _score(0.8)},  # FCP: skill, not coordination
                 "xp_clipped": {"cec": _score(0.95)},
                 # IPPO: greedy, its seeds' conventions clash (XP well below SP); sampled play hides it
                 "greedy_xp": {"ippo": _score(0.35)},
@@ -343,6 +343,9 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "IPPO's seeds send seat 0 to green (0, 2) (2), green (4, 2) (1)" in reason
     assert "policy entropy at the end of training IPPO 0.45 (uniform: 1.61)" in reason  # FCP's not known
     assert "1 of 4 IPPO seeds did not learn the task (SP < 0.5: seed 0)" in reason
+    assert "4 of 4 FCP seeds did not learn the task" in reason
+    assert "FCP scores 0.860 against SP 0.420: it can reach a goal pair, but does not coordinate" in reason
+    assert "IPPO scores 0.800" not in reason  # IPPO learned the task (SP 0.72): no such line
     # the ablation: its own rows, its training return against the paper's claim, its seed-level tests
     # against CEC, outside the paper's orderings (still 8)
     section = text.split("## Ablation: CEC without an LSTM")[1].split("\n## ")[0]
