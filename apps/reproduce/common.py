@@ -1,8 +1,11 @@
-"""What both reproductions share: a result table reused while what it depends on is unchanged."""
+"""What both reproductions share: a result table reused while what it depends on is unchanged, and how long
+playing it took."""
 
 from __future__ import annotations
 
 import json
+import math
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
@@ -24,7 +27,21 @@ def cached_table(
         return read_csv(results)
     log_line(log, "reproduce", f"{label}cross-play")
     key_file.unlink(missing_ok=True)
+    t0 = time.perf_counter()
     table = play()
     write_csv(table, results)
+    (folder / PLAY_TIME_FILE).write_text(json.dumps({"seconds": time.perf_counter() - t0}) + "\n")
     key_file.write_text(json.dumps(key, indent=1) + "\n")
     return table
+
+
+PLAY_TIME_FILE = "results.time.json"
+
+
+def play_seconds(folder: Path) -> float:
+    """How long playing `folder/results.csv` took when `cached_table` played it (NaN if not recorded:
+    a table played before the time was kept)."""
+    try:
+        return float(json.loads((folder / PLAY_TIME_FILE).read_text())["seconds"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return math.nan

@@ -12,6 +12,7 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from apps.machine import duration
 from apps.reproduce.dd_modes import algorithm_of
 from apps.reproduce.dd_paper import (
     ABLATIONS,
@@ -111,6 +112,28 @@ def bar_plot(summary: dict[str, dict[str, dict[str, Score]]], variant: str, path
     return path
 
 
+def _recorded_times(meta: dict[str, Any]) -> str:
+    """The recorded time of everything behind the report, reused work included: training per variant (the
+    runs' own metrics) and the cross-play of each variant when it was played."""
+
+    def per_variant(seconds: dict[str, float | None]) -> str:
+        return ", ".join(
+            f"{VARIANT_TITLES[v].split(' (')[0].lower()} "
+            + ("not recorded (played before play times were kept)" if t is None else duration(t))
+            for v, t in seconds.items()
+        )
+
+    train: dict[str, float | None] = {
+        v: sum(float(t["seconds"]) for t in algos.values()) for v, algos in meta["training"].items()
+    }
+    played = meta.get("played_s", {})
+    text = (
+        "Recorded times of the work behind these numbers, whichever invocation did it: training "
+        f"{per_variant(train)} of one core (per algorithm in the Training section)"
+    )
+    return text + (f"; cross-play {per_variant(played)}.\n" if played else ".\n")
+
+
 def write_report(
     out: Path,
     mode: Mode,
@@ -129,6 +152,7 @@ def write_report(
         f"JAX {m['jax']}. Wall time {meta['wall_s'] / 60:.1f} min "
         f"(training {meta['train_s'] / 60:.1f}, evaluation {meta['eval_s'] / 60:.1f}).\n"
     )
+    md.append(_recorded_times(meta))
     if meta.get("skipped_runs"):
         md.append(
             f"Training runs found finished by an earlier invocation and not trained again: "

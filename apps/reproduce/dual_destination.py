@@ -43,6 +43,7 @@ from typing import Any, TextIO
 import yaml
 
 from apps.machine import duration, log_line, machine_info
+from apps.reproduce.common import play_seconds
 from apps.reproduce.dd_modes import FULL as FULL
 from apps.reproduce.dd_modes import MODES as MODES
 from apps.reproduce.dd_modes import PAPER_SCALE as PAPER_SCALE
@@ -289,6 +290,7 @@ def reproduce_dual_destination(
     seat0: dict[str, dict[str, dict[int, str]]] = {}
     skipped_runs: list[str] = []
     curves: dict[str, str] = {}
+    played: dict[str, float | None] = {}  # seconds each variant's cross-play took when it was played
     train_s = eval_s = 0.0
     for variant in variants:
         t0 = time.perf_counter()
@@ -299,6 +301,8 @@ def reproduce_dual_destination(
         train_s += stages[f"{variant}: train"]
         t0 = time.perf_counter()
         table = cached_evaluation(mode, variant, manifest, work / variant, log=log)
+        seconds = play_seconds(work / variant)
+        played[variant] = None if math.isnan(seconds) else seconds
         summaries[variant] = summarise(table, variant)
         seat0[variant] = conventions(variant, manifest)
         trained[variant] = {a: t.__dict__ for a, t in training_stats(manifest.parent).items()}
@@ -317,6 +321,7 @@ def reproduce_dual_destination(
         "eval_s": eval_s,
         "stages": stages,
         "training": trained,
+        "played_s": played,
         "conventions": seat0,
         "curves": curves,
         "skipped_runs": skipped_runs,

@@ -215,7 +215,10 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
     )
     assert log2.getvalue().count("finished, skipping") == 3
     assert "cross-play results found" in log2.getvalue()
-    assert json.loads((tmp_path / "out" / "summary.json").read_text())["summaries"] == summary["summaries"]
+    summary2 = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary2["summaries"] == summary["summaries"]
+    played = summary["meta"]["played_s"]["full_obs"]  # the time playing took, kept while the table is
+    assert played > 0 and summary2["meta"]["played_s"]["full_obs"] == played
     assert again == report
 
     # evaluated with other settings, the variant is played again
@@ -294,6 +297,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
         "train_s": 50.0,
         "eval_s": 10.0,
         "why": "Why: a test.",
+        "played_s": {"full_obs": 162.0, "partial_obs": None},
         "conventions": {"full_obs": {"ippo": {0: "green (4, 2)", 1: "green (0, 2)", 2: "green (0, 2)"}}},
         "training": {
             "full_obs": {
@@ -328,6 +332,10 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     fcp_po = next(ln for ln in text.splitlines() if ln.startswith("- Partially observable") and "FCP" in ln)
     assert "never trained on these tasks" in fcp_po  # FCP trained on the fixed task only
     assert "Why: a test." in text
+    assert (  # reused work's recorded times: training from the runs' metrics, cross-play when played
+        "whichever invocation did it: training fully observable 3 min of one core (per algorithm in the "
+        "Training section); cross-play fully observable 3 min, partially observable not recorded" in text
+    )
     fcp_ippo = next(ln for ln in text.splitlines() if "fixed task | FCP > IPPO |" in ln)
     assert "| **no** | no |" in fcp_ippo  # the paper's FCP > IPPO does not hold here
     assert "- Fully observable, fixed task, FCP > IPPO: IPPO XP 0.700 vs SP" in text
