@@ -363,18 +363,15 @@ def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file
         file=file,
     )
 
-    def time_of(seconds: float) -> str:
-        return "?" if math.isnan(seconds) else duration(seconds)
-
     for ln in lines:
         print(
             f"{ln.variant:12s} {ln.algorithm:10s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
-            f"{time_of(ln.estimate_s):>10s} {ln.done:6.0%} {time_of(ln.left_s):>10s}",
+            f"{duration(ln.estimate_s):>10s} {ln.done:6.0%} {duration(ln.left_s):>10s}",
             file=file,
         )
     total, left = sum(ln.estimate_s for ln in lines), sum(ln.left_s for ln in lines)
     basis = f" (from seconds per update measured on {mode.measured_on})" if mode.measured_on else ""
-    print(f"training total: {time_of(total)}, left: {time_of(left)}{basis}", file=file)
+    print(f"training total: {duration(total)}, left: {duration(left)}{basis}", file=file)
     print(
         "evaluation: XP within each algorithm and everyone with the oracle partner, "
         f"{mode.episodes['fixed']} episodes on the fixed task and {mode.episodes['generated']} on each of "
