@@ -449,21 +449,31 @@ def ablation_section(
             continue
         a, b = ablation.algorithm.upper(), ablation.title
         md.append(f"## Ablation: {b}\n")
+        shorter = [
+            VARIANT_TITLES[v].lower() for v, t, base in trained if base and t["env_steps"] < base["env_steps"]
+        ]
         md.append(
             f"The paper: “{ablation.claim}.” Here: {b} (`{label}`) trained with {a}'s preset and "
-            f"`{' '.join(ablation.overrides)}`, nothing else changed.\n"
+            f"`{' '.join(ablation.overrides)}`, nothing else changed"
+            + (
+                f" but, {' and '.join(shorter)}, a smaller budget than {a}'s (the env steps below): its XP "
+                f"test against {a} there favours {a}'s longer training.\n"
+                if shorter
+                else ".\n"
+            )
         )
         if trained:
             md.append(
-                f"| variant | training return: {b}, best / at the end | {a}, best / at the end | "
-                "positive reward reached |"
+                f"| variant | env steps per seed: {b} / {a} | training return: {b}, best / at the end | "
+                f"{a}, best / at the end | positive reward reached |"
             )
-            md.append("|---|---|---|---|")
+            md.append("|---|---|---|---|---|")
             for variant, t, base in trained:
                 other = "—" if base is None else f"{base['best_return']:.3f} / {base['final_return']:.3f}"
+                steps = f"{t['env_steps']:,} / " + ("—" if base is None else f"{base['env_steps']:,}")
                 mine_t = f"{t['best_return']:.3f} / {t['final_return']:.3f}"
                 positive = "yes" if t["best_return"] > 0 else "no"
-                md.append(f"| {VARIANT_TITLES[variant]} | {mine_t} | {other} | {positive} |")
+                md.append(f"| {VARIANT_TITLES[variant]} | {steps} | {mine_t} | {other} | {positive} |")
             md.append("")
         if mine:
             md.append(f"XP of {a} and of {b} (per-seed means, Welch test over seeds as for the orderings):\n")

@@ -304,7 +304,17 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
                 algo: {"seeds": 4, "env_steps": 10, "seconds": 60.0, "final_return": end, "best_return": best}
                 | ({"final_entropy": 0.45} if algo == "ippo" else {})
                 for algo, end, best in (("cec", 0.9, 0.92), ("cec_nolstm", -0.2, 0.05), ("ippo", 0.9, 0.95))
-            }
+            },
+            "partial_obs": {  # the ablation trained half CEC's budget here
+                algo: {
+                    "seeds": 4,
+                    "env_steps": steps,
+                    "seconds": 60.0,
+                    "final_return": 0.5,
+                    "best_return": 0.6,
+                }
+                for algo, steps in (("cec", 20), ("cec_nolstm", 10))
+            },
         },
     }
     text = rp.write_report(tmp_path, rp.FULL, summaries, meta).read_text()
@@ -333,8 +343,9 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "never trained on these tasks" in fcp_po  # FCP trained on the fixed task only
     assert "Why: a test." in text
     assert (  # reused work's recorded times: training from the runs' metrics, cross-play when played
-        "whichever invocation did it: training fully observable 3 min of one core (per algorithm in the "
-        "Training section); cross-play fully observable 3 min, partially observable not recorded" in text
+        "whichever invocation did it: training fully observable 3 min, partially observable 2 min of one "
+        "core (per algorithm in the Training section); cross-play fully observable 3 min, partially "
+        "observable not recorded" in text
     )
     fcp_ippo = next(ln for ln in text.splitlines() if "fixed task | FCP > IPPO |" in ln)
     assert "| **no** | no |" in fcp_ippo  # the paper's FCP > IPPO does not hold here
@@ -358,7 +369,10 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     # against CEC, outside the paper's orderings (still 8)
     section = text.split("## Ablation: CEC without an LSTM")[1].split("\n## ")[0]
     assert "cannot achieve a positive reward" in section and "`network_overrides.lstm_features=0`" in section
-    assert "| Fully observable | 0.050 / -0.200 | 0.920 / 0.900 | yes |" in section
+    assert "| Fully observable | 10 / 10 | 0.050 / -0.200 | 0.920 / 0.900 | yes |" in section
+    assert "| Partially observable (3x3 view) | 10 / 20 | 0.600 / 0.500 |" in section
+    assert "but, partially observable (3x3 view), a smaller budget than CEC's" in section
+    assert "favours CEC's longer training" in section
     gen = next(ln for ln in section.splitlines() if ln.startswith("| Fully observable | held-out"))
     assert "| 0.800 ± 0.004 | 0.300 ± 0.004 | +0.500" in gen and gen.endswith("| yes (significant) |")
     fix = next(ln for ln in section.splitlines() if ln.startswith("| Fully observable | fixed task"))
