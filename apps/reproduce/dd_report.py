@@ -432,6 +432,17 @@ def write_report(
     return path
 
 
+def _positive(t: dict[str, Any]) -> str:
+    """Whether a training reached a positive reward: the seeds' mean, else which seeds did on their own."""
+    if t["best_return"] > 0:
+        return "yes"
+    seeds = {s: b for s, b in t.get("best_by_seed", {}).items() if b > 0}
+    if not seeds:
+        return "no"
+    listed = ", ".join(f"{s}: best {b:.2f}" for s, b in seeds.items())
+    return f"not the mean over seeds; {len(seeds)} of {t['seeds']} seeds did ({listed})"
+
+
 def ablation_section(
     summaries: dict[str, dict[str, dict[str, dict[str, Score]]]], training: dict[str, dict[str, Any]]
 ) -> list[str]:
@@ -472,8 +483,7 @@ def ablation_section(
                 other = "—" if base is None else f"{base['best_return']:.3f} / {base['final_return']:.3f}"
                 steps = f"{t['env_steps']:,} / " + ("—" if base is None else f"{base['env_steps']:,}")
                 mine_t = f"{t['best_return']:.3f} / {t['final_return']:.3f}"
-                positive = "yes" if t["best_return"] > 0 else "no"
-                md.append(f"| {VARIANT_TITLES[variant]} | {steps} | {mine_t} | {other} | {positive} |")
+                md.append(f"| {VARIANT_TITLES[variant]} | {steps} | {mine_t} | {other} | {_positive(t)} |")
             md.append("")
         if mine:
             md.append(f"XP of {a} and of {b} (per-seed means, Welch test over seeds as for the orderings):\n")

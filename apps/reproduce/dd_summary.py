@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -227,6 +227,8 @@ class TrainingStats:
             the seeds act almost deterministically, so sampled and greedy play agree.
         best_return: the highest normalised training return of any update (mean over seeds); above 0 means
             the seeds reached a positive reward (the paper's criterion for its no-LSTM ablation).
+        best_by_seed: each seed's highest normalised training return of any update (keys: the seeds, as
+            text, as JSON keeps them): one seed may reach a positive reward where the mean does not.
     """
 
     seeds: int
@@ -235,6 +237,7 @@ class TrainingStats:
     final_return: float
     final_entropy: float = math.nan
     best_return: float = math.nan
+    best_by_seed: dict[str, float] = field(default_factory=dict)
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
@@ -252,6 +255,7 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
         final: list[float] = []
         entropy: list[float] = []
         by_update: dict[int, list[float]] = {}
+        by_seed: dict[str, float] = {}
         for rows in per_run:
             run_seeds = {r["seed"] for r in rows}
             seeds |= run_seeds
@@ -270,6 +274,8 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
             for r in rows:
                 if "normalised_return" in r:
                     by_update.setdefault(r["update"], []).append(r["normalised_return"])
+                    seed = str(r["seed"])
+                    by_seed[seed] = max(by_seed.get(seed, -math.inf), float(r["normalised_return"]))
         out[algo] = TrainingStats(
             len(seeds),
             steps,
@@ -277,5 +283,6 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
             float(np.mean(final)) if final else math.nan,
             float(np.mean(entropy)) if entropy else math.nan,
             max((float(np.mean(v)) for v in by_update.values()), default=math.nan),
+            dict(sorted(by_seed.items(), key=lambda kv: int(kv[0]))),
         )
     return out
