@@ -66,10 +66,11 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
                 assert run.config.total_env_steps == mode.steps[variant][run.algorithm]
             multi = variant == "multi_task"
             assert cec.config.env.levels == ("procedural_multi_task" if multi else "procedural")
-            if "cec_nolstm" in by_algo:  # the ablation: CEC's config without its LSTM, nothing else changed
+            if "cec_nolstm" in by_algo:  # the ablation: CEC's config without its LSTM (and its own budget)
                 ablation, net = by_algo["cec_nolstm"].config, cec.config.network_overrides
                 assert ablation.network_overrides.lstm_features == 0 < net.lstm_features
-                same = dataclasses.replace(ablation, network_overrides=net)
+                steps = cec.config.total_env_steps
+                same = dataclasses.replace(ablation, network_overrides=net, total_env_steps=steps)
                 c = cec.config
                 assert dataclasses.replace(same, seed=c.seed, num_seeds=c.num_seeds, name=c.name) == c
             assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
