@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -116,16 +117,14 @@ def _recorded_times(meta: dict[str, Any]) -> str:
     """The recorded time of everything behind the report, reused work included: training per variant (the
     runs' own metrics) and the cross-play of each variant when it was played."""
 
-    def per_variant(seconds: dict[str, float | None]) -> str:
+    def per_variant(seconds: Mapping[str, float | None]) -> str:
         return ", ".join(
             f"{VARIANT_TITLES[v].split(' (')[0].lower()} "
             + ("not recorded (played before play times were kept)" if t is None else duration(t))
             for v, t in seconds.items()
         )
 
-    train: dict[str, float | None] = {
-        v: sum(float(t["seconds"]) for t in algos.values()) for v, algos in meta["training"].items()
-    }
+    train = {v: sum(float(t["seconds"]) for t in a.values()) for v, a in meta["training"].items()}
     played = meta.get("played_s", {})
     text = (
         "Recorded times of the work behind these numbers, whichever invocation did it: training "
