@@ -40,14 +40,20 @@ class RunResult(NamedTuple):
 
 def trains_as(written: dict, config: TrainConfig) -> bool:
     """Whether a checkpoint's recorded config (`written`) trains what `config` trains. Where the run lives
-    (`run_dir`, `name`), where its series go (`tracking`) and on how many devices it runs (`devices`: the
-    same updates to float rounding) are left out: a moved or copied run is the same run, and so is one
-    that was written before `tracking` or `devices` existed."""
+    (`run_dir`, `name`), where its series go (`tracking`), on how many devices it runs (`devices`: the
+    same updates to float rounding) and how often it saves (`checkpoint.every_updates`, `keep_last`; its
+    milestones count: FCP populations read them) are left out: a moved or copied run is the same run, and
+    so is one that was written before `tracking` or `devices` existed or that saves more often now."""
     where = ("run_dir", "name", "tracking", "devices")
-    ours = config_dict(config)
-    return {k: v for k, v in written.items() if k not in where} == {
-        k: v for k, v in ours.items() if k not in where
-    }
+    cadence = ("every_updates", "keep_last")
+
+    def what(cfg: dict) -> dict:
+        kept = {k: v for k, v in cfg.items() if k not in where}
+        if isinstance(kept.get("checkpoint"), dict):
+            kept["checkpoint"] = {k: v for k, v in kept["checkpoint"].items() if k not in cadence}
+        return kept
+
+    return what(written) == what(config_dict(config))
 
 
 def config_dict(config: TrainConfig) -> dict:

@@ -16,7 +16,7 @@ from cec.config import ConfigError, from_dict
 from cec.training.config import TrainConfig
 from cec.training.ppo import make_batch
 from cec.training.rollout import rollout
-from cec.training.run import train
+from cec.training.run import config_dict, train, trains_as
 from cec.training.trainer import Trainer
 
 
@@ -205,6 +205,15 @@ def test_resume_refuses_a_changed_config(tmp_path):
     train(_config(tmp_path, total_env_steps=4 * 12), progress=False)
     with pytest.raises(checkpoints.CheckpointError, match="different config"):
         train(_config(tmp_path, total_env_steps=4 * 12, ppo={"lr": 1e-3}), resume=True, progress=False)
+
+
+def test_saving_more_often_resumes_the_same_run_but_other_milestones_or_settings_do_not(tmp_path):
+    """A long run may be given periodic checkpoints mid-way; its milestones (FCP's partners) must stay."""
+    written = config_dict(_config(tmp_path))
+    assert trains_as(written, _config(tmp_path, checkpoint={"every_updates": 50, "keep_last": 9}))
+    assert not trains_as(written, _config(tmp_path, checkpoint={"milestones": [0.0, 1.0]}))
+    assert not trains_as(written, _config(tmp_path, ppo={"lr": 1e-3}))
+    assert trains_as(written, _config(tmp_path / "moved"))  # where it lies is not what it trains
 
 
 def test_a_run_trained_by_another_process_is_refused_until_that_process_ends(tmp_path):
