@@ -61,8 +61,9 @@ def ordering_reason(
     as well as with itself (the coordination failure the ordering rests on did not occur), whether greedy
     play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, how random
     both policies still were at the end of training (`entropy`, per algorithm), whether `better`
-    learned the task as well as `worse` did (SP), and whether one that fails with itself plays the task
-    with the oracle partner (it can reach a goal pair; the failure is one of coordination)."""
+    learned the task as well as `worse` did (SP), whether one that fails with itself plays the task with
+    the oracle partner (it can reach a goal pair; the failure is one of coordination), and, on tasks that
+    neither trained on (IPPO and FCP on generated ones), that the ordering compares two failures."""
     xp, sp = kinds.get("xp", {}), kinds.get("sp", {})
     b, w = claim.better, claim.worse
     head = (
