@@ -211,6 +211,10 @@ class PlanLine:
     estimate_s: float
     done: float  # share of its updates checkpointed under the work directory
 
+    @property
+    def left_s(self) -> float:
+        return self.estimate_s * (1.0 - self.done)
+
 
 def plan_lines(mode: Mode, work: Path) -> list[PlanLine]:
     """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds) and the
@@ -618,7 +622,7 @@ def _cmd(args: argparse.Namespace) -> int:
     if args.plan:
         lines = plan_lines(mode, work)
         total = sum(p.estimate_s for p in lines)
-        left = sum(p.estimate_s * (1.0 - p.done) for p in lines)
+        left = sum(p.left_s for p in lines)
         print(f"{command}: {len(lines)} training runs into {work}/zoo, report to {out}")
         for p in lines:
             print(f"  {p.run:<36} {p.seeds} seed(s) x {p.env_steps:>13,} steps ({p.updates} updates)"
