@@ -1,5 +1,5 @@
-"""What both reproductions share: a result table reused while what it depends on is unchanged, and how long
-playing it took."""
+"""What both reproductions share: a result table reused while what it depends on is unchanged, how long
+playing it took, and how long a training run took."""
 
 from __future__ import annotations
 
@@ -9,6 +9,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
+
+import numpy as np
 
 from apps.machine import log_line
 from cec.evaluation.results import read_csv, write_csv
@@ -45,3 +47,28 @@ def play_seconds(folder: Path) -> float:
         return float(json.loads((folder / PLAY_TIME_FILE).read_text())["seconds"])
     except (OSError, ValueError, KeyError, TypeError):
         return math.nan
+
+
+def train_seconds(rows: list[dict[str, Any]]) -> float:
+    """The training time a run's metrics rows record, of one core, also for a run an invocation found
+    finished: each update's env steps over its env steps/s, times the run's seeds (the rate is per seed;
+    compilation and checkpointing not included). 0 for no rows."""
+    if not rows:
+        return 0.0
+    seeds = len({r["seed"] for r in rows})
+    ordered = sorted({r["update"]: r for r in rows}.values(), key=lambda r: r["update"])
+    sizes = np.diff([0, *(r["env_steps"] for r in ordered)])
+    return float(
+        sum(
+            seeds * size / max(r.get("env_steps_per_s") or math.inf, 1e-9)
+            for size, r in zip(sizes, ordered, strict=True)
+        )
+    )
+
+
+def read_metrics(run_dir: Path) -> list[dict[str, Any]]:
+    """A run's `metrics.jsonl` rows ([] when it has none yet)."""
+    path = run_dir / "metrics.jsonl"
+    if not path.is_file():
+        return []
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]

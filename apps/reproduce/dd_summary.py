@@ -10,7 +10,6 @@ return at the end, from its runs' metrics. `dd_report.write_report` writes them 
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from apps.reproduce.common import read_metrics, train_seconds
 from apps.reproduce.dd_paper import ABLATIONS, CLAIMS, LEVEL_SETS, ORACLE, ROWS, fixed_level_name
 
 ALPHA = 0.05  # significance level of the ordering tests
@@ -246,7 +246,7 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
     runs: dict[str, list[list[dict[str, Any]]]] = {}
     for metrics in sorted(zoo_dir.glob("runs/*/metrics.jsonl")):
         algo = metrics.parent.name.rsplit("-s", 1)[0]
-        rows = [json.loads(line) for line in metrics.read_text().splitlines() if line.strip()]
+        rows = read_metrics(metrics.parent)
         if algo in ROWS and rows:
             runs.setdefault(algo, []).append(rows)
     out = {}
@@ -260,11 +260,7 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
             run_seeds = {r["seed"] for r in rows}
             seeds |= run_seeds
             ordered = sorted({r["update"]: r for r in rows}.values(), key=lambda r: r["update"])
-            sizes = np.diff([0, *(r["env_steps"] for r in ordered)])
-            seconds += sum(
-                len(run_seeds) * size / max(r.get("env_steps_per_s") or math.inf, 1e-9)
-                for size, r in zip(sizes, ordered, strict=True)
-            )
+            seconds += train_seconds(rows)
             steps = max(steps, int(ordered[-1]["env_steps"]))
             last = {r["update"] for r in ordered[-5:]}
             final += [

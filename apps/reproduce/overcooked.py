@@ -47,6 +47,7 @@ import numpy as np
 import yaml
 
 from apps.machine import duration, log_line, machine_info
+from apps.reproduce.common import play_seconds, read_metrics, train_seconds
 from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
 from cec.config import ConfigError
@@ -427,10 +428,12 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[PlanLine], command: str, ran_on: dict[str, Any], commit: str, skipped: Sequence[Any] = (),
+    times: dict[str, float] | None = None,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
-    (proxies that could not play with the agents)."""
+    (proxies that could not play with the agents); `times`: the recorded seconds of each training run (by
+    run name) and of the cross-play (`"cross-play"`, NaN if not recorded), whichever invocation did them."""
 
     paper = paper_values()
     tests = comparisons(summary)
@@ -443,6 +446,7 @@ def write_report(
         "",
         f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
         "",
+        *_time_lines(times or {}),
         f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
         "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
         "its algorithm; SP: with itself; cook: with the scripted cook), ± the standard error over seeds, n = "
@@ -480,8 +484,12 @@ def write_report(
                 f"{'yes' if t['significant'] else 'no'} |"
             )
         lines.append("")
-    lines += ["## Training", "", "| run | seeds | env steps per seed | updates |", "|---|---|---|---|"]
-    lines += [f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} |" for p in plan]
+    lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time (one core) |",
+              "|---|---|---|---|---|"]  # fmt: skip
+    recorded = {run: duration(t) for run, t in (times or {}).items() if math.isfinite(t) and t > 0}
+    lines += [
+        f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} | {recorded.get(p.run, '—')} |" for p in plan
+    ]
     lines.append("")
     for title, rel in figures.items():
         lines += [f"![{title}]({rel})", ""]
@@ -510,6 +518,20 @@ def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped:
     reasons = sorted({s.reason for s in skipped if s.algorithm == HUMAN_PROXY})
     why = f"they could not play with the agents: {'; '.join(reasons)}" if reasons else "none in the table"
     return [f"With human proxies: not played ({why}).", ""]
+
+
+def _time_lines(times: dict[str, float]) -> list[str]:
+    """The recorded time of the work behind the report, reused work included (empty when none is known)."""
+    if not times:
+        return []
+    train = sum(t for k, t in times.items() if k != "cross-play" and math.isfinite(t))
+    played = times.get("cross-play", math.nan)
+    play = duration(played) if math.isfinite(played) else "not recorded (played before play times were kept)"
+    return [
+        f"Recorded times of the work behind these numbers, whichever invocation did it: training "
+        f"{duration(train)} of one core (per run in the Training section); cross-play {play}.",
+        "",
+    ]
 
 
 def _machine_text(m: dict[str, Any]) -> str:
@@ -589,10 +611,12 @@ def reproduce_overcooked(
         ran_on = {"machine": machine_info(), "commit": commit}
         (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
     summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
+    times = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
+    times["cross-play"] = play_seconds(work)
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
-        skipped=table.skipped,
+        skipped=table.skipped, times=times,
     )  # fmt: skip
     _log(log, f"report: {report}")
     return report

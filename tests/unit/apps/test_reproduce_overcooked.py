@@ -6,6 +6,7 @@ import dataclasses
 import io
 import json
 import math
+import re
 import shutil
 from pathlib import Path
 
@@ -111,6 +112,10 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
                    "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "per-seed scores",
                    "| with human proxies |", "The paper's human study"):  # fmt: skip
         assert needle in text, needle
+    # the recorded time of each training run and of the cross-play, kept for a report that reuses them
+    assert "Recorded times of the work behind these numbers" in text and "not recorded" not in text
+    row = re.search(r"\| cec-s200 \| 2 \| 256 \| 2 \| [0-9.]+ min \|", text)
+    assert row, text
     summary = json.loads((out / "summary.json").read_text())
     cec = summary["summary"]["heldout"]["cec"]
     assert cec["seeds"] == [200, 201] and len(cec["xp"]) == 2 and len(cec["cook"]) == 2
@@ -138,6 +143,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     )  # fmt: skip
     assert again is not None and again.read_text().count("| CEC |") == 2
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
+    assert row.group(0) in again.read_text()  # its metrics kept the recorded time
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
     with pytest.raises(ConfigError, match="results.csv"):
         ro.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
