@@ -3,6 +3,8 @@
 `write_report` writes `report.md`, `summary.json` and one `bar_plot` per variant from the scores
 `dd_summary` computed, beside the paper's numbers (`dd_paper`), with the reasons it gives where a number
 differs from the paper's or one of the paper's orderings fails (`dd_reasons`).
+
+Size: one report's sections in the order they appear, each with the sentences that say how to read it.
 """
 
 from __future__ import annotations
@@ -131,6 +133,11 @@ def _recorded_times(meta: dict[str, Any]) -> str:
         f"{per_variant(train)} of one core (per algorithm in the Training section)"
     )
     return text + (f"; cross-play {per_variant(played)}.\n" if played else ".\n")
+
+
+def _take_off(positive_at: Mapping[str, int | None]) -> str:
+    """`200: 1.2e6, 201: never`: where each seed's training return first turned positive."""
+    return ", ".join(f"{s}: {'never' if at is None else f'{at:.1e}'}" for s, at in positive_at.items()) or "—"
 
 
 def write_report(
@@ -325,9 +332,9 @@ def write_report(
         )
         md.append(
             "| variant | algorithm | seeds | env steps per seed | training time | return at the end | "
-            "entropy at the end |"
+            "entropy at the end | first positive return (seed: env steps) |"
         )
-        md.append("|---|---|---|---|---|---|---|")
+        md.append("|---|---|---|---|---|---|---|---|")
         for variant, per in meta["training"].items():
             for algo in ROWS:
                 t = per.get(algo)
@@ -335,13 +342,15 @@ def write_report(
                     md.append(
                         f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {t['seeds']} | {t['env_steps']:,} | "
                         f"{t['seconds'] / 60:.1f} min | {t['final_return']:.3f} | "
-                        f"{t.get('final_entropy', math.nan):.2f} |"
+                        f"{t.get('final_entropy', math.nan):.2f} | {_take_off(t.get('positive_at', {}))} |"
                     )
         md.append("")
         md.append(
             "Entropy in nats (log 5 = 1.61: uniform over the five actions). A seed with high entropy samples "
             "often off its convention, and a partner that sees it re-plans: sampled XP then hides a "
-            "mismatch that greedy XP shows.\n"
+            "mismatch that greedy XP shows. The last column: the env steps of each seed's first update with "
+            "a positive training return (`never` within its budget); the seeds of one algorithm take off at "
+            "very different steps.\n"
         )
         for variant, name in meta.get("curves", {}).items():
             md.append(f"![{VARIANT_TITLES[variant]}: learning curves]({name})\n")

@@ -229,6 +229,8 @@ class TrainingStats:
             the seeds reached a positive reward (the paper's criterion for its no-LSTM ablation).
         best_by_seed: each seed's highest normalised training return of any update (keys: the seeds, as
             text, as JSON keeps them): one seed may reach a positive reward where the mean does not.
+        positive_at: each seed's env steps at its first update with a positive normalised training return
+            (None: never), the step at which it took off; seeds take off at very different steps.
     """
 
     seeds: int
@@ -238,6 +240,7 @@ class TrainingStats:
     final_entropy: float = math.nan
     best_return: float = math.nan
     best_by_seed: dict[str, float] = field(default_factory=dict)
+    positive_at: dict[str, int | None] = field(default_factory=dict)
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
@@ -256,6 +259,7 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
         entropy: list[float] = []
         by_update: dict[int, list[float]] = {}
         by_seed: dict[str, float] = {}
+        positive_at: dict[str, int | None] = {}
         for rows in per_run:
             run_seeds = {r["seed"] for r in rows}
             seeds |= run_seeds
@@ -267,11 +271,15 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
                 r["normalised_return"] for r in rows if r["update"] in last and "normalised_return" in r
             ]
             entropy += [r["entropy"] for r in rows if r["update"] in last and r.get("entropy") is not None]
-            for r in rows:
-                if "normalised_return" in r:
-                    by_update.setdefault(r["update"], []).append(r["normalised_return"])
-                    seed = str(r["seed"])
-                    by_seed[seed] = max(by_seed.get(seed, -math.inf), float(r["normalised_return"]))
+            latest = {(r["seed"], r["update"]): r for r in rows if "normalised_return" in r}  # resumes repeat
+            for r in sorted(latest.values(), key=lambda r: r["update"]):
+                seed, ret = str(r["seed"]), float(r["normalised_return"])
+                by_update.setdefault(r["update"], []).append(ret)
+                by_seed[seed] = max(by_seed.get(seed, -math.inf), ret)
+                if ret > 0:
+                    positive_at.setdefault(seed, int(r["env_steps"]))
+            for seed in map(str, run_seeds):
+                positive_at.setdefault(seed, None)
         out[algo] = TrainingStats(
             len(seeds),
             steps,
@@ -280,5 +288,6 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
             float(np.mean(entropy)) if entropy else math.nan,
             max((float(np.mean(v)) for v in by_update.values()), default=math.nan),
             dict(sorted(by_seed.items(), key=lambda kv: int(kv[0]))),
+            dict(sorted(positive_at.items(), key=lambda kv: int(kv[0]))),
         )
     return out

@@ -208,6 +208,7 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
         g == "no goal" or g.startswith(("green (", "pink (")) for v in seat0.values() for g in v.values()
     )
     assert "## Conventions" in text and "entropy at the end" in text
+    assert re.search(r"\| 200: (never|[0-9.]+e\+0\d), 201: (never|[0-9.]+e\+0\d), 202: ", text)  # take-offs
 
     # a second run resumes: nothing is trained or played again, and the report is the same
     log2 = io.StringIO()
@@ -406,3 +407,4 @@ def test_training_stats_pool_the_runs_of_one_algorithm(tmp_path: Path) -> None:
     assert (stats.seeds, stats.env_steps, stats.seconds) == (2, 2000, 40.0)  # 2 runs x 2000 steps / 100 per s
     assert stats.final_return == pytest.approx(0.35) and stats.best_return == pytest.approx(0.4)
     assert stats.best_by_seed == pytest.approx({"100": 0.0, "102": 0.8})  # each seed's own best update
+    assert stats.positive_at == {"100": None, "102": 1000}  # 0.0 is not a positive return
