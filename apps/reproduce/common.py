@@ -50,9 +50,9 @@ def play_seconds(folder: Path) -> float:
 
 
 def train_seconds(rows: list[dict[str, Any]]) -> float:
-    """The training time a run's metrics rows record, of one core, also for a run an invocation found
-    finished: each update's env steps over its env steps/s, times the run's seeds (the rate is per seed;
-    compilation and checkpointing not included). 0 for no rows."""
+    """The training time a run's metrics rows record, also for a run an invocation found finished: each
+    update's env steps per seed times the run's seeds, over the update's env steps/s (of all its seeds);
+    compilation and checkpointing not included. 0 for no rows."""
     if not rows:
         return 0.0
     seeds = len({r["seed"] for r in rows})

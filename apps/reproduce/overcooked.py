@@ -484,7 +484,7 @@ def write_report(
                 f"{'yes' if t['significant'] else 'no'} |"
             )
         lines.append("")
-    lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time (one core) |",
+    lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
               "|---|---|---|---|---|"]  # fmt: skip
     recorded = {run: duration(t) for run, t in (times or {}).items() if math.isfinite(t) and t > 0}
     lines += [
@@ -529,7 +529,8 @@ def _time_lines(times: dict[str, float]) -> list[str]:
     play = duration(played) if math.isfinite(played) else "not recorded (played before play times were kept)"
     return [
         f"Recorded times of the work behind these numbers, whichever invocation did it: training "
-        f"{duration(train)} of one core (per run in the Training section); cross-play {play}.",
+        f"{duration(train)} on the machine that trained (per run in the Training section; runs that share "
+        f"it run side by side, so this is not its wall time); cross-play {play}.",
         "",
     ]
 
