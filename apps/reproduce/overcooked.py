@@ -428,12 +428,12 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[PlanLine], command: str, ran_on: dict[str, Any], commit: str, skipped: Sequence[Any] = (),
-    times: dict[str, float] | None = None,
+    train_s: dict[str, float] | None = None, played_s: float = math.nan,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
-    (proxies that could not play with the agents); `times`: the recorded seconds of each training run (by
-    run name) and of the cross-play (`"cross-play"`, NaN if not recorded), whichever invocation did them."""
+    (proxies that could not play with the agents); `train_s`: the recorded seconds of each training run (by
+    run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them."""
 
     paper = paper_values()
     tests = comparisons(summary)
@@ -446,7 +446,7 @@ def write_report(
         "",
         f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
         "",
-        *_time_lines(times or {}),
+        *_time_lines(train_s or {}, played_s),
         f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
         "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
         "its algorithm; SP: with itself; cook: with the scripted cook), ± the standard error over seeds, n = "
@@ -486,7 +486,7 @@ def write_report(
         lines.append("")
     lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
               "|---|---|---|---|---|"]  # fmt: skip
-    recorded = {run: duration(t) for run, t in (times or {}).items() if math.isfinite(t) and t > 0}
+    recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
     lines += [
         f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} | {recorded.get(p.run, '—')} |" for p in plan
     ]
@@ -520,13 +520,13 @@ def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped:
     return [f"With human proxies: not played ({why}).", ""]
 
 
-def _time_lines(times: dict[str, float]) -> list[str]:
+def _time_lines(train_s: dict[str, float], played_s: float) -> list[str]:
     """The recorded time of the work behind the report, reused work included (empty when none is known)."""
-    if not times:
+    if not train_s:
         return []
-    train = sum(t for k, t in times.items() if k != "cross-play" and math.isfinite(t))
-    played = times.get("cross-play", math.nan)
-    play = duration(played) if math.isfinite(played) else "not recorded (played before play times were kept)"
+    train = sum(t for t in train_s.values() if math.isfinite(t))
+    unknown = "not recorded (played before play times were kept)"
+    play = duration(played_s) if math.isfinite(played_s) else unknown
     return [
         f"Recorded times of the work behind these numbers, whichever invocation did it: training "
         f"{duration(train)} on the machine that trained (per run in the Training section; runs that share "
@@ -612,12 +612,11 @@ def reproduce_overcooked(
         ran_on = {"machine": machine_info(), "commit": commit}
         (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
     summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
-    times = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
-    times["cross-play"] = play_seconds(work)
+    train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
-        skipped=table.skipped, times=times,
+        skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
     )  # fmt: skip
     _log(log, f"report: {report}")
     return report
