@@ -80,7 +80,7 @@ def ordering_reason(
             f"neither {b.upper()} nor {w.upper()} trained on these tasks (both train on the fixed task), so "
             "the ordering compares two failures"
         )
-    if sp[w].mean - xp[w].mean <= CONVENTION_GAP:
+    elif sp[w].mean - xp[w].mean <= CONVENTION_GAP:  # two failures coordinate equally badly: beside the point
         parts.append(
             f"{w.upper()}'s seeds coordinate with each other about as well as with themselves, so the "
             "failure with unseen partners that the paper's ordering rests on did not occur"

@@ -364,6 +364,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert "6 of 8 orderings hold, 6 of them significantly." in text
     po = next(ln for ln in text.splitlines() if ln.startswith("- Partially observable (3x3 view), held-out"))
     assert "neither FCP nor IPPO trained on these tasks" in po and "oracle" not in po
+    assert "about as well as with themselves" not in po  # two failures: beside the point there
     reason = next(
         ln for ln in text.splitlines() if ln.startswith("- Fully observable, fixed task, FCP > IPPO")
     )
