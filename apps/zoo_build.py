@@ -86,12 +86,14 @@ class PlannedRun:
 
 @dataclass(frozen=True)
 class BuildResult:
-    """What `build_zoo` did: the manifest (None when interrupted), run names trained and skipped."""
+    """What `build_zoo` did: the manifest (None when interrupted, or when it did not wait for the runs
+    other processes train: `left`), run names trained and skipped."""
 
     manifest: Path | None
     trained: tuple[str, ...]
     skipped: tuple[str, ...]
     interrupted: bool
+    left: tuple[str, ...] = ()
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -291,6 +293,7 @@ def build_zoo(
     progress: bool = True,
     log: TextIO = sys.stderr,
     poll_s: float = 30.0,
+    wait: bool = True,
 ) -> BuildResult:
     """Trains every run of the spec that has not finished (resuming interrupted ones), in spec order,
     then writes `out_dir/zoo.yaml`. Stops early (no manifest) when a run is interrupted (SIGINT/SIGTERM).
@@ -298,7 +301,9 @@ def build_zoo(
     Several processes may build the same zoo at once (one per core, or per machine on a shared disk): a
     run another process trains (it holds the run's lock) is passed over, as is a run whose population or
     `init_from` run is not finished yet, and both are come back to; with nothing left to start, the
-    process waits (`poll_s`) for the others. Each process writes the manifest once every run is done."""
+    process waits (`poll_s`) for the others, or, with `wait=False`, returns without a manifest, naming the
+    runs left to them (a process with other zoos to build goes on with those). Each process writes the
+    manifest once every run is done."""
     from cec import checkpoints
     from cec.training.run import train
 
@@ -346,6 +351,9 @@ def build_zoo(
                 )
                 return BuildResult(None, tuple(trained), tuple(skipped), True)
         if deferred and deferred == pending:  # nothing startable: the others are training what is left
+            if not wait:
+                left = tuple(plan[k].config.run_name for k in deferred)
+                return BuildResult(None, tuple(trained), tuple(skipped), False, left)
             time.sleep(poll_s)
         pending = deferred
     manifest = write_manifest(plan, out_dir)

@@ -38,7 +38,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import yaml
 
@@ -71,6 +71,9 @@ from apps.reproduce.dd_summary import Score as Score
 from apps.reproduce.dd_summary import conventions, summarise, training_stats
 from cec.checkpoints import code_version
 from cec.config import ConfigError
+
+if TYPE_CHECKING:
+    from apps.zoo_build import BuildResult
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -171,25 +174,47 @@ def _log(log: TextIO, msg: str) -> None:
     log_line(log, "reproduce", msg)
 
 
+def _build_variant(
+    mode: Mode, variant: str, work: Path, *, progress: bool, log: TextIO, wait: bool
+) -> BuildResult:
+    """Writes the variant's zoo spec and builds the zoo (resuming, skipping finished runs); returns
+    `build_zoo`'s result. Raises `ConfigError` when the build was interrupted (run the command again)."""
+    from apps.zoo_build import build_zoo
+
+    zoo = work / variant / "zoo"
+    result = build_zoo(_write_spec(mode, variant, work), zoo, progress=progress, log=log, wait=wait)
+    if result.interrupted:
+        raise ConfigError(f"training of {variant} was interrupted; run the same command again to continue")
+    return result
+
+
 def train_variant(
     mode: Mode, variant: str, work: Path, *, progress: bool, log: TextIO
 ) -> tuple[Path, tuple[str, ...]]:
-    """Writes the variant's zoo spec and builds the zoo (resuming, skipping finished runs); returns the
-    manifest and the runs found finished. Raises `ConfigError` when the build was interrupted (run the
-    command again)."""
-    from apps.zoo_build import build_zoo
-
-    result = build_zoo(_write_spec(mode, variant, work), work / variant / "zoo", progress=progress, log=log)
-    if result.interrupted or result.manifest is None:
-        raise ConfigError(f"training of {variant} was interrupted; run the same command again to continue")
+    """Trains the variant's zoo, waiting for runs other processes train; returns the manifest and the runs
+    found finished."""
+    result = _build_variant(mode, variant, work, progress=progress, log=log, wait=True)
+    assert result.manifest is not None  # not interrupted, and it waited for every run
     return result.manifest, result.skipped
 
 
 def train_only(
     mode: Mode, work: Path, variants: Sequence[str], *, progress: bool = True, log: TextIO = sys.stderr
 ) -> dict[str, Path]:
-    """Trains `variants` (step 1 alone, as `--train-only`); returns each one's zoo manifest."""
-    return {v: train_variant(mode, v, work, progress=progress, log=log)[0] for v in variants}
+    """Trains `variants` (step 1 alone, as `--train-only`); returns each one's zoo manifest. A variant whose
+    remaining runs other processes train is passed over until the later variants are done, so processes
+    sharing a reproduction keep their cores busy instead of waiting on each other's runs."""
+    manifests = {}
+    for v in variants:
+        result = _build_variant(mode, v, work, progress=progress, log=log, wait=False)
+        if result.manifest is not None:
+            manifests[v] = result.manifest
+        else:
+            _log(log, f"{v}: {', '.join(result.left)} trained by other processes; back to it at the end")
+    for v in variants:
+        if v not in manifests:  # the rest is done: wait for the others' runs (and train any left over)
+            manifests[v] = train_variant(mode, v, work, progress=progress, log=log)[0]
+    return {v: manifests[v] for v in variants}
 
 
 def _generated_spec(mode: Mode) -> str:

@@ -145,6 +145,31 @@ def test_the_plan_command_prints_every_run_and_the_expected_time(
     assert "unknown variant" in capsys.readouterr().err
 
 
+def test_train_only_goes_on_with_the_next_variant_while_others_train_the_rest(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Two processes share a reproduction: one whose variant's remaining runs the other trains does not
+    wait on them while a later variant has work; it comes back to the first variant at the end."""
+    from apps import zoo_build
+
+    calls = []
+
+    def fake_build(spec, out, *, progress, log, wait):
+        variant = Path(out).parent.name
+        calls.append((variant, wait))
+        if variant == "full_obs" and not wait:  # its CEC run is another process's
+            return zoo_build.BuildResult(None, (), ("ippo-s0",), False, left=("cec-s200",))
+        return zoo_build.BuildResult(Path(out) / "zoo.yaml", ("x",), (), False)
+
+    monkeypatch.setattr(zoo_build, "build_zoo", fake_build)
+    log = io.StringIO()
+    manifests = rp.train_only(rp.FULL, tmp_path, ("full_obs", "partial_obs"), progress=False, log=log)
+    assert calls == [("full_obs", False), ("partial_obs", False), ("full_obs", True)]
+    assert list(manifests) == ["full_obs", "partial_obs"]
+    assert manifests["full_obs"] == tmp_path / "full_obs" / "zoo" / "zoo.yaml"
+    assert "full_obs: cec-s200 trained by other processes; back to it at the end" in log.getvalue()
+
+
 @pytest.mark.slow
 def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_path: Path) -> None:
     # training alone (`--train-only`, as several processes or sessions share it), then the report reuses it

@@ -140,6 +140,12 @@ def test_builds_side_by_side_share_the_runs(zoo, tmp_path, monkeypatch):
         holder.release()
 
     monkeypatch.setattr(training_run, "train", fake_train)
+    # not waiting (a process with other zoos to build): it names the runs left to the others and returns
+    monkeypatch.setattr(zoo_build.time, "sleep", lambda s: pytest.fail("slept without wait"))
+    early = build_zoo(spec, out, log=io.StringIO(), wait=False)
+    assert early.manifest is None and not early.interrupted and early.left == (ippo.name, fcp.name)
+    assert trained == [] and not (out / "zoo.yaml").exists()
+
     monkeypatch.setattr(zoo_build.time, "sleep", other_process_finishes)
     log = io.StringIO()
     result = build_zoo(spec, out, log=log, poll_s=7)
