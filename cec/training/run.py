@@ -43,7 +43,9 @@ def trains_as(written: dict, config: TrainConfig) -> bool:
     (`run_dir`, `name`), where its series go (`tracking`), on how many devices it runs (`devices`: the
     same updates to float rounding) and how often it saves (`checkpoint.every_updates`, `keep_last`; its
     milestones count: FCP populations read them) are left out: a moved or copied run is the same run, and
-    so is one that was written before `tracking` or `devices` existed or that saves more often now."""
+    so is one that was written before `tracking` or `devices` existed or that saves more often now. Runs it
+    reads (`partner.population`, `init_from`) that lie under its `run_dir` count by their place there: a
+    zoo moved as a whole is the same zoo."""
     where = ("run_dir", "name", "tracking", "devices")
     cadence = ("every_updates", "keep_last")
 
@@ -51,9 +53,23 @@ def trains_as(written: dict, config: TrainConfig) -> bool:
         kept = {k: v for k, v in cfg.items() if k not in where}
         if isinstance(kept.get("checkpoint"), dict):
             kept["checkpoint"] = {k: v for k, v in kept["checkpoint"].items() if k not in cadence}
+        root = cfg.get("run_dir", "")
+        if isinstance(kept.get("partner"), dict):
+            population = [dict(e, run=_under(e["run"], root)) for e in kept["partner"].get("population", [])]
+            kept["partner"] = dict(kept["partner"], population=population)
+        if kept.get("init_from"):
+            kept["init_from"] = _under(kept["init_from"], root)
         return kept
 
     return what(written) == what(config_dict(config))
+
+
+def _under(path: str, root: str) -> str:
+    """`path` relative to `root` when it lies under it (the form a moved run directory keeps), else as is."""
+    try:
+        return str(Path(path).relative_to(root)) if root else path
+    except ValueError:
+        return path
 
 
 def config_dict(config: TrainConfig) -> dict:

@@ -157,7 +157,9 @@ def test_builds_side_by_side_share_the_runs(zoo, tmp_path, monkeypatch):
 
 
 def test_second_build_skips_finished_runs_and_resumes_interrupted_ones(zoo, tmp_path, monkeypatch):
-    spec, out, _ = zoo
+    spec, built, _ = zoo
+    out = tmp_path / "zoo"  # a copy: the other tests read the built zoo
+    shutil.copytree(built, out)
     log = io.StringIO()
     result = build_zoo(spec, out, log=log)
     assert result.trained == () and len(result.skipped) == 2 and "finished, skipping" in log.getvalue()
@@ -232,6 +234,17 @@ def test_plan_checks_names_and_order(tmp_path):
         ("ippo-dual_destination-fixed-s0", (0,), ("ippo-dual_destination-fixed-s0",), "ippo"),
     ]
     assert {r.config.algorithm for r in plan} == {"ippo"}
+
+
+def test_a_zoo_moved_as_a_whole_is_found_finished(zoo, tmp_path):
+    # a zoo committed with the repository and checked out elsewhere: its FCP run names its population by
+    # the old absolute path, which is the same run under the zoo's new place
+    spec, out, _ = zoo
+    moved = tmp_path / "elsewhere" / "zoo"
+    shutil.copytree(out, moved)
+    (moved / "zoo.yaml").unlink()
+    result = build_zoo(spec, moved, log=io.StringIO())
+    assert result.trained == () and len(result.skipped) == 2 and result.manifest == moved / "zoo.yaml"
 
 
 def test_a_changed_spec_is_refused_before_training(zoo, tmp_path):
