@@ -268,8 +268,8 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
 
 
 def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
-    """What a variant's results depend on: the evaluation settings and every zoo entry (its checkpoint and
-    the state's SHA-256 that `cec zoo build` pinned)."""
+    """What a variant's results depend on: the evaluation settings, every zoo entry (its checkpoint and
+    the state's SHA-256 that `cec zoo build` pinned) and the oracle partner's code."""
     from cec.agents.zoo import load_zoo
 
     entries = [[e.name, e.seed, str(e.checkpoint), e.sha256] for e in load_zoo(manifest)]
@@ -278,7 +278,18 @@ def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
         "episodes": mode.episodes,
         "generated_levels": mode.generated_levels,
         "zoo": sorted(entries, key=str),
+        "oracle_partner": oracle_partner_digest(),
     }
+
+
+def oracle_partner_digest() -> str:
+    """SHA-256 of the oracle partner's source (`cec.envs.dual_destination.partner`): what it played is not
+    reused once it changes."""
+    import hashlib
+
+    from cec.envs.dual_destination import partner
+
+    return hashlib.sha256(Path(partner.__file__).read_bytes()).hexdigest()
 
 
 def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> Any:

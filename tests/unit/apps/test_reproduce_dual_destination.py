@@ -171,7 +171,9 @@ def test_train_only_goes_on_with_the_next_variant_while_others_train_the_rest(
 
 
 @pytest.mark.slow
-def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_path: Path) -> None:
+def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # training alone (`--train-only`, as several processes or sessions share it), then the report reuses it
     manifests = rp.train_only(TINY, tmp_path / "work", ("full_obs",), progress=False, log=io.StringIO())
     assert manifests["full_obs"].is_file() and not (tmp_path / "out").exists()
@@ -258,6 +260,14 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(tmp_pa
     table = read_csv(tmp_path / "work" / "full_obs" / "results.csv")
     sp = (table.policy_a == rp.ORACLE) & (table.policy_b == rp.ORACLE)
     assert len(table.returns[sp]) == 3 * 1 + 1 * 2  # now 3 episodes on the fixed task
+
+    # so is it once the oracle partner's code changed
+    log4 = io.StringIO()
+    monkeypatch.setattr(rp, "oracle_partner_digest", lambda: "another oracle")
+    rp.reproduce_dual_destination(
+        more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log4
+    )
+    assert "cross-play results found" not in log4.getvalue()
 
 
 def _score(mean: float, n_seeds: int = 4, spread: float = 0.01, seeds: tuple[int, ...] = ()) -> rp.Score:
