@@ -17,8 +17,6 @@ What it remembers (`PartnerMemory`, packed into the float vector):
     intent     the cell it tried to enter on the previous step
     contested  whether it has refused to give up its own target to the partner before
     blocks     how many steps in a row its move was cancelled
-    flips      how often it has changed its belief
-    still      how many steps in a row it has seen the partner stand on one cell
 
 Each step:
 
@@ -33,12 +31,6 @@ Each step:
    Where the partner heads for this seat's own target, the nearer of the two keeps it (ties: the agent on
    the lower-numbered cell); but a partner that keeps coming after that gets it, so a stubborn partner is
    always followed.
-   **Leading** (breaking a chase): a partner that adapts too can switch whenever this seat switches, and
-   the two then swap goals forever (two oracle partners that start from different plans did, on the
-   multi-task fixed task). After `FLIPS_TO_LEAD` changes of belief the seat on the lower-numbered cell
-   leads, and after twice as many either seat does: it holds its belief, reading nothing from the
-   partner's moves, until the partner has stood `LEADER_FOLLOWS` steps on one goal cell (a partner that
-   settles there instead of following is then followed).
 2. **Default belief** (before the partner has revealed anything): the joint plan of the oracle. Over every
    known goal pair and both assignments of the two agents to its cells, the joint movement rule below is
    simulated from the current cells and the assignment that reaches a goal pair in the fewest steps is
@@ -69,9 +61,7 @@ from cec.envs.dual_destination.env import OUTSIDE_WINDOW, Action, move
 from cec.envs.dual_destination.level import DD_SIZE
 
 NUM_CELLS = DD_SIZE * DD_SIZE
-MEMORY_SIZE = 40  # floats: NUM_CELLS cells + 10 scalars, zero padded
-FLIPS_TO_LEAD = 2  # changes of belief after which the seat on the lower-numbered cell leads (module doc)
-LEADER_FOLLOWS = 3  # steps a partner stands on one goal cell before a leading seat follows it
+MEMORY_SIZE = 40  # floats: NUM_CELLS cells + 8 scalars, zero padded
 UNKNOWN, EMPTY, GREEN, PINK = 0, 1, 2, 3  # codes of `PartnerMemory.known`
 NONE = -1  # no cell
 _SIM_STEPS = 2 * DD_SIZE + 6  # horizon of the plan simulation: longer than any joint plan on a 5x5 grid
@@ -92,8 +82,6 @@ class PartnerMemory(NamedTuple):
         intent: int32[] the cell this seat tried to enter on the previous step (its own cell: it stayed).
         contested: int32[] 1 once this seat has kept its target although the partner headed for it.
         blocks: int32[] consecutive steps on which this seat's move was cancelled.
-        flips: int32[] changes of `belief` from one goal cell to another so far.
-        still: int32[] consecutive steps on which the partner was seen on one cell.
     """
 
     known: jax.Array
@@ -105,15 +93,12 @@ class PartnerMemory(NamedTuple):
     intent: jax.Array
     contested: jax.Array
     blocks: jax.Array
-    flips: jax.Array
-    still: jax.Array
 
 
 def pack_memory(m: PartnerMemory) -> jax.Array:
     """float32[MEMORY_SIZE]; cells are stored plus one, so an all-zero vector is a fresh episode's memory."""
     cells = jnp.stack([m.last, m.prev, m.belief, m.predicted, m.mine, m.intent]) + 1
-    counts = jnp.stack([m.contested, m.blocks, m.flips, m.still])
-    flat = jnp.concatenate([m.known, cells, counts]).astype(jnp.float32)
+    flat = jnp.concatenate([m.known, cells, m.contested[None], m.blocks[None]]).astype(jnp.float32)
     return jnp.pad(flat, (0, MEMORY_SIZE - flat.shape[0]))
 
 
@@ -121,8 +106,9 @@ def unpack_memory(vec: jax.Array) -> PartnerMemory:
     """The inverse of `pack_memory` (float32[MEMORY_SIZE] -> `PartnerMemory`)."""
     v = jnp.round(vec).astype(jnp.int32)
     c = v[NUM_CELLS : NUM_CELLS + 6] - 1
-    n = v[NUM_CELLS + 6 : NUM_CELLS + 10]
-    return PartnerMemory(v[:NUM_CELLS], c[0], c[1], c[2], c[3], c[4], c[5], n[0], n[1], n[2], n[3])
+    return PartnerMemory(
+        v[:NUM_CELLS], c[0], c[1], c[2], c[3], c[4], c[5], v[NUM_CELLS + 6], v[NUM_CELLS + 7]
+    )
 
 
 def initial_memory() -> jax.Array:
@@ -298,11 +284,7 @@ def oracle_partner_step(memory: jax.Array, obs: jax.Array) -> tuple[jax.Array, j
     where_partner = jnp.where(seen, now, jnp.where(felt, beyond_rc[0] * DD_SIZE + beyond_rc[1], NONE))
     present = where_partner != NONE
 
-    # 1. EVIDENCE: the partner did something the belief did not predict. A leading seat reads only a partner
-    # that stays on a goal cell, and that only after LEADER_FOLLOWS steps.
-    last_seen = jnp.where(present, where_partner, m.last)
-    leads = (m.flips >= 2 * FLIPS_TO_LEAD) | ((m.flips >= FLIPS_TO_LEAD) & (me < last_seen))
-    still = jnp.where(seen & (now == m.prev), m.still + 1, 0)
+    # 1. EVIDENCE: the partner did something the belief did not predict.
     belief = m.belief
     surprise = seen & ((m.predicted == NONE) | (now != m.predicted))
     # (a) it moved: towards the goal cells it came closer to (not the cell this seat stands on)
@@ -319,7 +301,7 @@ def oracle_partner_step(memory: jax.Array, obs: jax.Array) -> tuple[jax.Array, j
     into_me = (pushed == me) & (known[me] >= GREEN)
     evidence_b = (pushed != NONE) & jnp.any(toward) & (~jnp.any(toward & (goals == belief)) | into_me)
     revised = jnp.where(evidence_b, _nearest(pushed, goals, toward), _nearest(where_partner, goals, closer))
-    evidence = (evidence_a | evidence_b) & ~leads
+    evidence = evidence_a | evidence_b
     # heading for this seat's own target: who is nearer keeps it (ties: the lower-numbered cell), but a
     # partner that keeps coming after that gets it
     mine_before = _other_cell(m.belief, pairs, pair_known)
@@ -332,11 +314,10 @@ def oracle_partner_step(memory: jax.Array, obs: jax.Array) -> tuple[jax.Array, j
     # (c) it stands on a goal cell (stayed there, or first seen there)
     on_goal = (known[jnp.maximum(now, 0)] >= GREEN) & (now != me)
     settled = surprise & on_goal & ((m.prev == now) | ((m.prev == NONE) & (belief == NONE)))
-    belief = jnp.where(settled & (~leads | (still >= LEADER_FOLLOWS)), now, belief)
-    flips = m.flips + ((m.belief != NONE) & (belief != m.belief)).astype(jnp.int32)
+    belief = jnp.where(settled, now, belief)
 
     # 2. DEFAULT: the oracle's joint plan, once a pair and the partner are known.
-    partner = last_seen
+    partner = jnp.where(present, where_partner, m.last)
     plan = _default_belief(me, partner, pairs, pair_known)
     belief = jnp.where((belief == NONE) & (partner != NONE), plan, belief)
 
@@ -369,16 +350,6 @@ def oracle_partner_step(memory: jax.Array, obs: jax.Array) -> tuple[jax.Array, j
     predicted = jnp.where(seen & (predicted == _next(me, action)), now, predicted)
 
     new = PartnerMemory(
-        known,
-        partner,
-        now,
-        belief,
-        predicted.astype(jnp.int32),
-        me,
-        _next(me, action),
-        contested,
-        blocks,
-        flips,
-        still,
+        known, partner, now, belief, predicted.astype(jnp.int32), me, _next(me, action), contested, blocks
     )
     return pack_memory(new), action
