@@ -319,6 +319,7 @@ def reproduce_dual_destination(
 ) -> Path:
     """Trains, evaluates and reports (see the module docstring); returns the report's path."""
     t_start = time.perf_counter()
+    commit = code_version(short=True)  # before this command writes anything (a work folder may be tracked)
     load_start = machine_info(load_average=True)["load_average_1_5_15min"]
     stages: dict[str, float] = {}
     summaries = {}
@@ -350,7 +351,7 @@ def reproduce_dual_destination(
     meta = {
         "command": command or command_of(mode),
         "date": datetime.date.today().isoformat(),
-        "git": code_version(short=True),
+        "git": commit,
         "machine": machine,
         "wall_s": time.perf_counter() - t_start,
         "train_s": train_s,
