@@ -2,7 +2,7 @@
 that start from different plans chase each other instead of meeting (docs/dual_destination.md, "Known
 limitation").
 
-    python benchmarks/dd_oracle_chase.py              # 512 generated multi-task tasks, ~1 minute on CPU
+    python benchmarks/dd_oracle_chase.py              # 512 generated multi-task tasks, ~30 s on a CPU core
     python benchmarks/dd_oracle_chase.py --tasks 2048
 
 Both seats play `oracle_partner_step`; seat 1 reads the pink goals as green (goal channels swapped), so its
