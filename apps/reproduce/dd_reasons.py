@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from typing import Any
 
 from apps.reproduce.dd_paper import LEVEL_SET_TITLES, VARIANT_TITLES
 from apps.reproduce.dd_summary import LEARNED, ClaimResult, Score
@@ -116,3 +117,51 @@ def ordering_reason(
     if sp[b].mean < sp[w].mean - TOLERANCE:
         parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
     return head + "; ".join(parts) + "."
+
+
+#: A training return that rises slower than this per 1e6 env steps at the end has levelled off.
+LEVELLED = 0.01
+
+
+def cec_gap_reason(xp: Score, paper: float, sp: Score | None, training: dict[str, Any]) -> str:
+    """Why fully observable CEC's XP is not within TOLERANCE of the paper's, and what more training would
+    buy: whether the gap is between seeds (SP well above XP: conventions) or in skill (SP below the
+    paper's value), and, from the end of the learning curve (`training`: its `TrainingStats` as a dict,
+    empty when not known), whether the training return still rose and how many more env steps a
+    straight-line extrapolation needs."""
+    parts = []
+    if sp is not None:
+        gap = sp.mean - xp.mean
+        parts.append(
+            f"its seeds score {sp.mean:.3f} with themselves (SP)"
+            + (
+                f", {gap:.3f} above their XP: that much of the gap is between seeds, whose conventions "
+                "differ (the Conventions section), not in how well each plays"
+                if gap > CONVENTION_GAP
+                else ""
+            )
+        )
+    slope = training.get("late_slope", math.nan)
+    if not math.isnan(slope):
+        ended = (
+            f"its training return ended at {training['final_return']:.3f}, changing {slope:+.3f} per 1e6 "
+            "env steps over the last quarter of training (the learning curves in the Training section)"
+        )
+        short = math.nan if sp is None else paper - sp.mean
+        if slope < LEVELLED:
+            parts.append(
+                ended
+                + ": it levelled off, so more steps of the same training are not predicted to close the gap"
+            )
+        elif short > TOLERANCE:
+            more = short / slope * 1e6
+            hours = more * training["seconds"] / max(training["env_steps"], 1) / 3600
+            parts.append(
+                ended
+                + f": at that rate (a straight-line extrapolation) SP would gain the missing {short:.3f} "
+                f"in about {more:.1e} more env steps per seed, {hours:.1f} h of one core for all its seeds "
+                "at this run's speed"
+            )
+        else:
+            parts.append(ended)
+    return ("; ".join(parts) + ".") if parts else "No self-play or training record to say why."

@@ -31,7 +31,7 @@ from apps.reproduce.dd_paper import (
     PaperNumber,
     paper_number,
 )
-from apps.reproduce.dd_reasons import TOLERANCE, difference_reason, ordering_reason
+from apps.reproduce.dd_reasons import TOLERANCE, cec_gap_reason, difference_reason, ordering_reason
 from apps.reproduce.dd_summary import ALPHA, LEARNED, Score, check_ablations, check_claims
 
 if TYPE_CHECKING:
@@ -280,10 +280,13 @@ def write_report(
     for ls, s, p in cec_full:
         if s is not None and p is not None and p.mean is not None:
             ok = abs(s.mean - p.mean) <= TOLERANCE
+            sp = summaries["full_obs"][ls].get("sp", {}).get("cec")
+            why = cec_gap_reason(s, p.mean, sp, training.get("full_obs", {}).get("cec", {}))
             lines.append(
                 f"- CEC, fully observable, {LEVEL_SET_TITLES[ls]}: {s.mean:.3f} vs the paper's {p.mean:.3f}: "
                 + ("within" if ok else f"**not within** (by {abs(s.mean - p.mean):.3f})")
                 + f" {TOLERANCE}."
+                + ("" if ok else f" Why: {why}")
             )
     if lines:
         md.append("## CEC, fully observable, against the paper's values\n")

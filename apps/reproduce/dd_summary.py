@@ -231,6 +231,9 @@ class TrainingStats:
             text, as JSON keeps them): one seed may reach a positive reward where the mean does not.
         positive_at: each seed's env steps at its first update with a positive normalised training return
             (None: never), the step at which it took off; seeds take off at very different steps.
+        late_slope: how fast the normalised training return still rose at the end: per seed, the slope of
+            a straight line through its last quarter of updates, per 1e6 env steps; the mean over seeds.
+            Near 0: the return levelled off, more steps of the same training will not raise it.
     """
 
     seeds: int
@@ -241,6 +244,17 @@ class TrainingStats:
     best_return: float = math.nan
     best_by_seed: dict[str, float] = field(default_factory=dict)
     positive_at: dict[str, int | None] = field(default_factory=dict)
+    late_slope: float = math.nan
+
+
+def return_slope(curve: list[tuple[int, float]], fraction: float = 0.25) -> float:
+    """The slope, per 1e6 env steps, of a least-squares line through the last `fraction` of a seed's
+    (env steps, normalised return) points, in update order; NaN with fewer than 3 points there."""
+    tail = curve[-max(3, round(len(curve) * fraction)) :]
+    steps = np.array([x for x, _ in tail], dtype=float)
+    if len(tail) < 3 or np.ptp(steps) == 0:
+        return math.nan
+    return float(np.polyfit(steps / 1e6, [y for _, y in tail], 1)[0])
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
@@ -260,6 +274,7 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
         by_update: dict[int, list[float]] = {}
         by_seed: dict[str, float] = {}
         positive_at: dict[str, int | None] = {}
+        slopes: list[float] = []
         for rows in per_run:
             run_seeds = {r["seed"] for r in rows}
             seeds |= run_seeds
@@ -272,12 +287,15 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
             ]
             entropy += [r["entropy"] for r in rows if r["update"] in last and r.get("entropy") is not None]
             latest = {(r["seed"], r["update"]): r for r in rows if "normalised_return" in r}  # resumes repeat
+            curves: dict[str, list[tuple[int, float]]] = {}
             for r in sorted(latest.values(), key=lambda r: r["update"]):
                 seed, ret = str(r["seed"]), float(r["normalised_return"])
                 by_update.setdefault(r["update"], []).append(ret)
                 by_seed[seed] = max(by_seed.get(seed, -math.inf), ret)
+                curves.setdefault(seed, []).append((int(r["env_steps"]), ret))
                 if ret > 0:
                     positive_at.setdefault(seed, int(r["env_steps"]))
+            slopes += [s for s in map(return_slope, curves.values()) if not math.isnan(s)]
             for seed in map(str, run_seeds):
                 positive_at.setdefault(seed, None)
         out[algo] = TrainingStats(
@@ -289,5 +307,6 @@ def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
             max((float(np.mean(v)) for v in by_update.values()), default=math.nan),
             dict(sorted(by_seed.items(), key=lambda kv: int(kv[0]))),
             dict(sorted(positive_at.items(), key=lambda kv: int(kv[0]))),
+            float(np.mean(slopes)) if slopes else math.nan,
         )
     return out

@@ -17,7 +17,7 @@ import pytest
 import yaml
 
 from apps.cli import main
-from apps.reproduce import dd_paper, dd_summary
+from apps.reproduce import dd_paper, dd_reasons, dd_summary
 from apps.reproduce import dual_destination as rp
 from apps.zoo_build import plan_zoo
 from cec import checkpoints
@@ -340,6 +340,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
             "full_obs": {
                 algo: {"seeds": 4, "env_steps": 10, "seconds": 60.0, "final_return": end, "best_return": best}
                 | ({"final_entropy": 0.45} if algo == "ippo" else {})
+                | ({"late_slope": 0.002} if algo == "cec" else {})
                 for algo, end, best in (("cec", 0.9, 0.92), ("cec_nolstm", -0.2, 0.05), ("ippo", 0.9, 0.95))
             },
             "partial_obs": {  # the ablation trained half CEC's budget here; one of its seeds learned
@@ -381,6 +382,9 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
     assert line.startswith("- Fully observable, held-out generated tasks, CEC: 0.800 vs 0.966 (-0.166).")
     assert "(SP) its seeds score 0.950 and with the oracle partner 0.900" in line
     assert "conventions that do not match across seeds" in line
+    cec_gen = next(ln for ln in text.splitlines() if ln.startswith("- CEC, fully observable, held-out"))
+    assert "Why: its seeds score 0.950 with themselves (SP), 0.150 above their XP" in cec_gen
+    assert "ended at 0.900, changing +0.002 per 1e6 env steps" in cec_gen and "levelled off" in cec_gen
     cec_po = next(ln for ln in text.splitlines() if ln.startswith("- Partially observable") and "CEC" in ln)
     assert "conventions that do not match" in cec_po
     fcp_po = next(ln for ln in text.splitlines() if ln.startswith("- Partially observable") and "FCP:" in ln)
@@ -444,3 +448,49 @@ def test_training_stats_pool_the_runs_of_one_algorithm(tmp_path: Path) -> None:
     assert stats.final_return == pytest.approx(0.35) and stats.best_return == pytest.approx(0.4)
     assert stats.best_by_seed == pytest.approx({"100": 0.0, "102": 0.8})  # each seed's own best update
     assert stats.positive_at == {"100": None, "102": 1000}  # 0.0 is not a positive return
+
+
+def test_a_cec_gap_says_whether_more_training_would_close_it() -> None:
+    """Fully observable CEC short of the paper's value: the report says whether its seeds fall short
+    with themselves too, and what its learning curve's end predicts for more steps of the same training."""
+    trained = {"seeds": 4, "env_steps": 1_000_000, "seconds": 3600.0, "final_return": 0.8}
+    rising = dd_reasons.cec_gap_reason(_score(0.78), 0.966, _score(0.8), trained | {"late_slope": 0.05})
+    assert "its seeds score 0.800 with themselves (SP)." not in rising  # the SP part goes on
+    assert "above their XP" not in rising  # 0.02 apart: not a gap between seeds
+    # 0.166 short at +0.05 per 1e6 steps: 3.3e6 more steps; this run took 1 h per 1e6 steps
+    assert (
+        "SP would gain the missing 0.166 in about 3.3e+06 more env steps per seed, 3.3 h of one core"
+        in rising
+    )
+    flat = dd_reasons.cec_gap_reason(_score(0.78), 0.966, _score(0.8), trained | {"late_slope": -0.004})
+    assert "changing -0.004 per 1e6 env steps" in flat and "levelled off" in flat and "gain" not in flat
+    skilled = dd_reasons.cec_gap_reason(_score(0.5), 0.966, _score(0.95), trained | {"late_slope": 0.03})
+    assert "0.450 above their XP" in skilled and "gain" not in skilled  # SP is at the paper's level
+    assert (
+        dd_reasons.cec_gap_reason(_score(0.5), 0.966, None, {})
+        == "No self-play or training record to say why."
+    )
+
+
+def test_the_late_slope_is_the_end_of_each_seed_s_learning_curve(tmp_path: Path) -> None:
+    """One seed rises 0.1 per 1e6 steps over its last quarter, the other is flat there: their mean."""
+    run = tmp_path / "runs" / "cec-s200"
+    run.mkdir(parents=True)
+    rows = []
+    for u in range(1, 13):
+        steps = 250_000 * u
+        rising = -0.5 + 0.1 * steps / 1e6
+        flat = min(0.6, -0.5 + 0.5 * steps / 1e6)  # 0.6 from 2.2e6 steps on: flat in the last 3 updates
+        rows += [
+            {
+                "update": u,
+                "seed": 200,
+                "env_steps": steps,
+                "normalised_return": rising,
+                "env_steps_per_s": 1e3,
+            },
+            {"update": u, "seed": 201, "env_steps": steps, "normalised_return": flat, "env_steps_per_s": 1e3},
+        ]
+    (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert dd_summary.training_stats(tmp_path)["cec"].late_slope == pytest.approx(0.05)
+    assert math.isnan(dd_summary.return_slope([(0, 0.1), (1, 0.2)]))  # too few points to fit a line
