@@ -55,12 +55,14 @@ def difference_reason(
 def ordering_reason(
     claim: ClaimResult,
     kinds: dict[str, dict[str, Score]],
-    conventions: dict[int, str] | None = None,
+    conventions: dict[str, dict[int, str]] | None = None,
     entropy: dict[str, float] | None = None,
 ) -> str:
     """One line on a failed ordering `better > worse`: whether `worse` coordinates with unseen seeds about
     as well as with itself (the coordination failure the ordering rests on did not occur), whether greedy
-    play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold, how random
+    play shows a mismatch that sampled play hides, how many conventions `worse`'s seeds hold (per algorithm
+    in `conventions`, the variant's fixed task), whether `better`'s seeds learned the task but split
+    into conventions that fail with each other (SP well above XP), how random
     both policies still were at the end of training (`entropy`, per algorithm), whether `better`
     learned the task as well as `worse` did (SP), whether one that fails with itself plays the task with
     the oracle partner (it can reach a goal pair; the failure is one of coordination), and, on tasks that
@@ -107,9 +109,15 @@ def ordering_reason(
                 f"{oracle[a].mean:.3f} against SP {sp[a].mean:.3f}: it can reach a goal pair, but does not "
                 "coordinate even with a copy of itself"
             )
-    if conventions:
-        counts = sorted(Counter(conventions.values()).items())
-        parts.append(f"{w.upper()}'s seeds send seat 0 to " + ", ".join(f"{g} ({n})" for g, n in counts))
+    conventions = conventions or {}
+    if conventions.get(w):
+        parts.append(f"{w.upper()}'s seeds send seat 0 to {_convention_counts(conventions[w])}")
+    if sp[b].mean >= LEARNED and sp[b].mean - xp[b].mean > CONVENTION_GAP:
+        split = f": seat 0 to {_convention_counts(conventions[b])}" if conventions.get(b) else ""
+        parts.append(
+            f"{b.upper()}'s seeds learned the task (SP {sp[b].mean:.3f}) but do not share one convention"
+            f"{split}, so they fail with each other (XP {xp[b].mean:.3f})"
+        )
     known = {a: e for a, e in (entropy or {}).items() if a in (w, b) and not math.isnan(e)}
     if known:
         listed = ", ".join(f"{a.upper()} {e:.2f}" for a, e in sorted(known.items(), key=lambda x: x[0] != w))
@@ -117,6 +125,11 @@ def ordering_reason(
     if sp[b].mean < sp[w].mean - TOLERANCE:
         parts.append(f"{b.upper()} also plays the task less well with itself than {w.upper()} does")
     return head + "; ".join(parts) + "."
+
+
+def _convention_counts(per_seed: dict[int, str]) -> str:
+    """`green (0, 2) (3), green (4, 2) (1)`: each goal seat 0 takes and how many seeds take it."""
+    return ", ".join(f"{g} ({n})" for g, n in sorted(Counter(per_seed.values()).items()))
 
 
 #: A training return that rises slower than this per 1e6 env steps at the end has levelled off.

@@ -258,7 +258,7 @@ def write_report(
         ordering_reason(
             c,
             summaries[c.variant][c.level_set],
-            conventions.get(c.variant, {}).get(c.worse),
+            conventions.get(c.variant),
             {a: t.get("final_entropy", math.nan) for a, t in training.get(c.variant, {}).items()},
         )
         for c in claims

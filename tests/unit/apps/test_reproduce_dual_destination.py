@@ -450,6 +450,31 @@ def test_training_stats_pool_the_runs_of_one_algorithm(tmp_path: Path) -> None:
     assert stats.positive_at == {"100": None, "102": 1000}  # 0.0 is not a positive return
 
 
+def test_a_failed_ordering_names_the_better_algorithm_s_split_conventions() -> None:
+    """CEC > IPPO fails because IPPO's seeds all share one convention and CEC's, each playing the task
+    with itself, split between two goals: the line says both, each from its own seeds."""
+    claim = dd_summary.ClaimResult(
+        "multi_task", "fixed", "cec", "ippo", -0.73, -1.2, -0.5, 0.06, False, False
+    )
+    kinds = {
+        "xp": {"cec": _score(0.24), "ippo": _score(0.97, n_seeds=6)},
+        "sp": {"cec": _score(0.97), "ippo": _score(0.97, n_seeds=6)},
+    }
+    conventions = {
+        "ippo": dict.fromkeys(range(6), "green (0, 1)"),
+        "cec": {200: "pink (4, 1)", 201: "green (0, 1)", 202: "pink (4, 1)", 203: "pink (4, 1)"},
+    }
+    reason = dd_reasons.ordering_reason(claim, kinds, conventions)
+    assert "IPPO's seeds coordinate with each other about as well as with themselves" in reason
+    assert "IPPO's seeds send seat 0 to green (0, 1) (6)" in reason
+    assert (
+        "CEC's seeds learned the task (SP 0.970) but do not share one convention: seat 0 to green (0, 1) "
+        "(1), pink (4, 1) (3), so they fail with each other (XP 0.240)" in reason
+    )
+    agreeing = dict(kinds, xp={**kinds["xp"], "cec": _score(0.9)})  # CEC's seeds coordinate: no such part
+    assert "do not share one convention" not in dd_reasons.ordering_reason(claim, agreeing, conventions)
+
+
 def test_a_cec_gap_says_whether_more_training_would_close_it() -> None:
     """Fully observable CEC short of the paper's value: the report says whether its seeds fall short
     with themselves too, and what its learning curve's end predicts for more steps of the same training."""
