@@ -23,7 +23,7 @@ import threading
 import time
 from collections.abc import AsyncIterator, Awaitable, Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from typing import Any, TypeVar
+from typing import Any, NoReturn, TypeVar
 
 import grpc
 import numpy as np
@@ -71,6 +71,15 @@ def clip(text: str, limit: int = MAX_DETAIL_CHARS) -> str:
     head = limit * 2 // 3
     tail = limit - head
     return f"{text[:head]} [... {len(text) - head - tail} characters cut ...] {text[-tail:]}"
+
+
+async def _abort(rpc: str, context: grpc.aio.ServicerContext, err: Exception) -> NoReturn:
+    """Ends the call with `err`'s status code, counted first: a client that has seen the status may read
+    the metrics at once, so the count must not wait for the status to be sent."""
+    code, message = _status_of(err)
+    metrics.RPCS.labels(rpc, code.name).inc()
+    await context.abort(code, message)
+    raise AssertionError("unreachable: abort raises")
 
 
 def _status_of(err: BaseException) -> tuple[grpc.StatusCode, str]:
@@ -149,20 +158,17 @@ class LevelServicer:
         self, rpc: str, context: grpc.aio.ServicerContext, body: Callable[[], Awaitable[M]]
     ) -> M:
         start = time.perf_counter()
-        code = grpc.StatusCode.OK
         try:
-            return await body()
+            reply = await body()
         except asyncio.CancelledError:
-            code = grpc.StatusCode.CANCELLED
+            metrics.RPCS.labels(rpc, "CANCELLED").inc()
             raise
         except Exception as err:  # every failure becomes a status code, never a crash
-            code, message = _status_of(err)
-            await context.abort(code, message)
-            raise  # unreachable: abort raises
-        finally:
-            metrics.RPCS.labels(rpc, code.name).inc()
-            if code == grpc.StatusCode.OK:
-                metrics.RPC_LATENCY.labels(rpc).observe(time.perf_counter() - start)
+            await _abort(rpc, context, err)
+        # counted before the reply leaves, as failures are before their status does (`_abort`)
+        metrics.RPCS.labels(rpc, "OK").inc()
+        metrics.RPC_LATENCY.labels(rpc).observe(time.perf_counter() - start)
+        return reply
 
     # --- unary RPCs -----------------------------------------------------------------------------------------
 
@@ -283,7 +289,7 @@ class LevelServicer:
         self, raw: bytes, context: grpc.aio.ServicerContext
     ) -> AsyncIterator[pb.LevelBatch]:
         start_time = time.perf_counter()
-        code = grpc.StatusCode.OK
+        code: str | None = "OK"  # None: counted by `_abort`
         counted = False
         pending: asyncio.Future[pb.LevelBatch] | None = None
         try:
@@ -331,18 +337,19 @@ class LevelServicer:
                 yield msg  # waits for the client under HTTP/2 flow control
                 metrics.LEVELS_SENT.labels("StreamLevels").inc(msg.count)
         except (asyncio.CancelledError, GeneratorExit):
-            code = grpc.StatusCode.CANCELLED
+            code = "CANCELLED"
             raise
         except Exception as err:
-            code, message = _status_of(err)
-            await context.abort(code, message)
+            code = None
+            await _abort("StreamLevels", context, err)
         finally:
             if pending is not None:
                 pending.cancel()
             if counted:
                 self.active_streams -= 1
                 metrics.ACTIVE_STREAMS.dec()
-            metrics.RPCS.labels("StreamLevels", code.name).inc()
+            if code is not None:
+                metrics.RPCS.labels("StreamLevels", code).inc()
 
 
 def _generic_handler(servicer: LevelServicer) -> grpc.GenericRpcHandler:
