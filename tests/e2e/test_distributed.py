@@ -79,29 +79,27 @@ def _learner_run(learner: Learner) -> tuple[threading.Thread, dict]:
 def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: Any, tmp_path: Path) -> None:
     """Dual Destination fixed task, `small` preset, same seed: sync mode plays the single-process trainer's
     updates to float rounding. The learner's update is compiled on its own (the trainer fuses rollout and
-    update in one program), so losses differ in the 7th digit from the first update; sampling amplifies that
-    over updates, so the curves agree exactly early and in outcome late."""
-    base = ["total_env_steps=307200", "updates_per_call=1", f"run_dir={tmp_path}"]  # 24 updates
+    update in one program), so losses differ in the 7th digit after a few updates (5 on the project's Xeon;
+    when depends on the CPU's code generation); sampling amplifies that until the two runs are two draws of
+    the same training. So the curves agree exactly early and in outcome late, not in when they take off:
+    single-process seeds 0-7 of this run take off (first positive return) anywhere from update 11 to 17, and
+    all end at 0.94-0.95 (measured on the project's Xeon, 2026-11-26)."""
+    base = ["total_env_steps=512000", "updates_per_call=1", f"run_dir={tmp_path}"]  # 40 updates
     train(load_config(TrainConfig, DD_QUICK, [*base, "name=single"]), progress=False)
     for mode in ("sync", "async"):
         cfg = load_config(TrainConfig, DD_QUICK, [*base, f"name={mode}"])
         Learner(config_dict(cfg), {"num_actors": 2, "mode": mode, "metrics_port": -1}).run(resume=False)
     want, sync, asyn = (_rows(tmp_path / n) for n in ("single", "sync", "async"))
-    assert [r["update"] for r in sync] == [r["update"] for r in want] == list(range(1, 25))
+    assert [r["update"] for r in sync] == [r["update"] for r in want] == list(range(1, 41))
     for a, b in zip(want[:2], sync[:2], strict=True):
         assert b["normalised_return"] == pytest.approx(a["normalised_return"], rel=1e-6), a["update"]
         assert b["total_loss"] == pytest.approx(a["total_loss"], rel=1e-4), a["update"]
 
-    def takeoff(rows: list[dict]) -> int:  # the first update with a positive normalised return
-        return next((r["update"] for r in rows if r["normalised_return"] > 0), 99)
-
-    assert abs(takeoff(sync) - takeoff(want)) <= 3, "the task is learned at the same point of the run"
-
     def late(rows: list[dict]) -> float:
         return float(np.mean([r["normalised_return"] for r in rows[-3:]]))
 
-    assert late(want) > 0.8, "the single-process run itself must learn for the comparison to mean much"
-    assert late(sync) == pytest.approx(late(want), abs=0.1)
+    assert late(want) > 0.9, "the single-process run itself must learn for the comparison to mean much"
+    assert late(sync) == pytest.approx(late(want), abs=0.05), "sync learns the task as well"
     # async: batches are one version old after the first update; measured on an idle machine it learns the
     # task some 7 updates later than sync (docs/distributed.md); how much later depends on the machine's load
     early = float(np.mean([r["normalised_return"] for r in asyn[:3]]))
