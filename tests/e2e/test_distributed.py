@@ -79,11 +79,11 @@ def _learner_run(learner: Learner) -> tuple[threading.Thread, dict]:
 def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: Any, tmp_path: Path) -> None:
     """Dual Destination fixed task, `small` preset, same seed: sync mode plays the single-process trainer's
     updates to float rounding. The learner's update is compiled on its own (the trainer fuses rollout and
-    update in one program), so losses differ in the 7th digit after a few updates (5 on the project's Xeon;
+    update in one program), so losses differ in the 7th digit after a few updates (5 on a 2-core AMD EPYC;
     when depends on the CPU's code generation); sampling amplifies that until the two runs are two draws of
     the same training. So the curves agree exactly early and in outcome late, not in when they take off:
     single-process seeds 0-7 of this run take off (first positive return) anywhere from update 11 to 17, and
-    all end at 0.94-0.95 (measured on the project's Xeon, 2026-11-26)."""
+    all end at 0.94-0.95 (measured on that AMD EPYC, 2026-11-26)."""
     base = ["total_env_steps=512000", "updates_per_call=1", f"run_dir={tmp_path}"]  # 40 updates
     train(load_config(TrainConfig, DD_QUICK, [*base, "name=single"]), progress=False)
     for mode in ("sync", "async"):

@@ -470,7 +470,7 @@ def test_every_call_is_counted_before_the_client_has_its_answer(server, client):
     """A client (or a test, or an alert) that reads the metrics right after an answer sees that call in
     them: the count is taken before the status or reply is sent. Counted after `abort`, 48 of 300 failed
     GetLevels and 62 of 300 failed StreamLevels calls were not yet counted when the client had their status
-    (2-core Xeon, 2026-11-26)."""
+    (a 2-core AMD EPYC, 2026-11-26)."""
 
     def count(rpc: str, code: str) -> float:
         labels = {"rpc": rpc, "code": code}
