@@ -73,10 +73,11 @@ def clip(text: str, limit: int = MAX_DETAIL_CHARS) -> str:
     return f"{text[:head]} [... {len(text) - head - tail} characters cut ...] {text[-tail:]}"
 
 
-async def _abort(rpc: str, context: grpc.aio.ServicerContext, err: Exception) -> NoReturn:
-    """Ends the call with `err`'s status code, counted first: a client that has seen the status may read
-    the metrics at once, so the count must not wait for the status to be sent."""
-    code, message = _status_of(err)
+async def _abort(
+    rpc: str, context: grpc.aio.ServicerContext, code: grpc.StatusCode, message: str
+) -> NoReturn:
+    """Ends the call with `code`, counted first: a client that has seen the status may read the metrics
+    at once, so the count must not wait for the status to be sent."""
     metrics.RPCS.labels(rpc, code.name).inc()
     await context.abort(code, message)
     raise AssertionError("unreachable: abort raises")
@@ -164,7 +165,7 @@ class LevelServicer:
             metrics.RPCS.labels(rpc, "CANCELLED").inc()
             raise
         except Exception as err:  # every failure becomes a status code, never a crash
-            await _abort(rpc, context, err)
+            await _abort(rpc, context, *_status_of(err))
         # counted before the reply leaves, as failures are before their status does (`_abort`)
         metrics.RPCS.labels(rpc, "OK").inc()
         metrics.RPC_LATENCY.labels(rpc).observe(time.perf_counter() - start)
@@ -341,7 +342,7 @@ class LevelServicer:
             raise
         except Exception as err:
             code = None
-            await _abort("StreamLevels", context, err)
+            await _abort("StreamLevels", context, *_status_of(err))
         finally:
             if pending is not None:
                 pending.cancel()
@@ -393,8 +394,9 @@ class _TokenAuth(grpc.aio.ServerInterceptor):
         rpc = method.rsplit("/", 1)[-1]
 
         async def deny(_request: Any, context: grpc.aio.ServicerContext) -> None:
-            metrics.RPCS.labels(rpc, "UNAUTHENTICATED").inc()
-            await context.abort(
+            await _abort(
+                rpc,
+                context,
                 grpc.StatusCode.UNAUTHENTICATED,
                 "missing or wrong bearer token: send metadata `authorization: Bearer <token>` "
                 "(LevelClient(token=...), or the CEC_LEVEL_SERVER_TOKEN environment variable)",
