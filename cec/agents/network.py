@@ -171,6 +171,68 @@ def egocentric_view(x: jax.Array) -> jax.Array:
     return jax.vmap(window)(padded, at // w, at % w)
 
 
+def _frame_indices(x: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+    """For [N, H, W, C] grids with the seat's cell marked in channel 0, where the egocentric frame's cells
+    come from: (src int32[N, F] the grid cell (row * W + col) each of the F = (2H-1)(2W-1) frame cells shows,
+    inside bool[N, F] the frame cell shows a grid cell rather than padding, dst int32[N, H * W] the frame
+    cell each grid cell lands on). The map is a bijection between the grid and a window of the frame."""
+    n, h, w, _ = x.shape
+    at = jnp.argmax(x[..., 0].reshape(n, h * w), axis=-1)
+    row, col = (at // w)[:, None, None], (at % w)[:, None, None]
+    src_r = jnp.arange(2 * h - 1)[None, :, None] + row - (h - 1)
+    src_c = jnp.arange(2 * w - 1)[None, None, :] + col - (w - 1)
+    inside = (src_r >= 0) & (src_r < h) & (src_c >= 0) & (src_c < w)
+    src = jnp.where(inside, src_r * w + src_c, 0).reshape(n, -1)
+    dst = (jnp.arange(h)[None, :, None] - row + h - 1) * (2 * w - 1) + (
+        jnp.arange(w)[None, None, :] - col + w - 1
+    )
+    return src.astype(jnp.int32), inside.reshape(n, -1), dst.reshape(n, -1).astype(jnp.int32)
+
+
+@jax.custom_vjp
+def _to_frame(cells: jax.Array, src: jax.Array, dst: jax.Array) -> jax.Array:
+    """[N, H*W, D] per-grid-cell features -> [N, F, D] per-frame-cell features (`src` as `_frame_indices`;
+    padding cells get grid cell 0's features, to be replaced by the caller). Its gradient is the inverse
+    map, also a gather (`dst`): XLA:CPU's scatter-add, a plain gather's gradient, is many times slower."""
+    return jnp.take_along_axis(cells, src[..., None], axis=1)
+
+
+def _to_frame_fwd(cells: jax.Array, src: jax.Array, dst: jax.Array) -> tuple[jax.Array, jax.Array]:
+    return _to_frame(cells, src, dst), dst
+
+
+def _to_frame_bwd(dst: jax.Array, grad: jax.Array) -> tuple[jax.Array, None, None]:
+    # Each grid cell is shown by exactly one frame cell, so its gradient is that cell's, gathered. The
+    # caller zeroes the padding cells' gradient (they are replaced), so none of it reaches grid cell 0.
+    return jnp.take_along_axis(grad, dst[..., None], axis=1), None, None
+
+
+_to_frame.defvjp(_to_frame_fwd, _to_frame_bwd)
+
+
+class EgocentricCells(nn.Module):
+    """`relu(Dense(features)(egocentric_view(x)))` computed on the grid before the shift: the per-cell
+    layer runs on the H*W grid cells instead of the (2H-1)(2W-1) frame cells, and the frame is filled with
+    `features`-wide embeddings instead of C+1 channels. Same parameters as that Dense (named `cell`, kernel
+    [C+1, features]: its last row weighs the frame-membership channel, which is 1 on every grid cell and 0
+    on padding, whose embedding is therefore relu(bias)); the same function up to float rounding.
+
+    [N, H, W, C] (any dtype) -> float32[N, 2H-1, 2W-1, features].
+    """
+
+    features: int
+
+    @nn.compact
+    def __call__(self, x: jax.Array) -> jax.Array:
+        n, h, w, c = x.shape
+        kernel = self.param("kernel", orthogonal(SQRT2), (c + 1, self.features), jnp.float32)
+        bias = self.param("bias", constant(0.0), (self.features,), jnp.float32)
+        src, inside, dst = _frame_indices(x)
+        cells = nn.relu(x.reshape(n, h * w, c).astype(jnp.float32) @ kernel[:c] + (kernel[c] + bias))
+        frame = jnp.where(inside[..., None], _to_frame(cells, src, dst), nn.relu(bias))
+        return frame.reshape(n, 2 * h - 1, 2 * w - 1, self.features)
+
+
 class LSTMCore(nn.Module):
     """An LSTM over time with the state zeroed where `reset` is set (before that step's update).
 
@@ -220,13 +282,15 @@ class ActorCritic(nn.Module):
         cfg = self.config
         t, b = obs.shape[:2]
         x = obs.reshape((t * b, *obs.shape[2:]))
-        if cfg.egocentric:
-            x = egocentric_view(x)  # on the raw (uint8) observation: 4x fewer bytes to move than float32
-        x = x.astype(jnp.float32)
-
-        # ENCODER: per-cell embedding, 2x2 convolutions, flatten, fully connected.
-        if cfg.cell_features:
-            x = nn.relu(_dense(cfg.cell_features, SQRT2, "cell")(x))
+        # ENCODER: egocentric view and per-cell embedding, 2x2 convolutions, flatten, fully connected.
+        if cfg.egocentric and cfg.cell_features:
+            x = EgocentricCells(cfg.cell_features, name="cell")(x)
+        else:
+            if cfg.egocentric:
+                x = egocentric_view(x)  # on the raw (uint8) observation: 4x fewer bytes than float32
+            x = x.astype(jnp.float32)
+            if cfg.cell_features:
+                x = nn.relu(_dense(cfg.cell_features, SQRT2, "cell")(x))
         for i, filters in enumerate(cfg.conv_features):
             x = nn.relu(Conv2x2(filters, name=f"conv{i}")(x))
         x = x.reshape((t * b, -1))

@@ -28,6 +28,7 @@ from cec.agents.network import ActorCritic, LSTMState, init_params
 from cec.config import ConfigError
 from cec.envs.dual_destination import partner as dd_partner
 from cec.envs.overcooked import scripted as oc_scripted
+from cec.envs.overcooked import state as oc_state
 
 #: The log-probability given to every action but the scripted one (a deterministic policy).
 NEVER = -1e9
@@ -61,6 +62,12 @@ SCRIPTED: dict[str, ScriptedKind] = {
         oc_scripted.COOK_MEMORY,
         oc_scripted.cook_step,
         "Overcooked scripted cook: greedy shortest-path cooking that yields to its partner",
+    ),
+    "noop": ScriptedKind(
+        "overcooked",
+        1,
+        lambda memory, obs: (memory, jnp.int32(oc_state.Action.STAY)),
+        "Overcooked control partner that always stays put (what the cook scores alone, in its way)",
     ),
 }
 

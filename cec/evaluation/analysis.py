@@ -253,6 +253,28 @@ def algorithm_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
     return out
 
 
+def seed_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
+    """Per algorithm, one score per seed (the units of a test): its mean with its partners of `kind`
+    (`adhoc`: every policy of other algorithms; `human`: every human proxy); NaN-free. The partners are
+    the same for every seed, so these compare algorithms *with these partners*. Cross-play is different:
+    seeds partner each other, so use `cec.evaluation.stats.crossplay_estimate` on `seed_matrix`."""
+    if kind not in ("adhoc", "human"):
+        raise ValueError(f"kind must be adhoc or human, got {kind!r}")
+    m = pair_scores(pl)
+    out: dict[str, np.ndarray] = {}
+    for alpha in algorithms_of(pl.policies):
+        human = kind == "human"
+        partners = [
+            j
+            for j, p in enumerate(pl.policies)
+            if p.algorithm != alpha and (p.algorithm == HUMAN_PROXY) == human
+        ]
+        rows = [m[i, partners] for i, p in enumerate(pl.policies) if p.algorithm == alpha]
+        means = np.asarray([np.nanmean(r) if np.isfinite(r).any() else np.nan for r in rows], np.float64)
+        out[alpha] = means[~np.isnan(means)]
+    return out
+
+
 def per_level(pl: PairLevel, kind: str = "xp") -> list[LevelStat]:
     """Per algorithm and level: mean and SE over pairs (`xp`: two different seeds; `sp`: self-play)."""
     stats: list[LevelStat] = []

@@ -21,7 +21,7 @@ from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
 from cec.evaluation.results import EpisodeTable
-from cec.evaluation.stats import compare, sem
+from cec.evaluation.stats import compare, compare_crossplay, crossplay_estimate, sem
 
 MAX_BARS = 12  # level sets with more levels get one aggregate bar per algorithm instead of per-level bars
 
@@ -146,7 +146,7 @@ class _Report:
             self.oracle_note(levels)
 
         # Summary per algorithm.
-        sp, xp, adhoc, human = (an.algorithm_samples(pl, k) for k in ("sp", "xp", "adhoc", "human"))
+        sp, adhoc, human = (an.algorithm_samples(pl, k) for k in ("sp", "adhoc", "human"))
         with_humans = any(p.algorithm == HUMAN_PROXY for p in pl.policies)
         prox = an.br_prox(pl)
         rows = []
@@ -156,7 +156,7 @@ class _Report:
                 alpha,
                 str(len(sp.get(alpha, []))),
                 _pm(*_mean_sem(sp.get(alpha)), d),
-                _pm(*_mean_sem(xp.get(alpha)), d),
+                _pm(*crossplay_estimate(an.seed_matrix(pl, alpha).values)[:2], d),
                 _pm(*_mean_sem(adhoc.get(alpha)), d),
             ]
             if with_humans:
@@ -168,9 +168,11 @@ class _Report:
         self.md.append("### Scores per algorithm\n")
         self.md.append(_table([*heads, "BR-prox IQM [IQR]"], rows))
         self.md.append(
-            "Mean ± standard error over pairs. BR-prox: score with a partner divided by the best score any "
-            "zoo policy reached with that partner on that level (capped at 1), interquartile mean over "
-            "(policy, partner, level).\n"
+            "Mean ± standard error: SP and ad hoc over pairs; XP (the mean over every pair of two different "
+            "seeds) with the leave-one-seed-out jackknife's standard error, which counts that a seed's pairs "
+            "are shared with the other seeds (NaN below 3 seeds). BR-prox: score with a partner divided by "
+            "the best score any zoo policy reached with that partner on that level (capped at 1), "
+            "interquartile mean over (policy, partner, level).\n"
         )
         if with_humans:
             self.md.append(
@@ -183,7 +185,7 @@ class _Report:
         self.seed_matrices(pl, slug)
         self.algorithm_heatmap(pl, name, slug)
         self.per_level(pl, levels, name, slug)
-        self.tests(xp, adhoc, human)
+        self.tests(pl)
         self.meta_game(pl, name, slug)
 
     def oracle_note(self, levels: list[str]) -> None:
@@ -291,24 +293,35 @@ class _Report:
                 )
             self.md.append(_table(["algorithm", "levels", "mean ± SE over levels", "median"], rows))
 
-    def tests(
-        self, xp: dict[str, np.ndarray], adhoc: dict[str, np.ndarray], human: dict[str, np.ndarray]
-    ) -> None:
+    def tests(self, pl: an.PairLevel) -> None:
         self.md.append("### Significance between algorithms\n")
         self.md.append(
-            "Two-sided Welch t-test and 95% percentile bootstrap interval (10,000 resamples) of the "
-            "difference of mean pair scores.\n"
+            "Seeds are the units. XP: the difference of the algorithms' cross-play, its jackknife standard "
+            "error over seeds (a seed's pairs are shared with the other seeds, so per-seed means are not "
+            "independent), a t-test with Welch-Satterthwaite degrees of freedom and its 95% t interval. The "
+            "other partners (ad hoc, proxies): each seed's mean with the same partners, a two-sided Welch "
+            "t-test over seeds and a 95% percentile bootstrap interval (10,000 resamples).\n"
         )
+        algos = [a for a in an.algorithms_of(pl.policies) if a != HUMAN_PROXY]
+        matrices = {a: an.seed_matrix(pl, a).values for a in algos}
+        kinds: list[tuple[str, Any]] = [
+            (
+                "XP (other seeds of the same algorithm)",
+                lambda a, b: compare_crossplay(matrices[a], matrices[b]),
+            )
+        ]
+        for kind, label in (("adhoc", "ad hoc"), ("human", "with human proxies")):
+            samples = an.seed_samples(pl, kind)
+            if any(samples[a].size for a in algos):
+                kinds.append((label, lambda a, b, s=samples: compare(s[a], s[b])))
         d = self.digits
-        kinds = [("XP (other seeds of the same algorithm)", xp), ("ad hoc", adhoc)]
-        if any(v.size for v in human.values()):
-            kinds.append(("with human proxies", human))
-        for label, samples in kinds:
-            algos = [a for a in sorted(samples) if samples[a].size and a != HUMAN_PROXY]
+        for label, test in kinds:
             rows = []
             for i, a in enumerate(algos):
                 for b in algos[i + 1 :]:
-                    c = compare(samples[a], samples[b])
+                    c = test(a, b)
+                    if c.n_a == 0 or c.n_b == 0:
+                        continue
                     rows.append(
                         [
                             f"{a} vs {b}",
@@ -322,7 +335,9 @@ class _Report:
                     )
             self.md.append(f"**{label}**\n")
             if rows:
-                self.md.append(_table(["pair", "means", "n", "difference [95% CI]", "t", "df", "p"], rows))
+                self.md.append(
+                    _table(["pair", "means", "seeds", "difference [95% CI]", "t", "df", "p"], rows)
+                )
             else:
                 self.md.append("Fewer than two algorithms with samples.\n")
 

@@ -7,7 +7,11 @@ The unit of a sample is the caller's choice, and it must be an independent draw.
 cross-play, that is a training seed, not a pair of seeds: the pairs (i, j) and (i, k) share seed i, so
 testing over pairs as if independent counts each seed several times and grants significance that the
 seeds do not carry. `seed_means` turns one algorithm's seed x seed matrix into one number per seed (its
-mean with the other seeds); compare those.
+mean with the other seeds), for display. Those numbers are not independent either: seed i's mean and seed
+k's both contain the pair (i, k), so a standard error or a t-test over them understates the uncertainty
+(about 3x for 4 seeds). `crossplay_estimate` gives an algorithm's cross-play with a leave-one-seed-out
+jackknife standard error, which counts the shared pairs, and `compare_crossplay` tests two algorithms
+with it; every report's cross-play uncertainty and test comes from these two.
 """
 
 from __future__ import annotations
@@ -112,3 +116,70 @@ def compare(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95, seed: int
     mean_a = float(a.mean()) if a.size else math.nan
     mean_b = float(b.mean()) if b.size else math.nan
     return Comparison(mean_a, mean_b, int(a.size), int(b.size), mean_a - mean_b, low, high, t, df, p)
+
+
+class CrossPlay(NamedTuple):
+    """An algorithm's cross-play from its seed x seed matrix.
+
+    Attributes:
+        mean: the mean over every off-diagonal (seed i with seed j != i) entry.
+        se: leave-one-seed-out jackknife standard error of `mean` (NaN with fewer than 3 seeds: leaving one
+            of two seeds out leaves no pair).
+        seeds: seeds with at least one partner (the jackknife's units; `df` = seeds - 1).
+    """
+
+    mean: float
+    se: float
+    seeds: int
+
+    @property
+    def df(self) -> int:
+        return self.seeds - 1
+
+
+def _off_diagonal_mean(m: np.ndarray) -> float:
+    cells = m[~np.eye(m.shape[0], dtype=bool)]
+    cells = cells[~np.isnan(cells)]
+    return float(cells.mean()) if cells.size else math.nan
+
+
+def crossplay_estimate(matrix: np.ndarray) -> CrossPlay:
+    """Cross-play mean and its jackknife standard error over seeds (the units): the estimate is recomputed
+    with each seed's row and column removed, and SE^2 = (n - 1) / n * sum((theta_-i - theta_.)^2). Seeds
+    without any partner entry are dropped first."""
+    m = np.array(matrix, np.float64)
+    if m.ndim != 2 or m.shape[0] != m.shape[1]:
+        raise ValueError(f"expected a square seed x seed matrix, got shape {m.shape}")
+    np.fill_diagonal(m, np.nan)
+    keep = np.flatnonzero(~np.all(np.isnan(m), axis=1) | ~np.all(np.isnan(m), axis=0))
+    m = m[np.ix_(keep, keep)]
+    n = m.shape[0]
+    mean = _off_diagonal_mean(m) if n else math.nan
+    if n < 3:
+        return CrossPlay(mean, math.nan, n)
+    loo = np.array([_off_diagonal_mean(np.delete(np.delete(m, i, 0), i, 1)) for i in range(n)])
+    loo = loo[~np.isnan(loo)]
+    se = (
+        float(np.sqrt((loo.size - 1) / loo.size * np.sum((loo - loo.mean()) ** 2)))
+        if loo.size > 1
+        else math.nan
+    )
+    return CrossPlay(mean, se, n)
+
+
+def compare_crossplay(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95) -> Comparison:
+    """Algorithm A's cross-play against B's, each from its seed x seed matrix: the difference of the means,
+    a t-test with the jackknife standard errors (Welch-Satterthwaite degrees of freedom from each side's
+    seeds - 1) and the matching t interval. Same fields as `compare` (n_a, n_b are seeds)."""
+    ea, eb = crossplay_estimate(a), crossplay_estimate(b)
+    diff = ea.mean - eb.mean
+    var = ea.se**2 + eb.se**2
+    if not np.isfinite(var) or var == 0:
+        return Comparison(
+            ea.mean, eb.mean, ea.seeds, eb.seeds, diff, math.nan, math.nan, math.nan, math.nan, math.nan
+        )
+    df = var**2 / (ea.se**4 / ea.df + eb.se**4 / eb.df)
+    t = diff / math.sqrt(var)
+    p = float(2 * sps.t.sf(abs(t), df))
+    half = float(sps.t.ppf(0.5 + confidence / 2, df)) * math.sqrt(var)
+    return Comparison(ea.mean, eb.mean, ea.seeds, eb.seeds, diff, diff - half, diff + half, t, df, p)

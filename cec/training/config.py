@@ -76,7 +76,8 @@ class TrainConfig:
         checkpoint: checkpoint schedule.
         partner: who plays the other seat (`cec.training.partners`): self-play, FCP, E3T.
         init_from: start from this checkpoint's (or run directory's latest) parameters instead of a random
-            init (CEC-Finetune); the optimizer starts fresh.
+            init (CEC-Finetune, or a CEC policy trained further, e.g. an exported one); the optimizer starts
+            fresh.
         init_from_seed: which seed of a multi-seed `init_from` checkpoint (-1: its only seed).
         tracking: TensorBoard event files (`<run_dir>/<name>/tb/`) and the optional W&B mirror
             (`cec.training.tracking`); where the run's series go, not what it trains.
@@ -126,9 +127,12 @@ class TrainConfig:
             raise ConfigError(
                 f"algorithm {self.algorithm} needs partner.kind {kind!r}, got {self.partner.kind!r}"
             )
-        if (self.algorithm == "cec_finetune") != bool(self.init_from):
+        if self.algorithm == "cec_finetune" and not self.init_from:
+            raise ConfigError("algorithm cec_finetune needs init_from (the CEC checkpoint to fine-tune)")
+        if self.init_from and self.algorithm not in ("cec", "cec_finetune"):
             raise ConfigError(
-                "init_from (the CEC checkpoint to fine-tune) goes with algorithm cec_finetune, and only there"
+                f"init_from goes with algorithm cec_finetune (fine-tuning) or cec (continuing a CEC policy's "
+                f"training), not {self.algorithm}"
             )
         if (
             min(self.num_seeds, self.num_envs, self.num_steps, self.total_env_steps, self.updates_per_call)

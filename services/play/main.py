@@ -21,7 +21,7 @@ from typing import Any
 from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
 from services.entry import Service
-from services.play.config import MODES, StudyConfig, load_study
+from services.play.config import AGENT_ACTIONS, MODES, StudyConfig, load_study
 from services.store import StoreError  # needs redis: without it `cec X` names the package
 
 log = logging.getLogger("cec.play")
@@ -49,9 +49,19 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
     src.add_argument("--group", default="", help="with --zoo: only entries of this algorithm")
     src.add_argument("--random-init", action="store_true", help="a randomly initialised `small` network")
     src.add_argument(
-        "--level", default="counter_circuit", help="level spec (classic, generated_NNN, generated:SEED)"
+        "--level",
+        default="cramped_room",
+        help="level spec (classic, generated_NNN, generated:SEED); default cramped_room, where the shipped "
+        "CEC partner cooks most (docs/play.md)",
     )
     src.add_argument("--mode", choices=MODES, default="turn_based")
+    src.add_argument(
+        "--agent-actions",
+        choices=AGENT_ACTIONS,
+        default="sampled",
+        help="how the agent picks its action from its policy: sampled (default; the shipped agents freeze "
+        "in place when they always take the most likely action) or greedy",
+    )
     src.add_argument("--steps", type=int, default=200, help="round length")
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     serve.add_argument("--port", type=int, default=8000, help="port (0: a free one; default 8000)")
@@ -101,6 +111,7 @@ def free_play_config(args: argparse.Namespace) -> StudyConfig:
         "partners": [partner],
         "rounds_per_partner": 1,
         "mode": args.mode,
+        "agent_actions": args.agent_actions,
         "env": {"max_steps": args.steps, "random_start_facing": False},
         "survey": {"items": []},
         "storage": {
@@ -176,6 +187,8 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
     print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
     try:
         server.run(sockets=[sock])
+    except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it has already handled: a clean stop
+        log.info("stopped by Ctrl-C")
     finally:
         recorder.close()
         sock.close()
@@ -183,10 +196,10 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
-    free = args.checkpoint or args.zoo or args.random_init
+    free = args.partner or args.checkpoint or args.zoo or args.random_init
     if args.study and free:
         raise ConfigError(
-            "give a study file or a free-play partner (--checkpoint/--zoo/--random-init), not both"
+            "give a study file or a free-play partner (--partner/--checkpoint/--zoo/--random-init), not both"
         )
     if args.study:
         config, base_dir = load_study(args.study, [*args.set, *_storage_overrides(args)])
@@ -197,7 +210,7 @@ def _cmd_serve(args: argparse.Namespace) -> int:
     else:
         raise ConfigError(
             "give a study file (e.g. configs/study/default.yaml) or a partner to play with: "
-            "--checkpoint RUN_DIR, --zoo ZOO.yaml [--group ALG] or --random-init"
+            "--partner NAME (e.g. cec), --checkpoint RUN_DIR, --zoo ZOO.yaml [--group ALG] or --random-init"
         )
     return serve(config, base_dir, args.host, args.port)
 

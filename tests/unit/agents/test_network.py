@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cec.agents import ActorCritic, NetworkConfig, init_params, network_preset
-from cec.agents.network import Conv2x2, egocentric_view
+from cec.agents.network import Conv2x2, EgocentricCells, egocentric_view
 from cec.config import ConfigError
 
 
@@ -124,3 +124,25 @@ def test_egocentric_network_with_a_cell_embedding_runs():
     assert logits.shape == (2, 3, 6) and values.shape == (2, 3)
     with pytest.raises(ConfigError):
         NetworkConfig(cell_features=-1)
+
+
+def test_egocentric_cells_equal_the_embedding_of_the_egocentric_view_with_their_gradients():
+    """The embed-then-shift layer the recipe trains with is the plain per-cell Dense on the 17x17 view (same
+    parameters): values and gradients equal to float rounding, padding included (a positive bias makes
+    the padding's embedding nonzero), for seats in corners, on edges and inside."""
+    rng = np.random.default_rng(1)
+    grids = rng.integers(0, 2, (6, 9, 9, 5)).astype(np.uint8)
+    grids[..., 0] = 0
+    for g, (r, c) in zip(grids, [(0, 0), (8, 8), (0, 8), (4, 4), (8, 0), (3, 6)], strict=True):
+        g[r, c, 0] = 1
+    x = jnp.asarray(grids)
+    layer = EgocentricCells(4)
+    p = {**layer.init(jax.random.PRNGKey(0), x)["params"], "bias": jnp.asarray([0.3, -0.2, 0.1, 0.5])}
+    plain = lambda p: nn.relu(egocentric_view(x).astype(jnp.float32) @ p["kernel"] + p["bias"])  # noqa: E731
+    mine = lambda p: layer.apply({"params": p}, x)  # noqa: E731
+    np.testing.assert_allclose(mine(p), plain(p), rtol=1e-6, atol=1e-6)
+    weights = jnp.asarray(rng.normal(size=(6, 17, 17, 4)), jnp.float32)
+    g_mine = jax.grad(lambda p: (mine(p) * weights).sum())(p)
+    g_plain = jax.grad(lambda p: (plain(p) * weights).sum())(p)
+    for name in ("kernel", "bias"):
+        np.testing.assert_allclose(g_mine[name], g_plain[name], rtol=1e-5, atol=1e-5)

@@ -12,7 +12,16 @@ from cec.evaluation import analysis as an
 from cec.evaluation import egta
 from cec.evaluation.report import write_report
 from cec.evaluation.results import ResultsError, SkippedEntry, make_table, read_csv, write_csv
-from cec.evaluation.stats import bootstrap_diff_ci, compare, iqm, seed_means, sem, welch_ttest
+from cec.evaluation.stats import (
+    bootstrap_diff_ci,
+    compare,
+    compare_crossplay,
+    crossplay_estimate,
+    iqm,
+    seed_means,
+    sem,
+    welch_ttest,
+)
 
 A = np.array([12.1, 9.8, 11.4, 10.2, 13.0, 9.1, 10.7])
 B = np.array([8.2, 9.9, 7.1, 8.8, 10.4, 6.5, 9.0, 7.7, 8.1])
@@ -304,3 +313,25 @@ def test_human_proxies_are_their_own_column_not_ad_hoc_partners(tmp_path: Path):
     assert "E3T ahead, CEC and CEC-Finetune next" in text
     plain = write_report(_table(POLICIES, value), tmp_path / "plain").read_text()
     assert "with human proxies" not in plain
+
+
+def test_the_report_tests_cross_play_with_the_jackknife_over_seeds(tmp_path: Path):
+    """`cec report`'s XP column and XP test come from `crossplay_estimate` / `compare_crossplay` (seeds
+    as units, shared pairs counted), never from pairs or per-seed means taken as independent."""
+    skill = {("cec", i): v for i, v in enumerate([12.0, 8.0, 20.0, 20.0])}
+    skill |= {("ippo", i): v for i, v in enumerate([9.0, 9.0, 9.0, 8.0])}
+
+    def value(p, q, level, seat, ep):
+        return skill[p] + skill[q]
+
+    t = _table(list(skill), value, levels=("cramped_room",))
+    pl = an.pair_level_scores(t)
+    cec, ippo = an.seed_matrix(pl, "cec").values, an.seed_matrix(pl, "ippo").values
+    jack = compare_crossplay(cec, ippo)
+    naive = compare(seed_means(cec), seed_means(ippo))
+    assert naive.p < 0.05 < jack.p  # the per-seed test would call this significant
+    text = write_report(t, tmp_path / "rep").read_text()
+    est = crossplay_estimate(cec)
+    assert f"| {est.mean:.1f} ± {est.se:.1f} |" in text
+    row = next(line for line in text.splitlines() if line.startswith("| cec vs ippo |"))
+    assert row.endswith(f"| {jack.p:.2g} |") and f"{naive.p:.2g} |" not in row
