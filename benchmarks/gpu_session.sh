@@ -10,6 +10,14 @@
 #   benchmarks/gpu_session.sh wait S       # progress until the reproduction ends or S seconds pass
 #   benchmarks/gpu_session.sh crossplay    # cross-play throughput (paper preset)
 #   benchmarks/gpu_session.sh pack         # stop the paper run (checkpoint), pack results, policies, curves
+#   benchmarks/gpu_session.sh window       # ALL OF IT IN ONE CALL (<= 9 min; docs/gpu.md): the training
+#                                          # profile, the shipped CEC seeds trained further, the paper
+#                                          # preset's throughput, the new policies exported
+#
+# `window` sizes (environment; the defaults fit one 9-minute call, tests/unit/apps/test_gpu_window.py runs it
+# at tiny sizes on a CPU): WINDOW_TRAIN_S (330) seconds of CEC training, stopped by SIGTERM (the trainer
+# checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset; WINDOW_PROFILE_S (90) for the profile;
+# WINDOW_STEPS per seed the LR anneals over (80M); WINDOW_SET extra overrides for every run (tiny sizes).
 #
 # Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
 # checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
@@ -21,11 +29,12 @@ PAPER_RUN=runs/paper/cec-paper-s0
 export PYTHONUNBUFFERED=1 XLA_PYTHON_CLIENT_PREALLOCATE=false
 mkdir -p "$OUT" runs
 
-if [ ! -d /tmp/site ]; then
+if [ -d .whl ] && [ ! -d /tmp/site ]; then
     python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --target /tmp/site .whl/*.whl || exit 1
 fi
 export PYTHONPATH=/tmp/site:$PWD
-cec() { python3 -m apps.cli "$@"; }
+PY=${PYTHON:-python3}
+cec() { "$PY" -m apps.cli "$@"; }
 
 # The report is in the tracked tree, which the next call's sync resets: it must come back in the call that
 # sees the reproduction end (`wait` does this).
@@ -98,11 +107,49 @@ pack)
     done
     ls -la "$OUT"
     ;;
+window)
+    T_TRAIN=${WINDOW_TRAIN_S:-330} T_PAPER=${WINDOW_PAPER_S:-60} T_PROFILE=${WINDOW_PROFILE_S:-90}
+    STEPS=${WINDOW_STEPS:-80000000}
+    read -r -a EXTRA <<< "${WINDOW_SET:-}"
+    RUN=runs/window
+    log="$OUT/window.log"
+    {
+        date -u +%FT%TZ; nvidia-smi --query-gpu=name,memory.total --format=csv 2>/dev/null
+        "$PY" -c "import jax; print('jax', jax.__version__, jax.devices())"
+        echo "== 1. training profile (the CPU recipe's step on this device)"
+        timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --set "${EXTRA[@]}" \
+            --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
+        echo "== 2. the shipped CEC seeds trained further (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
+        seeds=$(ls -d cec/shipped/cec-s20? | sort | paste -sd, -)
+        timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config configs/train/cec_overcooked_cpu.yaml \
+            seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr=0.002 \
+            checkpoint.every_updates=50 'checkpoint.milestones=[0.25,0.5,0.75,1.0]' \
+            run_dir=$RUN name=cec-continued "${EXTRA[@]}"
+        echo "training: exit $? (124: stopped by the window's SIGTERM, after its checkpoint)"
+        echo "== 3. the paper preset's training throughput (${T_PAPER}s)"
+        XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli train \
+            --config configs/train/cec_overcooked.yaml run_dir=/tmp/window-paper "${EXTRA[@]}"
+        echo "paper preset: exit $?"
+        echo "== 4. export"
+        "$PY" - "$RUN/cec-continued" <<'PYEOF'
+import sys, yaml
+from pathlib import Path
+run = Path(sys.argv[1])
+entries = [{"name": f"cec-gpu-s{200 + i}", "algorithm": "cec", "seed": 200 + i, "checkpoint": str(run.resolve())}
+           for i in range(4)]
+(run.parent / "zoo.yaml").write_text(yaml.safe_dump({"policies": entries}))
+PYEOF
+        cec zoo export $RUN/zoo.yaml --out $RUN/exported
+    } > "$log" 2>&1
+    cp /tmp/window-paper/*/metrics.csv "$OUT/paper_metrics.csv" 2>/dev/null
+    tar czf "$OUT/cec-window.tgz" $RUN/exported $RUN/cec-continued/metrics.csv $RUN/cec-continued/config.yaml
+    ls -la "$OUT"; tail -n 30 "$log"
+    ;;
 crossplay)
     python3 benchmarks/crossplay_throughput.py --preset paper --out "$OUT/crossplay_throughput_gpu.json"
     ;;
 *)
-    sed -n 2,14p "$0"
+    sed -n 2,21p "$0"
     exit 2
     ;;
 esac

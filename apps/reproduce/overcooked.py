@@ -345,6 +345,14 @@ class SeedScores:
     sp: tuple[float, ...]
     cook: tuple[float, ...]
     human: tuple[float, ...] = ()
+    xp_matrix: tuple[tuple[float, ...], ...] = ()
+
+    def crossplay(self) -> Any:
+        """The algorithm's cross-play with its jackknife standard error over seeds
+        (`cec.evaluation.stats.CrossPlay`; a seed's pairs are shared with the other seeds)."""
+        from cec.evaluation.stats import crossplay_estimate
+
+        return crossplay_estimate(np.asarray(self.xp_matrix, np.float64).reshape(len(self.seeds), -1))
 
 
 def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]:
@@ -371,6 +379,7 @@ def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]
             tuple(float(m[i, i]) for i in idx),
             tuple(mean([m[i, c] for c in cook]) for i in idx),
             tuple(mean([m[i, h] for h in humans]) for i in idx),
+            tuple(tuple(float(x) for x in row) for row in m[np.ix_(idx, idx)]),
         )
     return out
 
@@ -386,8 +395,17 @@ def _cell(values: Sequence[float]) -> str:
     arr = _finite(values)
     if not arr.size:
         return "—"
-    err = sem(arr)
-    return f"{arr.mean():.1f}" + ("" if math.isnan(err) else f" ± {err:.1f}") + f" (n={arr.size})"
+    return _pm(float(arr.mean()), sem(arr), arr.size)
+
+
+def _xp_cell(scores: SeedScores) -> str:
+    """Cross-play: the mean over every pair of two different seeds ± its jackknife standard error."""
+    est = scores.crossplay()
+    return "—" if math.isnan(est.mean) else _pm(est.mean, est.se, est.seeds)
+
+
+def _pm(mean: float, err: float, n: int) -> str:
+    return f"{mean:.1f}" + ("" if math.isnan(err) else f" ± {err:.1f}") + f" (n={n})"
 
 
 def paper_values() -> dict[str, dict[str, float]]:
@@ -399,9 +417,10 @@ MEASURES = {"xp": "cross-play", "human": "with human proxies"}
 
 
 def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any]]:
-    """CEC against each baseline on per-seed XP and per-seed score with the human proxies (Welch t-test,
-    bootstrap interval), per level set."""
-    from cec.evaluation.stats import compare
+    """CEC against each baseline, per level set: cross-play with the jackknife over seeds (seeds partner
+    each other, so their per-seed XP are not independent; `compare_crossplay`), the score with the human
+    proxies (the same partners for every seed) with a Welch t-test over seeds and a bootstrap interval."""
+    from cec.evaluation.stats import compare, compare_crossplay
 
     out = []
     for level_set, scores in summary.items():
@@ -409,11 +428,20 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
             continue
         for measure in MEASURES:
             for other in ALGORITHMS[1:]:
-                a = _finite(getattr(scores["cec"], measure))
-                b = _finite(getattr(scores[other], measure) if other in scores else ())
-                if a.size < 2 or b.size < 2:
+                if other not in scores:
                     continue
-                c = compare(a, b)
+                if measure == "xp":
+                    mine, theirs = (np.asarray(scores[x].xp_matrix, np.float64) for x in ("cec", other))
+                    if min(mine.size, theirs.size) == 0:
+                        continue
+                    c = compare_crossplay(mine, theirs)
+                else:
+                    a, b = _finite(scores["cec"].human), _finite(scores[other].human)
+                    if a.size < 2 or b.size < 2:
+                        continue
+                    c = compare(a, b)
+                if math.isnan(c.p):
+                    continue
                 out.append({"level_set": level_set, "measure": measure, "better": "cec", "worse": other,
                             "diff": c.diff, "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
                             "significant": bool(c.diff > 0 and c.p < ALPHA)})  # fmt: skip
@@ -448,9 +476,11 @@ def write_report(
         "",
         *_time_lines(train_s or {}, played_s),
         f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
-        "both seat orders. Each cell: the mean over seeds of each seed's mean (XP: with every other seed of "
-        "its algorithm; SP: with itself; cook: with the scripted cook), ± the standard error over seeds, n = "
-        "seeds. The paper's values are read off its figures (approximate; "
+        "both seat orders. SP, cook and proxies: the mean over seeds of each seed's mean (SP: with itself; "
+        "cook: with the scripted cook), ± the standard error over seeds, n = seeds. XP: the mean over every "
+        "pair of two different seeds of the algorithm ± its leave-one-seed-out jackknife standard error (a "
+        "seed's pairs are shared with the other seeds, so a standard error over per-seed means would "
+        "understate it about 3x for 4 seeds). The paper's values are read off its figures (approximate; "
         "`apps/reproduce/paper_overcooked.yaml`).",
         "",
         *_human_lines(mode, summary, skipped),
@@ -468,14 +498,18 @@ def write_report(
             ratio = f"{xp.mean() / sp.mean():.2f}" if xp.size and sp.size and sp.mean() > 0 else "—"
             ref = paper.get(level_set, {}).get(algo)
             lines.append(
-                f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_cell(s.xp)} | {ratio} | "
+                f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_xp_cell(s)} | {ratio} | "
                 f"{_cell(s.cook) if algo != COOK else '—'} | {_cell(s.human)} | "
                 f"{'≈' + str(ref) if ref is not None else '—'} |"
             )
         lines.append("")
     if tests:
-        lines += ["## CEC against the baselines (per-seed scores, Welch t-test)", "",
-                  "| level set | score | CEC − | difference | 95% bootstrap CI | p | CEC ahead (p < 0.05) |",
+        lines += ["## CEC against the baselines (seeds as units)", "",
+                  "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
+                  "standard errors over seeds (Welch-Satterthwaite degrees of freedom) and its 95% t "
+                  "interval. With human proxies: a Welch t-test over per-seed scores and a 95% bootstrap "
+                  "interval. No test is printed where a side has too few seeds to estimate its spread.", "",
+                  "| level set | score | CEC − | difference | 95% CI | p | CEC ahead (p < 0.05) |",
                   "|---|---|---|---|---|---|---|"]  # fmt: skip
         for t in tests:
             lines.append(

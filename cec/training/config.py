@@ -77,7 +77,7 @@ class TrainConfig:
         partner: who plays the other seat (`cec.training.partners`): self-play, FCP, E3T.
         init_from: start from this checkpoint's (or run directory's latest) parameters instead of a random
             init (CEC-Finetune, or a CEC policy trained further, e.g. an exported one); the optimizer starts
-            fresh.
+            fresh. Several checkpoints, comma-separated, one per seed: seed i starts from the i-th.
         init_from_seed: which seed of a multi-seed `init_from` checkpoint (-1: its only seed).
         tracking: TensorBoard event files (`<run_dir>/<name>/tb/`) and the optional W&B mirror
             (`cec.training.tracking`); where the run's series go, not what it trains.
@@ -129,6 +129,11 @@ class TrainConfig:
             )
         if self.algorithm == "cec_finetune" and not self.init_from:
             raise ConfigError("algorithm cec_finetune needs init_from (the CEC checkpoint to fine-tune)")
+        if len(self.init_from_paths) not in (0, 1, self.num_seeds):
+            raise ConfigError(
+                f"init_from names {len(self.init_from_paths)} checkpoints for {self.num_seeds} seeds: give "
+                "one (every seed starts from it) or one per seed, comma-separated"
+            )
         if self.init_from and self.algorithm not in ("cec", "cec_finetune"):
             raise ConfigError(
                 f"init_from goes with algorithm cec_finetune (fine-tuning) or cec (continuing a CEC policy's "
@@ -172,6 +177,11 @@ class TrainConfig:
             )
 
     # Derived values (never written back into the config).
+    @property
+    def init_from_paths(self) -> tuple[str, ...]:
+        """The checkpoints of `init_from`: none, one for every seed, or one per seed."""
+        return tuple(p.strip() for p in self.init_from.split(",")) if self.init_from else ()
+
     @property
     def sequences(self) -> int:
         """Training sequences per update and seed: num_envs x trained seats."""

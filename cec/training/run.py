@@ -58,7 +58,7 @@ def trains_as(written: dict, config: TrainConfig) -> bool:
             population = [dict(e, run=_under(e["run"], root)) for e in kept["partner"].get("population", [])]
             kept["partner"] = dict(kept["partner"], population=population)
         if kept.get("init_from"):
-            kept["init_from"] = _under(kept["init_from"], root)
+            kept["init_from"] = ",".join(_under(p.strip(), root) for p in kept["init_from"].split(","))
         return kept
 
     return what(written) == what(config_dict(config))

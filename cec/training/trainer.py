@@ -221,10 +221,12 @@ class Trainer:
         cfg = self.config
         states = [self._init(jax.random.PRNGKey(cfg.seed + i)) for i in range(cfg.num_seeds)]
         state: TrainState = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
-        if cfg.init_from:  # CEC-Finetune: every seed starts from the checkpoint's exact parameters
-            params = jax.tree.map(
-                lambda x: jnp.broadcast_to(x, (cfg.num_seeds, *x.shape)), self.initial_params()
-            )
+        if cfg.init_from:  # every seed from the checkpoint's exact parameters, or seed i from checkpoint i
+            sources = [self.initial_params(path) for path in cfg.init_from_paths]
+            if len(sources) == 1:
+                params = jax.tree.map(lambda x: jnp.broadcast_to(x, (cfg.num_seeds, *x.shape)), sources[0])
+            else:
+                params = jax.tree.map(lambda *xs: jnp.stack(xs), *sources)
             opt_state = jax.vmap(self.optimizer.init)(params)
             state = state._replace(params=params, opt_state=opt_state)
         return self.place(state)
@@ -253,17 +255,17 @@ class Trainer:
             return tree
         return jax.device_put(tree, NamedSharding(self.mesh, PartitionSpec()))
 
-    def initial_params(self) -> Any:
-        """The parameters of `init_from` (checked against this run's game, observations and network)."""
+    def initial_params(self, path: str) -> Any:
+        """The parameters of one `init_from` checkpoint (checked against this run's game and network)."""
         cfg = self.config
         seed = None if cfg.init_from_seed < 0 else cfg.init_from_seed
         try:
-            policy = load_policy(ZooEntry(name="init_from", checkpoint=cfg.init_from, seed=seed))
+            policy = load_policy(ZooEntry(name="init_from", checkpoint=path, seed=seed))
         except checkpoints.CheckpointError as err:
             raise ConfigError(f"init_from: {err}") from err
         if policy.env.name != cfg.env.name or policy.network != cfg.network_config:
             raise ConfigError(
-                f"init_from {cfg.init_from} was trained on {policy.env.name} with network {policy.network}; "
+                f"init_from {path} was trained on {policy.env.name} with network {policy.network}; "
                 f"this run plays {cfg.env.name} with {cfg.network_config}: use a matching checkpoint/preset"
             )
         return policy.params

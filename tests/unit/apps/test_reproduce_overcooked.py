@@ -109,7 +109,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert report is not None and report.exists()
     text = report.read_text()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
-                   "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "per-seed scores",
+                   "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "(seeds as units)",
                    "| with human proxies |", "The paper's human study"):  # fmt: skip
         assert needle in text, needle
     # the recorded time of each training run and of the cross-play, kept for a report that reuses them

@@ -287,3 +287,20 @@ def test_networks_with_and_without_a_partner_model_cross_play_exactly():
     )
     pair = (table.policy_a == "ippo") & (table.policy_b == "e3t")
     assert not table.skipped and set(table.seat[pair].tolist()) == {0, 1}  # both seat orders played
+
+
+def test_init_from_one_checkpoint_per_seed_continues_each_seed_from_its_own(ippo_run, tmp_path):
+    """`init_from=a,b` (how exported CEC seeds are trained further, one vmapped run): seed i starts from
+    checkpoint i's exact parameters; a count that matches neither 1 nor num_seeds is refused up front."""
+    first, last = sorted(p for p in (ippo_run / "checkpoints").iterdir() if p.is_dir())[::2][:2]
+    cfg = _config(tmp_path, "cec_finetune", init_from=f"{first},{last}", num_seeds=2, init_from_seed=0)
+    state = Trainer(cfg).init()
+    for seed, path in enumerate((first, last)):
+        expected = load_policy(ZooEntry("x", str(path), seed=0)).params
+        got = jax.tree.map(lambda x, s=seed: np.asarray(x[s]), state.params)
+        assert all(
+            np.array_equal(a, b) for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True)
+        )
+    assert not np.array_equal(*(np.asarray(x) for x in jax.tree.leaves(state.params)[0]))
+    with pytest.raises(ConfigError, match="3 checkpoints for 2 seeds"):
+        _config(tmp_path, "cec_finetune", init_from=f"{first},{last},{last}", num_seeds=2)
