@@ -14,10 +14,11 @@
 #                                          # profile, the shipped CEC seeds trained further, the paper
 #                                          # preset's throughput, the new policies exported
 #
-# `window` sizes (environment; the defaults fit one 9-minute call, tests/unit/apps/test_gpu_window.py runs it
-# at tiny sizes on a CPU): WINDOW_TRAIN_S (330) seconds of CEC training, stopped by SIGTERM (the trainer
+# `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
+# end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (330) seconds of CEC training, stopped by SIGTERM (the trainer
 # checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset; WINDOW_PROFILE_S (90) for the profile;
-# WINDOW_STEPS per seed the LR anneals over (80M); WINDOW_SET extra overrides for every run (tiny sizes).
+# WINDOW_STEPS per seed the LR anneals over (80M); WINDOW_SET extra overrides for every run (tiny sizes);
+# WINDOW_PROFILE_SET the profile's batch (4096 envs x 16 minibatches: the recipe at a GPU's batch).
 #
 # Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
 # checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
@@ -117,7 +118,8 @@ window)
         date -u +%FT%TZ; nvidia-smi --query-gpu=name,memory.total --format=csv 2>/dev/null
         "$PY" -c "import jax; print('jax', jax.__version__, jax.devices())"
         echo "== 1. training profile (the CPU recipe's step on this device)"
-        timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --set "${EXTRA[@]}" \
+        read -r -a PSET <<< "${WINDOW_PROFILE_SET-num_envs=4096 ppo.num_minibatches=16}"
+        timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --set "${PSET[@]}" "${EXTRA[@]}" \
             --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
         echo "== 2. the shipped CEC seeds trained further (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
         seeds=$(ls -d cec/shipped/cec-s20? | sort | paste -sd, -)
