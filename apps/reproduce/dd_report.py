@@ -226,10 +226,12 @@ def write_report(
     md.append("")
     md.append("## The paper's orderings\n")
     md.append(
-        f"Welch two-sided t-test on the per-seed XP and a 95% bootstrap interval of the difference; "
-        f"*significant* = the ordering holds and p < {ALPHA}. *Learned seeds only*: the same test on XP "
-        f"among the seeds whose self-play reached {LEARNED} (an ordering that holds only with the seeds that "
-        "never learned rests on them, not on conventions).\n"
+        "Seeds are the units, and a seed's cross-play pairs are shared with the other seeds: the "
+        "difference of XP with its leave-one-seed-out jackknife standard error, a two-sided t-test with "
+        "Welch-Satterthwaite degrees of freedom and the 95% t interval (`cec.evaluation.stats."
+        f"compare_crossplay`; NaN below 3 seeds); *significant* = the ordering holds and p < {ALPHA}. "
+        f"*Learned seeds only*: the same test on XP among the seeds whose self-play reached {LEARNED} "
+        "(an ordering that holds only with the seeds that never learned rests on them, not on conventions).\n"
     )
     md.append(
         "| variant | task set | ordering | difference [95% CI] | p | holds | significant | learned seeds "
@@ -497,7 +499,7 @@ def ablation_section(
                 md.append(f"| {VARIANT_TITLES[variant]} | {steps} | {mine_t} | {other} | {_positive(t)} |")
             md.append("")
         if mine:
-            md.append(f"XP of {a} and of {b} (per-seed means, Welch test over seeds as for the orderings):\n")
+            md.append(f"XP of {a} and of {b} (the jackknife over seeds, as for the orderings):\n")
             md.append(f"| variant | task set | {a} XP | {b} XP | difference [95% CI] | p | {a} better |")
             md.append("|---|---|---|---|---|---|---|")
             for c in mine:

@@ -34,11 +34,14 @@ class Score:
     """One algorithm's score of one kind on one level set of one variant.
 
     Attributes:
-        mean, sem: over the samples (NaN when there are none / fewer than 2).
+        mean, sem: over the samples (NaN when there are none / fewer than 2); for cross-play kinds the mean
+            over every pair of two different seeds and its leave-one-seed-out jackknife standard error
+            (`cec.evaluation.stats.crossplay_estimate`: a seed's pairs are shared with the other seeds).
         n_seeds: the algorithm's seeds; n: the samples, one per seed (`xp`: the seed's mean with the other
             seeds, `cec.evaluation.stats.seed_means`; `sp`: with itself; `oracle`: with the oracle).
-        samples: the samples themselves (normalised scores); tests compare them, seeds being the units.
+        samples: the samples themselves (normalised scores), for display; seeds are the units.
         seeds: the seed of each sample (`oracle`: one per seed and oracle partner).
+        matrix: cross-play kinds: the seed x seed matrix the score comes from (tests compare these).
     """
 
     mean: float
@@ -47,6 +50,7 @@ class Score:
     n: int
     samples: tuple[float, ...]
     seeds: tuple[int, ...] = ()
+    matrix: tuple[tuple[float, ...], ...] = ()
 
 
 #: The kinds of score `summarise` gives: (kind, actions played, episode returns clipped at 0).
@@ -93,7 +97,7 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
 def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
     """{algorithm: Score} of one kind (`xp`, `sp`, `oracle`) on the levels `names`."""
     from cec.evaluation import analysis as an
-    from cec.evaluation.stats import seed_means, sem
+    from cec.evaluation.stats import crossplay_estimate, seed_means, sem
 
     pl = an.pair_level_scores(table, names)
     m = an.pair_scores(pl)
@@ -102,11 +106,11 @@ def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
     for algo, idx in seeds.items():
         if not idx or (kind == "oracle" and algo == ORACLE):
             continue
-        if kind == "xp_learned":
-            kept = [i for i in idx if m[i, i] >= LEARNED]
-            pairs = list(zip(kept, seed_means(m[np.ix_(kept, kept)]), strict=True)) if len(kept) > 1 else []
-        elif kind == "xp":
-            pairs = list(zip(idx, seed_means(m[np.ix_(idx, idx)]), strict=True))  # seeds: the units
+        matrix = None
+        if kind in ("xp", "xp_learned"):  # seeds: the units; their pairs shared
+            kept = [i for i in idx if m[i, i] >= LEARNED] if kind == "xp_learned" else idx
+            matrix = m[np.ix_(kept, kept)]
+            pairs = list(zip(kept, seed_means(matrix), strict=True)) if len(kept) > 1 else []
         elif kind == "sp":
             pairs = [(i, m[i, i]) for i in idx]
         else:
@@ -115,7 +119,11 @@ def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
         if pairs:
             arr = np.asarray([v for _, v in pairs], np.float64)
             ids = tuple(int(pl.policies[i].seed) for i, _ in pairs)
-            out[algo] = Score(float(arr.mean()), sem(arr), len(idx), arr.size, tuple(arr.tolist()), ids)
+            mean, err, cells = float(arr.mean()), sem(arr), ()
+            if matrix is not None:
+                mean, err = crossplay_estimate(matrix)[:2]
+                cells = tuple(tuple(float(x) for x in row) for row in matrix)
+            out[algo] = Score(mean, err, len(idx), arr.size, tuple(arr.tolist()), ids, cells)
     return out
 
 
@@ -195,12 +203,16 @@ def _ordering(
     worse: str,
     kind: str = "xp",
 ) -> ClaimResult | None:
-    from cec.evaluation.stats import compare
+    from cec.evaluation.stats import compare, compare_crossplay
 
     xp = summaries.get(variant, {}).get(level_set, {}).get(kind, {})
     if better not in xp or worse not in xp:
         return None
-    c = compare(np.asarray(xp[better].samples), np.asarray(xp[worse].samples))
+    a, b = xp[better], xp[worse]
+    if a.matrix and b.matrix:  # cross-play: the jackknife over seeds
+        c = compare_crossplay(np.asarray(a.matrix), np.asarray(b.matrix))
+    else:
+        c = compare(np.asarray(a.samples), np.asarray(b.samples))
     holds = c.diff > 0
     significant = bool(holds and not math.isnan(c.p) and c.p < ALPHA)
     return ClaimResult(

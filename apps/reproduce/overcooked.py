@@ -574,14 +574,7 @@ def _machine_text(m: dict[str, Any]) -> str:
 
 
 def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, policies: Path) -> dict[str, str]:
-    """Learning curves of every run (PNG) and a GIF of the two CEC seeds and the held-out kitchen of the
-    best cross-play episode (said so in its caption)."""
-    import jax
-
-    from cec.agents.policy import load_policies
-    from cec.agents.zoo import load_zoo
-    from cec.envs.overcooked.render import rollout_frames, save_gif
-    from cec.evaluation.crossplay import episode_states, eval_levels
+    """Learning curves of every run (PNG) and a GIF of a median cross-play episode (`crossplay_gif`)."""
     from cec.evaluation.curves import plot_learning_curves
 
     figures = {}
@@ -594,23 +587,7 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, poli
     if others:
         plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
-    cec = [p for p in load_policies(load_zoo(policies))[0] if p.algorithm == "cec"]
-    rows = table.select(
-        (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
-        & np.char.startswith(table.level.astype(str), "generated_")
-    )  # fmt: skip
-    if len(cec) >= 2 and len(rows):
-        i = int(np.argmax(rows.returns))  # the pair and kitchen of the best cross-play episode
-        best, by_seed = str(rows.level[i]), {p.seed: p for p in cec}
-        a, b = by_seed[int(rows.seed_a[i])], by_seed[int(rows.seed_b[i])]
-        level = jax.tree.map(lambda x: x[0], eval_levels("overcooked", best).levels)
-        states, ret = episode_states(a, b, level, best, max_steps=EVAL_STEPS)
-        save_gif(rollout_frames(states, 24), out / "cec_xp_heldout.gif", fps=10)
-        caption = (
-            f"CEC seeds {a.seed} and {b.seed} (never trained together) in {best}: the pair and held-out "
-            f"kitchen of the best cross-play episode; this episode's team return {ret:g}"
-        )
-        figures[caption] = "cec_xp_heldout.gif"
+    figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
     _log(log, f"figures: {', '.join(figures.values())}")
     return figures
 
@@ -727,3 +704,37 @@ def add_subcommand(rep_sub: Any) -> None:
         "'' none); they need the agents' network (cec humans bc --preset)",
     )
     oc.set_defaults(func=_cmd)
+
+
+def crossplay_gif(table: Any, policies: Path, gif: Path) -> dict[str, str]:
+    """{caption: file name} of a GIF replaying the median-return cross-play episode of two different CEC
+    seeds of `policies` (a zoo manifest) on the held-out kitchens of `table` (a typical episode, not the
+    best; its caption says how it was chosen, its return and the share of episodes that deliver nothing).
+    Empty when the table has no such episode."""
+    import jax
+
+    from cec.agents.policy import load_policies
+    from cec.agents.zoo import load_zoo
+    from cec.envs.overcooked.render import rollout_frames, save_gif
+    from cec.evaluation.crossplay import episode_states, eval_levels
+
+    cec = {p.seed: p for p in load_policies(load_zoo(policies))[0] if p.algorithm == "cec"}
+    rows = table.select(
+        (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
+        & np.char.startswith(table.level.astype(str), "generated_")
+    )  # fmt: skip
+    if len(cec) < 2 or not len(rows):
+        return {}
+    i = int(np.argsort(rows.returns, kind="stable")[len(rows) // 2])  # the median episode
+    kitchen = str(rows.level[i])
+    a, b = cec[int(rows.seed_a[i])], cec[int(rows.seed_b[i])]
+    level = jax.tree.map(lambda x: x[0], eval_levels("overcooked", kitchen).levels)
+    states, ret = episode_states(a, b, level, kitchen, max_steps=EVAL_STEPS)
+    save_gif(rollout_frames(states, 24), gif, fps=10)
+    zero = float(np.mean(rows.returns == 0))
+    caption = (
+        f"CEC seeds {a.seed} and {b.seed} (never trained together) in {kitchen}, a held-out kitchen: the "
+        f"median-return episode of {len(rows)} cross-play episodes ({zero:.0%} of them deliver nothing); "
+        f"this episode's team return {ret:g} per {EVAL_STEPS} steps"
+    )
+    return {caption: gif.name}

@@ -116,7 +116,9 @@ class _Report:
             "Aggregation: a pair's score on a level is the mean over its episodes and both seat orders; a "
             "pair's score on a level set is the mean over the set's levels both policies play. SP = a "
             "policy with itself; XP = two different seeds of one algorithm; ad hoc = with policies of the "
-            "other algorithms. Standard errors and tests take pair scores as samples.\n"
+            "other algorithms. Seeds are the units of every test; XP's uncertainty is a jackknife over "
+            "seeds (each seed's pairs are shared with the other seeds), the others' standard errors are "
+            "over pairs and describe spread, not evidence.\n"
         )
         if t.skipped:
             self.md.append("## Skipped zoo entries\n")

@@ -519,3 +519,19 @@ def test_the_late_slope_is_the_end_of_each_seed_s_learning_curve(tmp_path: Path)
     (run / "metrics.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     assert dd_summary.training_stats(tmp_path)["cec"].late_slope == pytest.approx(0.05)
     assert math.isnan(dd_summary.return_slope([(0, 0.1), (1, 0.2)]))  # too few points to fit a line
+
+
+@pytest.mark.parametrize("paper", [0.0, 0.03, 0.61])
+def test_a_reason_never_contradicts_the_paper_value_printed_beside_it(paper: float) -> None:
+    """A policy that never trained on a task set fails there (-0.5 on our scale); the reason names the
+    paper's own value and calls the gap one of scale only when that value is a failure too."""
+    from apps.reproduce.dd_reasons import difference_reason
+    from apps.reproduce.dd_summary import Score
+
+    xp = Score(-0.5, 0.0, 4, 4, (-0.5,) * 4)
+    text = difference_reason(xp, paper, xp, None, trained_on_set=False)
+    assert f"{paper:.2f}" in text
+    if paper > 0.05:
+        assert "one of scale" in text and "not one of scale" in text and "for the same failure" not in text
+    else:
+        assert "for the same failure" in text and "generalisation" not in text
