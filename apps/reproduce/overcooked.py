@@ -556,9 +556,10 @@ def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped:
 
 def _time_lines(train_s: dict[str, float], played_s: float) -> list[str]:
     """The recorded time of the work behind the report, reused work included (empty when none is known)."""
-    if not train_s:
+    recorded = [t for t in train_s.values() if math.isfinite(t) and t > 0]
+    if not recorded:  # a work folder from before training times were kept
         return []
-    train = sum(t for t in train_s.values() if math.isfinite(t))
+    train = sum(recorded)
     unknown = "not recorded (played before play times were kept)"
     play = duration(played_s) if math.isfinite(played_s) else unknown
     return [
