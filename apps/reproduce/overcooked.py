@@ -708,10 +708,10 @@ def add_subcommand(rep_sub: Any) -> None:
 
 
 def crossplay_gif(table: Any, policies: Path, gif: Path) -> dict[str, str]:
-    """{caption: file name} of a GIF replaying the median-return cross-play episode of two different CEC
-    seeds of `policies` (a zoo manifest) on the held-out kitchens of `table` (a typical episode, not the
-    best; its caption says how it was chosen, its return and the share of episodes that deliver nothing).
-    Empty when the table has no such episode."""
+    """{caption: file name} of a GIF of the pair and held-out kitchen of the median-return cross-play
+    episode of two different CEC seeds of `policies` (a zoo manifest) in `table`: a typical episode, not the
+    best, replayed (another draw of the sampled actions); its caption says how it was chosen, the table's
+    and the replay's return and the share of episodes that deliver nothing. Empty when there is none."""
     import jax
 
     from cec.agents.policy import load_policies
@@ -734,8 +734,9 @@ def crossplay_gif(table: Any, policies: Path, gif: Path) -> dict[str, str]:
     save_gif(rollout_frames(states, 24), gif, fps=10)
     zero = float(np.mean(rows.returns == 0))
     caption = (
-        f"CEC seeds {a.seed} and {b.seed} (never trained together) in {kitchen}, a held-out kitchen: the "
-        f"median-return episode of {len(rows)} cross-play episodes ({zero:.0%} of them deliver nothing); "
-        f"this episode's team return {ret:g} per {EVAL_STEPS} steps"
+        f"CEC seeds {a.seed} and {b.seed} (never trained together) in {kitchen}, a held-out kitchen: the pair "
+        f"and kitchen of the median-return episode of {len(rows)} cross-play episodes (return "
+        f"{rows.returns[i]:g}; {zero:.0%} of them deliver nothing), replayed: team return {ret:g} per "
+        f"{EVAL_STEPS} steps"
     )
     return {caption: gif.name}
