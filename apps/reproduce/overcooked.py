@@ -734,8 +734,8 @@ def crossplay_gif(table: Any, policies: Path, gif: Path) -> dict[str, str]:
     save_gif(rollout_frames(states, 24), gif, fps=10)
     zero = float(np.mean(rows.returns == 0))
     caption = (
-        f"CEC seeds {a.seed} and {b.seed} (never trained together) in {kitchen}, a held-out kitchen: the pair "
-        f"and kitchen of the median-return episode of {len(rows)} cross-play episodes (return "
+        f"CEC seeds {a.seed} and {b.seed} (never trained together) in {kitchen}, a held-out kitchen: the "
+        f"pair and kitchen of the median-return episode of {len(rows)} cross-play episodes (return "
         f"{rows.returns[i]:g}; {zero:.0%} of them deliver nothing), replayed: team return {ret:g} per "
         f"{EVAL_STEPS} steps"
     )
