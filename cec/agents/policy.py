@@ -74,6 +74,21 @@ def _jitted_init(task: Task, network: NetworkConfig) -> Any:
     return jax.jit(lambda key: init_params(net, key, task.obs_shape))
 
 
+@cache
+def _param_shapes(obs_shape: tuple[int, ...], num_actions: int, network: NetworkConfig) -> Any:
+    net = ActorCritic(network, num_actions)
+    return jax.eval_shape(lambda key: init_params(net, key, obs_shape), jax.random.PRNGKey(0))
+
+
+def _param_template(env: EnvConfig, network: NetworkConfig) -> Any:
+    """Zeros shaped as one seed's parameters: what `checkpoints.load` checks a file against. From shapes
+    alone (no compiled init), cached per observation shape and network, not per kitchen: a zoo of
+    single-kitchen policies loads without compiling once per kitchen."""
+    task = Task.from_config(env)
+    shapes = _param_shapes(tuple(task.obs_shape), task.num_actions, network)
+    return jax.tree.map(lambda s: np.zeros(s.shape, s.dtype), shapes)
+
+
 def scripted_policy(
     kind: str,
     name: str | None = None,
@@ -171,8 +186,7 @@ def load_policy(entry: ZooEntry) -> Policy:
         ) from err
     metadata = meta.get("metadata", {})
     if metadata.get("params_only"):  # one seed's parameters (`save_policy`)
-        template = _jitted_init(Task.from_config(config.env), config.network_config)(jax.random.PRNGKey(0))
-        params, _ = checkpoints.load(path, template)
+        params, _ = checkpoints.load(path, _param_template(config.env, config.network_config))
         seed = int(metadata["seeds"][0])
         if entry.seed is not None and entry.seed != seed:
             raise checkpoints.CheckpointError(
@@ -182,7 +196,7 @@ def load_policy(entry: ZooEntry) -> Policy:
         params = jax.tree.map(np.asarray, params)
         return Policy(entry.name, algorithm, seed, params, config.network_config, config.env, entry.levels)
     seeds = [int(s) for s in metadata.get("seeds", [config.seed + i for i in range(config.num_seeds)])]
-    one = _jitted_init(Task.from_config(config.env), config.network_config)(jax.random.PRNGKey(0))
+    one = _param_template(config.env, config.network_config)
     template = jax.tree.map(lambda x: np.zeros((len(seeds), *x.shape), x.dtype), one)
     stacked, _ = checkpoints.load(path, template, part="params")  # a training state: its parameters only
     if entry.seed is None:
