@@ -119,7 +119,8 @@ def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
         if pairs:
             arr = np.asarray([v for _, v in pairs], np.float64)
             ids = tuple(int(pl.policies[i].seed) for i, _ in pairs)
-            mean, err, cells = float(arr.mean()), sem(arr), ()
+            mean, err = float(arr.mean()), sem(arr)
+            cells: tuple[tuple[float, ...], ...] = ()
             if matrix is not None:
                 mean, err = crossplay_estimate(matrix)[:2]
                 cells = tuple(tuple(float(x) for x in row) for row in matrix)
