@@ -230,6 +230,7 @@ class ChildRecord:
         try:
             old = json.loads(self.path.read_text())
             owner = int(old["owner"])
+            self._owner_cmd = old.get("owner_cmd")
             children = [
                 {**c, "alive": bool(c.get("cmd")) and _cmdline(int(c["pid"])) == c["cmd"]}
                 for c in old["children"]
@@ -250,23 +251,32 @@ class ChildRecord:
             return  # missing or unreadable: nothing to go by (`add` writes a new one)
         owner, children = record
         alive = [c for c in children if c["alive"]]
+        names = ", ".join(f"{c.get('name')} (pid {c['pid']})" for c in alive)
+        recorded_cmd = getattr(self, "_owner_cmd", None)
+        owner_cmd = _cmdline(owner) if owner != os.getpid() else None
+        if owner_cmd is not None and recorded_cmd in (None, owner_cmd):  # the same process, not a reused pid
+            # a live run: never advise killing its children (its learner would lose what it has not saved)
+            running = f" ({names} still run)" if alive else ""
+            raise ConfigError(
+                f"another `cec up` (pid {owner}) runs this run{running}. Stop it gracefully: Ctrl-C in its "
+                f"terminal or `kill -INT {owner}` (its learner checkpoints, then it stops its services); "
+                "then start again, with --resume to continue from that checkpoint"
+            )
         if not alive:
             return
-        names = ", ".join(f"{c.get('name')} (pid {c['pid']})" for c in alive)
         pids = " ".join(str(c["pid"]) for c in alive)
-        who = (
-            f"another `cec up` (pid {owner}) runs this run"
-            if _cmdline(owner) is not None
-            else f"an earlier `cec up` (pid {owner}) of this run ended without stopping its services"
+        raise ConfigError(
+            f"an earlier `cec up` (pid {owner}) of this run ended without stopping its services: {names} "
+            f"still run. Stop them (`kill {pids}`) and start again"
         )
-        raise ConfigError(f"{who}: {names} still run. Stop them (`kill {pids}`) and start again")
 
     def add(self, name: str, pid: int) -> None:
         """Records a started child (rewriting the file atomically)."""
         self.children.append({"name": name, "pid": pid, "cmd": _cmdline(pid)})
         self.path.parent.mkdir(parents=True, exist_ok=True)
         tmp = self.path.with_name(self.path.name + ".tmp")
-        tmp.write_text(json.dumps({"owner": os.getpid(), "children": self.children}, indent=1))
+        record = {"owner": os.getpid(), "owner_cmd": _cmdline(os.getpid()), "children": self.children}
+        tmp.write_text(json.dumps(record, indent=1))
         tmp.replace(self.path)
 
     def clear(self) -> None:

@@ -67,8 +67,11 @@ def test_leftovers_of_a_dead_owner_are_named_with_the_command_to_stop_them(tmp_p
     parent, child = _parent_with_child(tmp_path, parent_death=False)
     record = ChildRecord(tmp_path / "children.json")
     try:
-        with pytest.raises(ConfigError, match=rf"another `cec up` \(pid {parent.pid}\) runs this run"):
+        live_run = rf"another `cec up` \(pid {parent.pid}\) runs this run"
+        with pytest.raises(ConfigError, match=live_run) as live:
             record.check()
+        # a live run's children are never to be killed: the advice stops its owner gracefully
+        assert f"kill -INT {parent.pid}" in str(live.value) and f"kill {child}" not in str(live.value)
         parent.send_signal(signal.SIGKILL)
         parent.wait()
         gone = rf"ended without stopping .*sleeper \(pid {child}\).*kill {child}"
@@ -165,3 +168,23 @@ def test_a_child_that_exits_or_is_too_slow_is_not_ready_with_its_output(tmp_path
     finally:
         slow.stop()
     assert not slow.running
+
+
+def test_cec_up_resume_refuses_a_live_run_naming_its_owner_and_the_graceful_stop(tmp_path: Path) -> None:
+    """`cec up --resume` on a run another `cec up` still runs: exit 2 before starting anything (no second
+    redis-server on the live run's data), and the advice stops the owner gracefully, never kills its
+    children."""
+    run_dir = tmp_path / "up"
+    parent, child = _parent_with_child(run_dir / "logs", parent_death=False)
+    try:
+        cmd = [sys.executable, "-m", "apps.cli", "up", "--resume", f"train.run_dir={tmp_path}"]
+        cmd.append("train.name=up")
+        proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
+    finally:
+        parent.kill()
+        parent.wait()
+        subprocess.run(["kill", str(child)], check=False)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"another `cec up` (pid {parent.pid}) runs this run" in proc.stderr
+    assert f"kill -INT {parent.pid}" in proc.stderr and f"kill {child}" not in proc.stderr
+    assert not (run_dir / "redis").exists(), "nothing was started"
