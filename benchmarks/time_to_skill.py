@@ -1,0 +1,147 @@
+"""Time to skill: held-out cross-play of a training recipe against the core-hours it cost, at its milestones.
+
+Recipes are compared by what they buy per core-hour (cross-play with partners a seed never met, in kitchens
+it never saw), not by training return. For each run directory (one `cec train` run of S >= 2 vmapped seeds
+with `checkpoint.milestones`), every milestone checkpoint's seeds play each other and themselves on the 100
+held-out kitchens (400-step episodes, sampled actions, both seat orders, `--episodes` per pairing and
+kitchen); the cost of a milestone is the run's recorded training time up to it (from `metrics.csv`: each
+update's env steps over its env-steps/s) divided by its seeds, i.e. core-hours per seed when the run had
+one core. Cross-play is the mean over every pair of two different seeds with its jackknife standard error
+over seeds (`cec.evaluation.stats.crossplay_estimate`; none with 2 seeds).
+
+Train the runs first, one core each, the same budget, e.g. (the two probes of docs/reproduce_overcooked.md):
+
+    M='checkpoint.milestones=[0.25,0.5,0.75,1.0]'
+    taskset -c 0 cec train --config configs/train/cec_overcooked_cpu.yaml seed=300 num_seeds=2 \\
+        total_env_steps=5242880 "$M" run_dir=runs/probes name=tts-e128
+    taskset -c 1 cec train --config configs/train/cec_overcooked_cpu.yaml seed=300 num_seeds=2 \\
+        num_envs=1024 ppo.num_minibatches=8 total_env_steps=5242880 updates_per_call=1 \\
+        checkpoint.every_updates=5 "$M" run_dir=runs/probes name=tts-e1024
+    python benchmarks/time_to_skill.py runs/probes/tts-e128 runs/probes/tts-e1024 \\
+        --out docs/reproduce_overcooked/tts
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import datetime
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cec.agents.policy import load_policies
+from cec.agents.zoo import ZooEntry
+from cec.checkpoints import CheckpointStore, read_meta
+from cec.evaluation import analysis as an
+from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+from cec.evaluation.stats import crossplay_estimate, sem
+
+
+def training_seconds(run: Path) -> dict[int, float]:
+    """{update: seconds of training up to and including it} from the run's metrics (one row per seed and
+    update; the env-steps/s of a row counts every seed's steps)."""
+    per_update: dict[int, tuple[float, float]] = {}
+    with (run / "metrics.csv").open() as f:
+        for row in csv.DictReader(f):
+            u = int(row["update"])
+            steps, sps = float(row["env_steps"]), float(row["env_steps_per_s"])
+            per_update.setdefault(u, (steps, sps))
+    out, total, last_steps, seeds = {}, 0.0, 0.0, _seeds(run)
+    for u in sorted(per_update):
+        steps, sps = per_update[u]
+        total += (steps - last_steps) * seeds / max(sps, 1e-9)  # one seed's steps, every seed's rate
+        out[u], last_steps = total, steps
+    return out
+
+
+def _seeds(run: Path) -> int:
+    latest = CheckpointStore(run, keep_last=1).latest()
+    assert latest is not None, f"{run} has no checkpoints"
+    return len(read_meta(latest.path)["metadata"]["seeds"])
+
+
+def evaluate(run: Path, episodes: int) -> list[dict[str, Any]]:
+    """One row per milestone checkpoint: env steps per seed, core-hours per seed, XP and SP on the
+    held-out kitchens."""
+    seconds = training_seconds(run)
+    levels = eval_levels("overcooked", "generated")
+    rows = []
+    for ckpt in sorted(p for p in (run / "checkpoints").iterdir() if (p / "meta.json").is_file()):
+        meta = read_meta(ckpt)
+        seeds = [int(s) for s in meta["metadata"]["seeds"]]
+        update = int(meta["update"])
+        entries = [ZooEntry(f"s{s}", str(ckpt), algorithm="cec", seed=s) for s in seeds]
+        policies, skipped = load_policies(entries)
+        if skipped:
+            raise SystemExit(f"{ckpt}: {skipped}")
+        table = crossplay(policies, levels, EvalConfig(episodes=episodes, max_steps=400, pairs="all"))
+        pl = an.pair_level_scores(table)
+        m = an.pair_scores(pl)
+        est = crossplay_estimate(m)
+        sp = np.diag(m)
+        cost = seconds.get(update, float("nan")) / len(seeds) / 3600
+        rows.append(
+            {
+                "run": run.name,
+                "update": update,
+                "env_steps_per_seed": int(meta["env_steps"]),
+                "core_hours_per_seed": cost,
+                "xp": est.mean,
+                "xp_se": est.se,
+                "sp": float(sp.mean()),
+                "sp_se": sem(sp),
+                "seeds": seeds,
+            }  # fmt: skip
+        )
+        print(
+            f"{run.name} update {update}: {int(meta['env_steps']):,} steps/seed, {cost:.3f} core-h/seed | "
+            f"XP {est.mean:.1f} | SP {sp.mean():.1f}",
+            flush=True,
+        )
+    return rows
+
+
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for run in sorted({r["run"] for r in rows}):
+        mine = sorted((r for r in rows if r["run"] == run), key=lambda r: r["core_hours_per_seed"])
+        ax.plot([r["core_hours_per_seed"] for r in mine], [r["xp"] for r in mine], "o-", label=f"{run} XP")
+        ax.plot([r["core_hours_per_seed"] for r in mine], [r["sp"] for r in mine], "x--", label=f"{run} SP")
+    ax.axhline(20, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("core-hours per seed (this CPU, one core per run)")
+    ax.set_ylabel("team return per 400 steps, 100 held-out kitchens")
+    ax.set_title("time to skill")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("runs", nargs="+", type=Path, help="run directories with milestone checkpoints")
+    ap.add_argument("--episodes", type=int, default=1, help="episodes per pairing, seat order and kitchen")
+    ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
+    args = ap.parse_args(argv)
+    rows = [r for run in args.runs for r in evaluate(run, args.episodes)]
+    from apps.machine import machine_info
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    result = {"benchmark": "time_to_skill", "date": datetime.date.today().isoformat(),
+              "machine": machine_info(), "episodes": args.episodes, "rows": rows}  # fmt: skip
+    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1, default=float) + "\n")
+    plot(rows, args.out.with_suffix(".png"))
+    print(f"wrote {args.out.with_suffix('.json')} and {args.out.with_suffix('.png')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
