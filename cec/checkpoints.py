@@ -224,7 +224,22 @@ def load(path: str | Path, template: T, *, part: str | None = None) -> tuple[T, 
             f"checkpoint {path} does not match the expected state structure: {err}"
         ) from err
     _check_leaves(path, template, state)
+    _check_finite(path, state if part == "params" or not hasattr(state, "params") else state.params)
     return state, meta
+
+
+def _check_finite(path: Path, params: Any) -> None:
+    """`CorruptCheckpointError` when a floating-point parameter is NaN or infinite: a diverged run's state
+    (its checksum fine) that would play or train as garbage; an older checkpoint of the run may be good."""
+    for key_path, leaf in jax.tree_util.tree_flatten_with_path(params)[0]:
+        arr = np.asarray(leaf)
+        if np.issubdtype(arr.dtype, np.floating) and not np.isfinite(arr).all():
+            bad = int(np.size(arr) - np.isfinite(arr).sum())
+            raise CorruptCheckpointError(
+                f"checkpoint {path} holds non-finite parameters ({bad} of {arr.size} values of "
+                f"{jax.tree_util.keystr(key_path)} are NaN or infinite: the run diverged before it was "
+                "saved); it was not loaded. Use an earlier checkpoint of the run"
+            )
 
 
 def _check_leaves(path: Path, template: Any, state: Any) -> None:

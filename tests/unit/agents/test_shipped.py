@@ -4,8 +4,10 @@ pinned by SHA-256, and competent: each delivers soups with itself in a classic k
 from __future__ import annotations
 
 import hashlib
+import json
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -107,3 +109,22 @@ def test_cec_play_serve_partner_cec_starts_with_the_shipped_agents(tmp_path: Pat
     args = parse_args(build_parser(), ["play", "serve", "--partner", "no_such_agent"])
     with pytest.raises(ConfigError, match="no loadable entry of group 'no_such_agent'"):
         prepare(free_play_config(args), tmp_path)
+
+
+def test_a_policy_with_non_finite_weights_is_refused_even_with_a_valid_checksum(tmp_path: Path) -> None:
+    """A diverged run's parameters (all NaN, the SHA-256 recomputed so the file is 'intact') are not
+    evaluated or played as if they were a policy: loading names the array and the cause."""
+    from flax import serialization
+
+    entry = load_zoo(SHIPPED)[0]
+    policy = load_policy(entry)
+    nan = jax.tree.map(lambda x: np.full_like(x, np.nan), policy.params)
+    copy = tmp_path / "diverged"
+    copy.mkdir()
+    data = serialization.msgpack_serialize(serialization.to_state_dict(nan))
+    (copy / checkpoints.STATE_FILE).write_bytes(data)
+    meta = checkpoints.read_meta(Path(entry.checkpoint))
+    meta["sha256"] = hashlib.sha256(data).hexdigest()
+    (copy / checkpoints.META_FILE).write_text(json.dumps(meta))
+    with pytest.raises(checkpoints.CheckpointError, match=r"non-finite parameters .* are NaN or infinite"):
+        load_policy(ZooEntry("diverged", str(copy)))
