@@ -130,19 +130,50 @@ class _UniqueKeyLoader(yaml.SafeLoader):
         return super().construct_mapping(node, deep=deep)
 
 
+#: The largest config file read (a config is a few kB; more is a mistake or an attack).
+CONFIG_MAX_BYTES = 1 << 20
+
+
+def read_user_file(path: Path, kind: str, max_bytes: int) -> str:
+    """The text of a file a user or a run folder gave, read in bounded memory: a regular file only (not a
+    folder, FIFO or device, which could block or never end), at most `max_bytes`. `ConfigError` naming the
+    file, its kind and the cause otherwise."""
+    import stat
+
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        raise ConfigError(f"{kind} {str(path)!r} does not exist") from None
+    except OSError as err:
+        raise ConfigError(f"{kind} {str(path)!r} cannot be read: {err}") from err
+    if stat.S_ISDIR(st.st_mode):
+        raise ConfigError(f"{kind} {str(path)!r} is a folder; give the file inside it")
+    if not stat.S_ISREG(st.st_mode):
+        raise ConfigError(f"{kind} {str(path)!r} is not a regular file (a FIFO, socket or device)")
+    with path.open("rb") as f:
+        data = f.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise ConfigError(f"{kind} {str(path)!r} is larger than {max_bytes:,} bytes, the most read")
+    try:
+        return data.decode()
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{kind} {str(path)!r} is not UTF-8 text: {err}") from err
+
+
 def load_config(cls: type[T], path: str | Path | None = None, overrides: Sequence[str] = ()) -> T:
     """Loads `cls` from a YAML file (or its defaults when `path` is None), then applies overrides."""
     data: Any = {}
     if path is not None:
         p = Path(path)
-        if not p.is_file():
-            raise ConfigError(f"config file {str(p)!r} does not exist")
+        text = read_user_file(p, "config file", CONFIG_MAX_BYTES)
         try:
-            data = yaml.load(p.read_text(), Loader=_UniqueKeyLoader) or {}  # noqa: S506 (a safe loader)
+            data = yaml.load(text, Loader=_UniqueKeyLoader) or {}  # noqa: S506 (a safe loader)
         except yaml.YAMLError as err:
             raise ConfigError(f"config file {str(p)!r} is not valid YAML: {err}") from err
         except ConfigError as err:
             raise ConfigError(f"config file {str(p)!r}: {err}") from err
+        except RecursionError as err:
+            raise ConfigError(f"config file {str(p)!r} nests too deeply to be a config") from err
         if not isinstance(data, Mapping):
             raise ConfigError(f"config file {str(p)!r} must hold a mapping of fields at the top level")
     return from_dict(cls, apply_overrides(data, overrides))

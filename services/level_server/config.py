@@ -157,6 +157,11 @@ class LevelServerConfig:
                 f"({self.max_concurrent_streams}), or open streams would leave no room for other calls; "
                 "raise max_concurrent_rpcs or lower max_concurrent_streams"
             )
+        if self.auth_token and not (self.auth_token.isascii() and self.auth_token.isprintable()):
+            raise ConfigError(
+                "auth_token must be printable ASCII (gRPC metadata cannot carry newlines, control or "
+                "non-ASCII characters: no client could ever authenticate); choose another token"
+            )
         if bool(self.tls_cert) != bool(self.tls_key):
             raise ConfigError("TLS needs both tls_cert and tls_key (PEM files); set both or neither")
         if self.tls_cert:

@@ -411,6 +411,15 @@ def test_exposed_bind_without_auth_is_a_config_error():
     LevelServerConfig(host="0.0.0.0", insecure=True)  # an explicit choice
 
 
+@pytest.mark.parametrize("token", ["two\nlines", "naïve", "tab\there", "\x00"])
+def test_a_token_no_client_could_send_is_refused_at_start(token: str):
+    """gRPC metadata carries printable ASCII only: such a token would start a server nobody can use."""
+    from cec.config import ConfigError
+
+    with pytest.raises(ConfigError, match="auth_token must be printable ASCII"):
+        LevelServerConfig(auth_token=token)
+
+
 # --- curriculum, metrics, reconnects, process lifecycle ---
 
 
