@@ -118,6 +118,10 @@ class ServiceProcess:
             log_path=log_path,
             env={"JAX_PLATFORMS": "cpu", **os.environ, **(env or {})},
             grace_s=30.0,
+            # A session of its own: a terminal's Ctrl-C (SIGINT to the foreground process group) reaches
+            # only `cec up`, which stops the services in order, the learner's checkpoint first. Without
+            # it Ray's head and the servers died at once under the learner.
+            new_session=True,
         ).start()
         self.proc = self.child.proc
         self.ready_line = self._wait_for(ready, timeout)

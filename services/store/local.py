@@ -105,7 +105,8 @@ class LocalRedis:
         conf.write_text("\n".join(lines) + "\n")
         log = self.data_dir / "redis.log"
         # its own log lines and anything it prints before opening that file (stderr) go to redis.log
-        child = Child("redis-server", [binary, str(conf)], log_path=log)
+        # its own session: a terminal's Ctrl-C reaches only our process, which stops Redis last, in order
+        child = Child("redis-server", [binary, str(conf)], log_path=log, new_session=True)
         self._child = child.start()
         client = redis.Redis(
             host=self.host, port=self.port, password=self.password or None, socket_connect_timeout=0.5

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import signal
 import subprocess
 import sys
 import threading
@@ -106,7 +105,57 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: 
     assert late(asyn) > early + 0.02, "async learns too"
 
 
-def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) -> None:
+class Terminal:
+    """A command run as a newcomer runs it: in a pseudo-terminal that is its controlling terminal, in the
+    terminal's foreground process group (`setsid --ctty`), its output drained to a log file. `ctrl_c()`
+    types ^C: the terminal sends SIGINT to the whole foreground group, as a real one does."""
+
+    def __init__(self, cmd: list[str], log: Path) -> None:
+        import os
+        import pty
+
+        self.master, slave = pty.openpty()
+        self.log = log
+        self.proc = subprocess.Popen(
+            ["setsid", "--ctty", *cmd], stdin=slave, stdout=slave, stderr=slave, cwd=REPO, close_fds=True
+        )
+        os.close(slave)
+        self._pump = threading.Thread(target=self._drain, daemon=True)
+        self._pump.start()
+
+    def _drain(self) -> None:
+        import os
+
+        with self.log.open("ab") as out:
+            while True:
+                try:
+                    data = os.read(self.master, 65536)
+                except OSError:
+                    return  # the terminal closed
+                if not data:
+                    return
+                out.write(data)
+                out.flush()
+
+    def ctrl_c(self) -> None:
+        import os
+
+        os.write(self.master, b"\x03")
+
+    def close(self) -> None:
+        import os
+
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        os.close(self.master)
+        self._pump.join(timeout=5)
+
+
+def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_resumes(tmp_path: Path) -> None:
+    """A learner killed mid-run restarts and resumes; a real ^C in `cec up`'s terminal (SIGINT to the
+    terminal's whole foreground group) checkpoints the last update and stops every service in order, with
+    no traceback and no process left; `cec up --resume` then continues from that checkpoint."""
     psutil = pytest.importorskip("psutil")
     cmd = [
         sys.executable, "-m", "apps.cli", "up", "--config", str(REPO / "configs/up/default.yaml"),
@@ -116,8 +165,7 @@ def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) 
         "train.updates_per_call=1",
         "train.checkpoint.every_updates=1", f"train.run_dir={tmp_path}", "train.name=up",
     ]  # fmt: skip
-    log = open(tmp_path / "up.log", "w")  # noqa: SIM115
-    proc = subprocess.Popen(cmd, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+    term = Terminal(cmd, tmp_path / "up.log")
     run_dir = tmp_path / "up"
     try:
         _wait_rows(run_dir, 3)
@@ -130,22 +178,32 @@ def test_cec_up_survives_a_killed_learner_and_drains_on_sigterm(tmp_path: Path) 
         for p in learners:
             p.kill()
         _wait_rows(run_dir, killed_at + 3)  # restarted, resumed, training again
-        proc.send_signal(signal.SIGTERM)
-        code = proc.wait(300)
+        children = json.loads((run_dir / "logs" / "children.json").read_text())["children"]
+        term.ctrl_c()
+        code = term.proc.wait(300)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-        log.close()
-    text = (tmp_path / "up.log").read_text()
+        term.close()
+    text = (tmp_path / "up.log").read_text(errors="replace")
     assert code == 130, text[-3000:]
     assert "resumes from its latest checkpoint" in text
+    assert "Traceback" not in text and "giving up" not in text, text[-3000:]
     rows = [r["update"] for r in _rows(run_dir)]
     assert rows == list(range(1, len(rows) + 1)), "every update's row exactly once across the restart"
     latest = sorted((run_dir / "checkpoints").iterdir())[-1]
-    assert latest.name == f"update_{rows[-1]:09d}", "SIGTERM checkpointed the last update"
+    assert latest.name == f"update_{rows[-1]:09d}", "the ^C checkpointed the last update"
     assert "stack stopped" in text
     assert "os.fork() was called" not in text, "children are started without forking a JAX process"
     assert ours and read_ray_address() != ours, "no later ray.init() here may try to join the stopped cluster"
+    left = [c for c in children if psutil.pid_exists(int(c["pid"]))]
+    assert not left, f"processes left after the ^C: {left}"
+    # ... and the run goes on from the checkpoint the ^C wrote
+    resumed = subprocess.run(
+        [*cmd, "--resume", "--max-updates", "2"], cwd=REPO, capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    more = [r["update"] for r in _rows(run_dir)]
+    assert more[: len(rows)] == rows and more[len(rows) :] == [rows[-1] + 1, rows[-1] + 2], more
 
 
 def test_bad_inputs_stop_start_up_with_the_fix(tmp_path: Path) -> None:
