@@ -43,6 +43,11 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 
+try:  # run as a script (benchmarks/ on sys.path) or as a module
+    from train_throughput import peak_matmul_flops  # type: ignore[import-not-found]
+except ImportError:
+    from benchmarks.train_throughput import peak_matmul_flops
+
 RESULTS = Path(__file__).parent / "results"
 DEFAULT_CONFIG = Path(__file__).parent.parent / "configs" / "train" / "cec_overcooked_cpu.yaml"
 
@@ -58,20 +63,6 @@ def timed(fn: Callable[..., Any], *args: Any, repeats: int) -> tuple[float, floa
         jax.block_until_ready(fn(*args))
         times.append(time.perf_counter() - t)
     return first, statistics.median(times)
-
-
-def peak_matmul_flops(repeats: int = 10) -> float:
-    """FLOP/s of a large jitted float32 matmul (best of `repeats`; 2048 on a CPU, 8192 on an accelerator)."""
-    n = 2048 if jax.devices()[0].platform == "cpu" else 8192
-    a = jax.random.normal(jax.random.PRNGKey(0), (n, n), jnp.float32)
-    f = jax.jit(lambda x: x @ x)
-    f(a).block_until_ready()
-    best = float("inf")
-    for _ in range(repeats):
-        t = time.perf_counter()
-        f(a).block_until_ready()
-        best = min(best, time.perf_counter() - t)
-    return 2 * n**3 / best
 
 
 def cost(compiled: Any) -> dict[str, float]:
@@ -304,7 +295,7 @@ def main(argv: list[str] | None = None) -> int:
     from cec.checkpoints import code_version
 
     cfg = trainer.config
-    peak = peak_matmul_flops()
+    peak = peak_matmul_flops(2048 if jax.devices()[0].platform == "cpu" else 8192)
     print(
         f"{cfg.num_envs} envs x {cfg.num_steps} steps, {cfg.ppo.update_epochs} epochs x "
         f"{cfg.ppo.num_minibatches} minibatches; peak float32 matmul {peak / 1e9:.1f} GFLOP/s",

@@ -18,7 +18,6 @@ import re
 import shutil
 import subprocess
 import sys
-import threading
 import time
 import urllib.error
 import urllib.request
@@ -34,6 +33,7 @@ from websockets.typing import Origin
 from cec.evaluation.results import read_csv
 from services.play.recording import FileStore, RedisStore, finished_rounds
 from services.store import LocalRedis, StoreConfig
+from tests.play_server import PlayServer
 
 webdriver = pytest.importorskip("selenium.webdriver")
 from selenium.webdriver.chrome.service import Service  # noqa: E402
@@ -69,37 +69,13 @@ def server(tmp_path_factory: pytest.TempPathFactory, redis_server: LocalRedis) -
     """`python -m services.play serve` on a free port, recording to files and Redis."""
     _browser_paths()
     data = tmp_path_factory.mktemp("play_data")
-    cmd = [sys.executable, "-m", "services.play", "serve", str(STUDY), "--port", "0", "--data", str(data)]
-    cmd += ["--redis-url", redis_server.url]
-    env = {**os.environ, "JAX_PLATFORMS": "cpu"}
-    proc = subprocess.Popen(
-        cmd, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
-    )
-    lines: list[str] = []
-    found: dict[str, str] = {}
-    ready = threading.Event()
-
-    def pump() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            lines.append(line)
-            m = re.search(r"serving study 'tiny' at (http://\S+/)", line)
-            if m:
-                found["url"] = m.group(1)
-                ready.set()
-        ready.set()
-
-    threading.Thread(target=pump, daemon=True).start()
-    ready.wait(timeout=180)
-    if "url" not in found:
-        proc.kill()
-        pytest.fail("the play server did not start:\n" + "".join(lines))
-    yield {"url": found["url"], "data": data, "redis": redis_server, "log": lines}
-    proc.terminate()
+    args = [str(STUDY), "--port", "0", "--data", str(data), "--redis-url", redis_server.url]
     try:
-        proc.wait(timeout=20)
-    except subprocess.TimeoutExpired:
-        proc.kill()
+        server = PlayServer(args, "tiny")
+    except RuntimeError as err:
+        pytest.fail(str(err))
+    yield {"url": server.url, "data": data, "redis": redis_server, "log": server.lines}
+    server.stop(timeout=20)
 
 
 def _new_browser() -> Any:
