@@ -22,6 +22,7 @@ import contextlib
 import dataclasses
 import logging
 import os
+import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -89,6 +90,18 @@ def preset_path(path: str) -> Path:
 
 def _port(requested: int) -> int:
     return free_port() if requested == 0 else requested
+
+
+def _ensure_ray_token() -> None:
+    """With Ray's token authentication, `ray start --head` needs a token and never makes one (`ray.init`
+    does): on a machine where Ray never ran, `cec up` failed with Ray's AuthenticationError. Ray's own CLI
+    creates it (~/.ray/auth_token, kept if present); the token it prints is discarded, never logged."""
+    if os.environ.get("RAY_AUTH_MODE") != "token":
+        return
+    cmd = [sys.executable, "-m", "ray.scripts.scripts", "get-auth-token", "--generate"]
+    done = subprocess.run(cmd, capture_output=True, text=True, check=False, timeout=60)
+    if done.returncode != 0:
+        raise ConfigError(f"Ray's authentication token could not be created: {done.stderr.strip()[-500:]}")
 
 
 def _forget_ray_address(port: int) -> None:
@@ -273,6 +286,7 @@ class Stack:
 
         address = self.dist.ray_address
         if not address:  # a local Ray started by its own CLI: no fork of this (JAX-threaded) process
+            _ensure_ray_token()
             port = free_port()
             head = ServiceProcess(
                 "ray head",
