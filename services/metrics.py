@@ -11,6 +11,8 @@ from collections.abc import Iterable, Iterator
 
 from prometheus_client import REGISTRY, Counter, Gauge, Histogram, Metric, start_http_server
 
+from cec.config import ConfigError
+
 # --- level server ------------------------------------------------------------------------------------------
 LEVELS_GENERATED = Counter(
     "cec_level_server_levels_generated_total", "Levels produced by the generator (fresh, not replayed)"
@@ -192,9 +194,17 @@ class ComponentRegistry:
 class MetricsEndpoint:
     """A running `/metrics` HTTP endpoint of one component (None: every metric); `close()` stops it."""
 
-    def __init__(self, port: int, host: str = "127.0.0.1", component: str | None = None) -> None:
+    def __init__(
+        self, port: int, host: str = "127.0.0.1", component: str | None = None, key: str = "metrics_port"
+    ) -> None:
         view = ComponentRegistry(component)
-        self._server, self._thread = start_http_server(port, addr=host, registry=view)
+        try:
+            self._server, self._thread = start_http_server(port, addr=host, registry=view)
+        except OSError as err:  # the port, the service and the key that moves it, not a bare errno
+            raise ConfigError(
+                f"cannot serve {component or 'the'} metrics on {host}:{port} ({err.strerror or err}); move "
+                f"them with {key}=PORT ({key}=0: a free one, -1: off), or stop what holds the port"
+            ) from None
         self.host = host
         self.port: int = self._server.server_port  # the bound port (port 0 picks a free one)
 

@@ -196,6 +196,7 @@ class Stack:
         self.dist.check(self.train_config)
         check_run(self.train_config, resume)  # before anything starts
         self.children.check()  # leftovers of an earlier `cec up` of this run: named, not collided with
+        self.check_ports()
         logs = self.run_dir / "logs"
         # 1. Redis
         if self.store.url_given:
@@ -345,6 +346,34 @@ class Stack:
     def _started(self, service: ServiceProcess) -> None:
         self.services.append(service)
         self.children.add(service.name, service.proc.pid)
+
+    def fixed_ports(self) -> list[tuple[str, str, int]]:
+        """(key, service, port) of every fixed port this stack will bind (0: a free one, -1: off)."""
+        cfg, out = self.config, []
+        if not cfg.level_server_address:
+            out.append(("level_server_port", "the level server's gRPC", cfg.level_server_port))
+            metrics = cfg.level_server_metrics_port
+            out.append(("level_server_metrics_port", "the level server's metrics", metrics))
+        if cfg.evaluator:
+            out.append(("evaluator_metrics_port", "the evaluator's metrics", cfg.evaluator_metrics_port))
+        out.append(("distributed.metrics_port", "the learner's metrics", self.dist.metrics_port))
+        return [(k, s, p) for k, s, p in out if p > 0]
+
+    def check_ports(self) -> None:
+        """`ConfigError` naming the port, the service that wants it and the key that moves it, for the first
+        fixed port another process holds: found before anything starts, not after a service's slow start."""
+        import socket
+
+        for key, service, port in self.fixed_ports():
+            with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+                try:
+                    sock.bind(("127.0.0.1", port))
+                except OSError as err:
+                    raise ConfigError(
+                        f"port {port} ({service}) is in use by another process ({err.strerror}); move it "
+                        f"with {key}=PORT ({key}=0: a free one), or stop what holds it"
+                    ) from None
 
     def train(self, resume: bool, max_updates: int | None = None) -> int:
         from services.learner.driver import run_distributed

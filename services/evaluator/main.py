@@ -34,13 +34,7 @@ def run(args: argparse.Namespace) -> int:
     endpoint = None
     try:
         if config.metrics_port >= 0:
-            try:
-                endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host, component="evaluator")
-            except OSError as err:
-                raise OSError(
-                    f"cannot serve metrics on {config.metrics_host}:{config.metrics_port} ({err}); "
-                    "choose another metrics_port (0: a free one, -1: off)"
-                ) from err
+            endpoint = MetricsEndpoint(config.metrics_port, config.metrics_host, component="evaluator")
         try:
             newest = evaluator.restore_gauges()
             if newest is not None:

@@ -134,7 +134,9 @@ class Learner:
         self._learn = jax.jit(self._learn_fn, donate_argnums=(0, 1))
         self.endpoint = None
         if self.dist.metrics_port >= 0:
-            self.endpoint = M.MetricsEndpoint(self.dist.metrics_port, self.dist.metrics_host, "learner")
+            self.endpoint = M.MetricsEndpoint(
+                self.dist.metrics_port, self.dist.metrics_host, "learner", key="distributed.metrics_port"
+            )
             log.info("learner metrics on %s", self.endpoint.url)
         self.plane: Any = None
         self.slots: list[_Slot] = []

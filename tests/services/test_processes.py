@@ -188,3 +188,25 @@ def test_cec_up_resume_refuses_a_live_run_naming_its_owner_and_the_graceful_stop
     assert f"another `cec up` (pid {parent.pid}) runs this run" in proc.stderr
     assert f"kill -INT {parent.pid}" in proc.stderr and f"kill {child}" not in proc.stderr
     assert not (run_dir / "redis").exists(), "nothing was started"
+
+
+def test_a_busy_port_is_named_with_its_service_and_key_before_anything_starts(tmp_path: Path) -> None:
+    """A port another process holds: `cec up` says which port, which service wanted it and the key that
+    moves it, before starting any service (no run folder left behind for `cec status` to mistake)."""
+    import socket
+
+    from services.metrics import MetricsEndpoint
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        cmd = [sys.executable, "-m", "apps.cli", "up", f"level_server_metrics_port={port}"]
+        cmd += [f"train.run_dir={tmp_path}", "train.name=up"]
+        proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
+        with pytest.raises(ConfigError, match=rf"on 127.0.0.1:{port} .*distributed.metrics_port=PORT"):
+            MetricsEndpoint(port, component="learner", key="distributed.metrics_port")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"port {port} (the level server's metrics) is in use" in proc.stderr
+    assert "level_server_metrics_port=PORT" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "up").exists()
