@@ -222,7 +222,7 @@ class RunFiles:
         if self.store.directories() and not resume:
             raise checkpoints.CheckpointError(
                 f"{self.run_dir} already has checkpoints; resume it with --resume {self.run_dir} "
-                "or choose another name or run_dir"
+                "or give it another name: name=NEW (or run_dir=DIR)"
             )
         latest = self.store.load_latest(template, log)
         if latest is None:

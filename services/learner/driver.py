@@ -58,7 +58,8 @@ def check_run(train: TrainConfig, resume: bool) -> None:
     latest = files.store.latest()
     if files.store.directories() and not resume:
         raise ConfigError(
-            f"{files.run_dir} already has checkpoints; continue it with --resume, or choose another name"
+            f"{files.run_dir} already has checkpoints; continue it with --resume, or give it another name: "
+            "name=NEW (under `cec up`: train.name=NEW)"
         )
     if latest is not None:
         try:

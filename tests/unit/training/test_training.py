@@ -112,7 +112,7 @@ def test_checkpoints_keep_last_n_plus_milestones(tmp_path):
     meta = checkpoints.read_meta(store.path(4))
     assert meta["metadata"]["algorithm"] == "ippo" and meta["config"]["num_envs"] == 4
     assert meta["env_steps"] == 4 * cfg.steps_per_update
-    with pytest.raises(checkpoints.CheckpointError, match="already has checkpoints"):
+    with pytest.raises(checkpoints.CheckpointError, match="already has checkpoints.*name=NEW"):
         train(cfg, progress=False)
 
 
