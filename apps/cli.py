@@ -336,7 +336,7 @@ def build_parser() -> argparse.ArgumentParser:
         "e.g. cec64m-s200); episode length --steps (default 400)",
     )
     render.add_argument("--seed", type=int, default=0)
-    render.add_argument("--tile-size", type=int, default=32)
+    render.add_argument("--tile-size", type=int, default=64, help="pixels per cell (default 64)")
     render.add_argument("--fps", type=int, default=8)
     render.set_defaults(func=_cmd_render)
 

@@ -28,7 +28,7 @@ def test_render_png_and_gif_from_an_ascii_file(tmp_path: Path) -> None:
     png, gif = tmp_path / "k.png", tmp_path / "k.gif"
     assert main(["render", str(kitchen), "--png", str(png), "--gif", str(gif), "--steps", "3"]) == 0
     with Image.open(png) as im:
-        assert im.size == (5 * 32, 4 * 32)
+        assert im.size == (5 * 64, 4 * 64)  # 64 px per cell: a readable picture by default
     assert gif.stat().st_size > 0
 
 
