@@ -205,10 +205,19 @@ class OvercookedMultiAgentEnv:
         """One joint step without auto-reset: `cec.envs.overcooked.step` with dicts keyed by agent.
 
         Actions are integers in 0..5 (up, down, right, left, stay, interact); inside `jit` an out-of-range
-        action acts as stay.
+        action acts as stay. Any other dtype (a float, NaN, a bool) is refused with a `TypeError` naming the
+        agent: a cast would turn NaN into `up`, not `stay`, and 2.7 into `right`.
         """
-        joint = jnp.stack([jnp.reshape(jnp.asarray(actions[a]), ()) for a in self.agents]).astype(jnp.int32)
-        out = oc_step(key, state, joint, self.params)
+        joint = []
+        for a in self.agents:
+            act = jnp.asarray(actions[a])
+            if not jnp.issubdtype(act.dtype, jnp.integer):  # static under jit: checked while tracing
+                raise TypeError(
+                    f"the action of {a} must be an integer in 0..{NUM_ACTIONS - 1} (up, down, right, left, "
+                    f"stay, interact), got dtype {act.dtype}"
+                )
+            joint.append(jnp.reshape(act, ()))
+        out = oc_step(key, state, jnp.stack(joint).astype(jnp.int32), self.params)
         rewards = dict.fromkeys(self.agents, out.reward)
         dones = {**dict.fromkeys(self.agents, out.done), "__all__": out.done}
         # Only the shaped reward, as JaxMARL's Overcooked: IPPO loops reshape every other info leaf.

@@ -505,3 +505,16 @@ def test_pettingzoo_env_plays_the_env_and_refuses_bad_input() -> None:
     text = OvercookedParallelEnv(render_mode="ansi")
     text.reset(seed=0)
     assert "seat 0" in str(text.render())
+
+
+@pytest.mark.parametrize("bad", [jnp.float32(2.7), jnp.float32(jnp.nan), jnp.bool_(True)])
+def test_the_jaxmarl_adapter_refuses_actions_that_are_not_integers(bad: jax.Array) -> None:
+    """A cast would play NaN as `up` and 2.7 as `right`: a non-integer action is refused, naming the agent
+    (in `jit` too: the dtype is known while tracing)."""
+    env = OvercookedMultiAgentEnv("cramped_room", max_steps=50)
+    key = jax.random.PRNGKey(0)
+    _, state = env.reset(key)
+    actions = {env.agents[0]: jnp.int32(4), env.agents[1]: bad}
+    with pytest.raises(TypeError, match=rf"the action of {env.agents[1]} must be an integer"):
+        env.step(key, state, actions)
+    env.step(key, state, {env.agents[0]: 4, env.agents[1]: jnp.int32(5)})  # Python and JAX integers play
