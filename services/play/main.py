@@ -158,21 +158,26 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
     from services.play.recording import Recorder, open_stores
     from services.play.study import Study
 
-    pools = prepare(config, base_dir)
+    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
+    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+    try:  # before the partners load and compile: a busy port is found at once, not after that wait
+        sock.bind((host, port))
+    except OSError as err:
+        sock.close()
+        raise ConfigError(
+            f"cannot listen on {host}:{port} ({err.strerror or err}); choose another --port (0: any free one)"
+        ) from None
+    try:
+        pools = prepare(config, base_dir)
+    except BaseException:
+        sock.close()
+        raise
     stores = open_stores(config.name, config.storage.dir, config.storage.redis_url, config.storage.key_prefix)
     recorder = Recorder(stores)
     study = Study(config, base_dir, pools, recorder)
     known = stores[0].participants()
     restored = study.restore({pid: stores[0].events(pid) for pid in known})
     app = create_app(study)
-    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:
-        sock.bind((host, port))
-    except OSError as err:
-        raise ConfigError(
-            f"cannot listen on {host}:{port} ({err}); choose another --port (0: any free one)"
-        ) from err
     sock.listen(128)
     bound = sock.getsockname()[1]
     where = [f"files in {Path(config.storage.dir).resolve() / config.name}"] if config.storage.dir else []

@@ -23,3 +23,23 @@ def test_cec_play_serve_partner_cec_serves_the_page_and_stops_on_ctrl_c(tmp_path
         code = server.stop(signal.SIGINT)
     assert code == 0 and "Traceback" not in server.log, server.log
     assert "partner partner: 4 policies loaded" in server.log, server.log
+
+
+def test_a_busy_port_is_refused_before_the_partners_load(tmp_path: Path) -> None:
+    import socket
+    import subprocess
+    import sys
+
+    from tests.play_server import ROOT
+
+    with socket.socket() as held:
+        held.bind(("127.0.0.1", 0))
+        held.listen()
+        port = held.getsockname()[1]
+        cmd = [sys.executable, "-m", "apps.cli", "play", "serve", "--partner", "cec", "--port", str(port)]
+        proc = subprocess.run(
+            cmd + ["--data", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=120
+        )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"cannot listen on 127.0.0.1:{port}" in proc.stderr and "choose another --port" in proc.stderr
+    assert "policies loaded" not in proc.stderr and "Traceback" not in proc.stderr  # nothing loaded first
