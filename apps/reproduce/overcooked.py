@@ -503,13 +503,16 @@ def write_report(
                 f"{'≈' + str(ref) if ref is not None else '—'} |"
             )
         lines.append("")
-    if tests:
-        lines += ["## CEC against the baselines (seeds as units)", "",
-                  "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
-                  "standard errors over seeds (Welch-Satterthwaite degrees of freedom) and its 95% t "
-                  "interval. With human proxies: a Welch t-test over per-seed scores and a 95% bootstrap "
-                  "interval. No test is printed where a side has too few seeds to estimate its spread.", "",
-                  "| level set | score | CEC − | difference | 95% CI | p | CEC ahead (p < 0.05) |",
+    lines += ["## CEC against the baselines (seeds as units)", "",
+              "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
+              "standard errors over seeds (Welch-Satterthwaite degrees of freedom) and its 95% t "
+              "interval. With human proxies: a Welch t-test over per-seed scores and a 95% bootstrap "
+              "interval. No test is printed where a side has too few seeds to estimate its spread "
+              "(the jackknife needs 3).", ""]  # fmt: skip
+    if not tests:
+        lines += ["No test: too few seeds, or no spread between them.", ""]
+    else:
+        lines += ["| level set | score | CEC − | difference | 95% CI | p | CEC ahead (p < 0.05) |",
                   "|---|---|---|---|---|---|---|"]  # fmt: skip
         for t in tests:
             lines.append(

@@ -190,7 +190,7 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     assert "0.966" in next(ln for ln in rows if "generated tasks | CEC" in ln)
     assert "figure only" in next(ln for ln in rows if "fixed task | FCP" in ln)
     # the orderings with their tests, and the tolerance check of CEC's fully observable scores
-    assert "Welch two-sided t-test" in text
+    assert "leave-one-seed-out jackknife standard error" in text  # seeds as units, shared pairs counted
     orderings = [ln for ln in text.splitlines() if "| CEC > FCP |" in ln or "| FCP > IPPO |" in ln]
     assert len(orderings) == 3
     assert "CEC, fully observable, fixed task:" in text and "Machine:" in text
