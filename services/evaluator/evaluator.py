@@ -148,8 +148,9 @@ def summarize(part: EpisodeTable, checkpoint_label: str, *, self_play: bool) -> 
 
     Scores aggregate as `cec report` does: per pair (seed, partner) and level, the mean over episodes and
     seat orders; per pair, the mean over levels; `<metric>_mean` is the mean over pairs and `return_sem`
-    its standard error (null with one pair). `score` is the return, or for Dual Destination the paper's
-    normalised return / (2 x episode length). `per_seed` and `per_partner` (`algorithm/s<seed>`) break the
+    its standard error over the checkpoint's seeds (each seed's mean over its partners; null with one
+    seed). `score` is the return, or for Dual Destination the paper's normalised return / (2 x episode
+    length). `per_seed` and `per_partner` (`algorithm/s<seed>`) break the
     mean return down. A part with no playable partner has `episodes` 0 and null scores.
     """
     out: dict[str, Any] = {
@@ -173,8 +174,10 @@ def summarize(part: EpisodeTable, checkpoint_label: str, *, self_play: bool) -> 
         out[f"{metric}_mean"] = _number(values.mean())
         if metric == "return":
             out["pairs"] = int(values.size)
-            out["return_sem"] = _number(sem(values))
             rows = block.reshape(len(mine), -1)
+            seed_means = [float(np.nanmean(r)) for r in rows if np.isfinite(r).any()]
+            # seeds are the units: pairs share a seed (and partner), so an error over pairs understates it
+            out["return_sem"] = _number(sem(np.asarray(seed_means)))
             out["per_seed"] = {
                 str(pl.policies[i].seed): _number(np.nanmean(rows[k])) for k, i in enumerate(mine)
             }

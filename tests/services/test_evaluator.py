@@ -184,6 +184,11 @@ def test_summary_aggregates_pairs_like_the_report():
     assert out["per_seed"] == {"0": 6.5, "1": 3.0} and out["return_mean"] == 4.75
     assert out["pairs"] == 2 and out["return_sem"] == pytest.approx(1.75)
     assert out["per_partner"] == {"ippo/s5": 4.75} and out["partners"] == ["p"]
+    # a second partner: the standard error is over the seeds (the units), not over their shared pairs
+    more = [dict(r, policy_b="q", seed_b=6, returns=r["returns"] + 1.0) for r in rows]
+    two = summarize(make_table({k: [r[k] for r in rows + more] for k in rows[0]}), "r@1", self_play=False)
+    assert two["pairs"] == 4 and two["per_seed"] == {"0": 7.0, "1": 3.5}
+    assert two["return_sem"] == pytest.approx(1.75)  # sem of (7.0, 3.5); over the 4 pairs it would be ~1.0
     assert out["episodes"] == 8 and out["levels"] == ["a", "b"] and out["collisions_mean"] == 1.0
     assert out["deliveries_mean"] == pytest.approx(4.75 / 20) and out["episode_steps"] == STEPS
     empty = summarize(table.select(np.zeros(len(table), bool)), "r@1", self_play=False)
