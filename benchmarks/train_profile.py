@@ -42,6 +42,7 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import optax
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     from train_throughput import peak_matmul_flops  # type: ignore[import-not-found]
@@ -52,17 +53,15 @@ RESULTS = Path(__file__).parent / "results"
 DEFAULT_CONFIG = Path(__file__).parent.parent / "configs" / "train" / "cec_overcooked_cpu.yaml"
 
 
-def timed(fn: Callable[..., Any], *args: Any, repeats: int) -> tuple[float, float]:
-    """(seconds of the first call, median seconds of `repeats` more) of a compiled function."""
-    t = time.perf_counter()
+def timed(fn: Callable[..., Any], *args: Any, repeats: int) -> float:
+    """Median seconds of `repeats` calls of a compiled function, after one call that compiles it."""
     jax.block_until_ready(fn(*args))
-    first = time.perf_counter() - t
     times = []
     for _ in range(repeats):
         t = time.perf_counter()
         jax.block_until_ready(fn(*args))
         times.append(time.perf_counter() - t)
-    return first, statistics.median(times)
+    return statistics.median(times)
 
 
 def cost(compiled: Any) -> dict[str, float]:
@@ -177,8 +176,8 @@ def profile_parts(trainer: Any, repeats: int) -> dict[str, float]:
 
         return jax.lax.scan(body, c.env_state, jax.random.split(k_roll, cfg.num_steps))[1].sum()
 
-    parts["env_only"] = timed(jax.jit(env_only), carry, repeats=repeats)[1]
-    parts["rollout"] = timed(collect, state.params, state.carry, repeats=repeats)[1]
+    parts["env_only"] = timed(jax.jit(env_only), carry, repeats=repeats)
+    parts["rollout"] = timed(collect, state.params, state.carry, repeats=repeats)
 
     def network_only(p: Any, obs: jax.Array, first: jax.Array) -> jax.Array:
         def body(lstm: Any, x: tuple[jax.Array, jax.Array]) -> tuple[Any, jax.Array]:
@@ -189,11 +188,11 @@ def profile_parts(trainer: Any, repeats: int) -> dict[str, float]:
 
     parts["rollout_network"] = timed(
         jax.jit(network_only), state.params, traj.obs, traj.first, repeats=repeats
-    )[1]
+    )
     parts["rollout_env_and_rest"] = max(parts["rollout"] - parts["rollout_network"], 0.0)
 
     gae = jax.jit(lambda t: make_batch(t, jnp.float32(1.0), cfg.ppo.gamma, cfg.ppo.gae_lambda))
-    parts["gae"] = timed(gae, traj, repeats=repeats)[1]
+    parts["gae"] = timed(gae, traj, repeats=repeats)
     batch = gae(traj)
 
     n, m, epochs = batch.action.shape[1], cfg.ppo.num_minibatches, cfg.ppo.update_epochs
@@ -215,9 +214,9 @@ def profile_parts(trainer: Any, repeats: int) -> dict[str, float]:
         return jax.jit(run)
 
     loss = lambda p, mb: ppo_loss(p, net, mb, cfg.ppo)[0]  # noqa: E731
-    grad_norm = lambda p, mb: optax_norm(jax.grad(loss)(p, mb))  # noqa: E731
-    parts["update_forward"] = timed(over_minibatches(loss), state.params, repeats=repeats)[1]
-    fwd_bwd = timed(over_minibatches(grad_norm), state.params, repeats=repeats)[1]
+    grad_norm = lambda p, mb: optax.tree.norm(jax.grad(loss)(p, mb))  # noqa: E731
+    parts["update_forward"] = timed(over_minibatches(loss), state.params, repeats=repeats)
+    fwd_bwd = timed(over_minibatches(grad_norm), state.params, repeats=repeats)
     parts["update_backward"] = max(fwd_bwd - parts["update_forward"], 0.0)
 
     grads = jax.tree.map(jnp.ones_like, state.params)
@@ -229,14 +228,10 @@ def profile_parts(trainer: Any, repeats: int) -> dict[str, float]:
 
         return jax.lax.scan(step, (p, o), None, length=epochs * m)[0]
 
-    parts["optimizer"] = timed(jax.jit(adam), state.params, state.opt_state, repeats=repeats)[1]
+    parts["optimizer"] = timed(jax.jit(adam), state.params, state.opt_state, repeats=repeats)
     learn = jax.jit(lambda p, o, t: trainer.learn(p, o, state.update, t, k_update))
-    parts["update"] = timed(learn, state.params, state.opt_state, traj, repeats=repeats)[1]
+    parts["update"] = timed(learn, state.params, state.opt_state, traj, repeats=repeats)
     return parts
-
-
-def optax_norm(tree: Any) -> jax.Array:
-    return jnp.sqrt(sum(jnp.sum(jnp.square(x)) for x in jax.tree.leaves(tree)))
 
 
 def baseline(tree: Path, config: Path, overrides: list[str], updates: int, repeats: int) -> dict[str, Any]:

@@ -29,6 +29,7 @@ import time
 import weakref
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import NamedTuple
 
 from cec.config import ConfigError
 
@@ -216,6 +217,15 @@ def _cmdline(pid: int) -> str | None:
         return None
 
 
+class Recorded(NamedTuple):
+    """What a `ChildRecord` file says: its owner's pid, the children (each with `alive`), and whether the
+    owner itself still runs (the same process, not a reused pid)."""
+
+    owner: int
+    children: list[dict]
+    owner_alive: bool
+
+
 class ChildRecord:
     """The children one process started, in `path` (JSON: the owner's pid, each child's name, pid and
     command line); `check()` before starting any refuses while a recorded one still runs."""
@@ -224,20 +234,22 @@ class ChildRecord:
         self.path = path
         self.children: list[dict] = []
 
-    def recorded(self) -> tuple[int, list[dict]] | None:
-        """(owner pid, the recorded children with `alive`: still the same pid and command line), or None
-        when there is no readable record."""
+    def recorded(self) -> Recorded | None:
+        """The owner and the recorded children, each with whether it still runs (the same pid and command
+        line; an owner recorded without its command line: the pid alone), or None when there is no
+        readable record."""
         try:
             old = json.loads(self.path.read_text())
             owner = int(old["owner"])
-            self._owner_cmd = old.get("owner_cmd")
             children = [
                 {**c, "alive": bool(c.get("cmd")) and _cmdline(int(c["pid"])) == c["cmd"]}
                 for c in old["children"]
             ]
+            owner_cmd = _cmdline(owner) if owner != os.getpid() else None
+            owner_alive = owner_cmd is not None and old.get("owner_cmd") in (None, owner_cmd)
         except (OSError, ValueError, KeyError, TypeError, AttributeError):
             return None
-        return owner, children
+        return Recorded(owner, children, owner_alive)
 
     @staticmethod
     def running(pid: int) -> bool:
@@ -249,13 +261,10 @@ class ChildRecord:
         record = self.recorded()
         if record is None:
             return  # missing or unreadable: nothing to go by (`add` writes a new one)
-        owner, children = record
+        owner, children, owner_alive = record
         alive = [c for c in children if c["alive"]]
         names = ", ".join(f"{c.get('name')} (pid {c['pid']})" for c in alive)
-        recorded_cmd = getattr(self, "_owner_cmd", None)
-        owner_cmd = _cmdline(owner) if owner != os.getpid() else None
-        if owner_cmd is not None and recorded_cmd in (None, owner_cmd):  # the same process, not a reused pid
-            # a live run: never advise killing its children (its learner would lose what it has not saved)
+        if owner_alive:  # a live run: never advise killing its children (its learner would lose its work)
             running = f" ({names} still run)" if alive else ""
             raise ConfigError(
                 f"another `cec up` (pid {owner}) runs this run{running}. Stop it gracefully: Ctrl-C in its "

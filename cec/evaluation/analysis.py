@@ -227,6 +227,15 @@ def algorithm_matrix(pl: PairLevel) -> Matrix:
     return Matrix(tuple(algos), out)
 
 
+def _partners(pl: PairLevel, alpha: str, kind: str) -> list[int]:
+    """Indices of algorithm `alpha`'s partners of `kind`: `adhoc` every policy of another algorithm but the
+    human proxies, `human` every human proxy."""
+    human = kind == "human"
+    return [
+        j for j, p in enumerate(pl.policies) if p.algorithm != alpha and (p.algorithm == HUMAN_PROXY) == human
+    ]
+
+
 def algorithm_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
     """Per algorithm, its pair scores: `sp` (each policy with itself), `xp` (two different seeds of the
     algorithm), `adhoc` (its policies with every policy of another algorithm, human proxies aside) or
@@ -240,12 +249,7 @@ def algorithm_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
         elif kind == "xp":
             vals = _pairs_between(pl, m, alpha, alpha)
         elif kind in ("adhoc", "human"):
-            human = kind == "human"
-            others = [
-                j
-                for j, p in enumerate(pl.policies)
-                if p.algorithm != alpha and (p.algorithm == HUMAN_PROXY) == human
-            ]
+            others = _partners(pl, alpha, kind)
             vals = np.asarray([m[i, j] for i in idx for j in others], np.float64)
         else:
             raise ValueError(f"kind must be sp, xp, adhoc or human, got {kind!r}")
@@ -263,12 +267,7 @@ def seed_samples(pl: PairLevel, kind: str) -> dict[str, np.ndarray]:
     m = pair_scores(pl)
     out: dict[str, np.ndarray] = {}
     for alpha in algorithms_of(pl.policies):
-        human = kind == "human"
-        partners = [
-            j
-            for j, p in enumerate(pl.policies)
-            if p.algorithm != alpha and (p.algorithm == HUMAN_PROXY) == human
-        ]
+        partners = _partners(pl, alpha, kind)
         rows = [m[i, partners] for i, p in enumerate(pl.policies) if p.algorithm == alpha]
         means = np.asarray([np.nanmean(r) if np.isfinite(r).any() else np.nan for r in rows], np.float64)
         out[alpha] = means[~np.isnan(means)]

@@ -48,6 +48,11 @@ class CheckpointConfig:
             )
 
 
+def split_paths(text: str) -> tuple[str, ...]:
+    """The paths of a comma-separated list (`init_from`); none for an empty one."""
+    return tuple(p.strip() for p in text.split(",")) if text else ()
+
+
 @dataclass(frozen=True)
 class TrainConfig:
     """One training run: algorithm, environment, network, PPO, sizes, seeds, checkpoints.
@@ -180,7 +185,7 @@ class TrainConfig:
     @property
     def init_from_paths(self) -> tuple[str, ...]:
         """The checkpoints of `init_from`: none, one for every seed, or one per seed."""
-        return tuple(p.strip() for p in self.init_from.split(",")) if self.init_from else ()
+        return split_paths(self.init_from)
 
     @property
     def sequences(self) -> int:

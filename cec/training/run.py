@@ -21,7 +21,7 @@ import yaml
 
 from cec import checkpoints
 from cec.signals import GracefulStop
-from cec.training.config import TrainConfig
+from cec.training.config import TrainConfig, split_paths
 from cec.training.ppo import LossInfo
 from cec.training.tracking import Tracker, describe
 from cec.training.trainer import Trainer, TrainState, UpdateMetrics
@@ -58,7 +58,7 @@ def trains_as(written: dict, config: TrainConfig) -> bool:
             population = [dict(e, run=_under(e["run"], root)) for e in kept["partner"].get("population", [])]
             kept["partner"] = dict(kept["partner"], population=population)
         if kept.get("init_from"):
-            kept["init_from"] = ",".join(_under(p.strip(), root) for p in kept["init_from"].split(","))
+            kept["init_from"] = ",".join(_under(p, root) for p in split_paths(kept["init_from"]))
         return kept
 
     return what(written) == what(config_dict(config))

@@ -159,44 +159,43 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
     from services.play.study import Study
 
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
-    sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-    try:  # before the partners load and compile: a busy port is found at once, not after that wait
-        sock.bind((host, port))
-    except OSError as err:
-        sock.close()
-        raise ConfigError(
-            f"cannot listen on {host}:{port} ({err.strerror or err}); choose another --port (0: any free one)"
-        ) from None
-    try:
+    with sock:  # closed however serving ends, a failed start included
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:  # before the partners load and compile: a busy port is found at once, not after that wait
+            sock.bind((host, port))
+        except OSError as err:
+            raise ConfigError(
+                f"cannot listen on {host}:{port} ({err.strerror or err}); choose another --port (0: any free "
+                "one)"
+            ) from None
         pools = prepare(config, base_dir)
-    except BaseException:
-        sock.close()
-        raise
-    stores = open_stores(config.name, config.storage.dir, config.storage.redis_url, config.storage.key_prefix)
-    recorder = Recorder(stores)
-    study = Study(config, base_dir, pools, recorder)
-    known = stores[0].participants()
-    restored = study.restore({pid: stores[0].events(pid) for pid in known})
-    app = create_app(study)
-    sock.listen(128)
-    bound = sock.getsockname()[1]
-    where = [f"files in {Path(config.storage.dir).resolve() / config.name}"] if config.storage.dir else []
-    where += [f"Redis {config.storage.redis_url}"] if config.storage.redis_url else []
-    log.info(
-        "recording to %s (%d participants so far, %d can continue)", " and ".join(where), len(known), restored
-    )
-    uv = uvicorn.Config(
-        app, log_level="warning", access_log=False, ws_max_size=MAX_WS_MESSAGE_BYTES, lifespan="off"
-    )
-    server = uvicorn.Server(uv)
-    print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
-    try:
-        server.run(sockets=[sock])
-    except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it has already handled: a clean stop
-        log.info("stopped by Ctrl-C")
-    finally:
-        recorder.close()
-        sock.close()
+        stores = open_stores(
+            config.name, config.storage.dir, config.storage.redis_url, config.storage.key_prefix
+        )
+        recorder = Recorder(stores)
+        study = Study(config, base_dir, pools, recorder)
+        known = stores[0].participants()
+        restored = study.restore({pid: stores[0].events(pid) for pid in known})
+        app = create_app(study)
+        sock.listen(128)
+        bound = sock.getsockname()[1]
+        where = [f"files in {Path(config.storage.dir).resolve() / config.name}"] if config.storage.dir else []
+        where += [f"Redis {config.storage.redis_url}"] if config.storage.redis_url else []
+        log.info(
+            "recording to %s (%d participants so far, %d can continue)",
+            " and ".join(where), len(known), restored,
+        )  # fmt: skip
+        uv = uvicorn.Config(
+            app, log_level="warning", access_log=False, ws_max_size=MAX_WS_MESSAGE_BYTES, lifespan="off"
+        )
+        server = uvicorn.Server(uv)
+        print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
+        try:
+            server.run(sockets=[sock])
+        except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it has already handled: a clean stop
+            log.info("stopped by Ctrl-C")
+        finally:
+            recorder.close()
     return 0
 
 
