@@ -168,7 +168,9 @@ def write_report(
         "Score: the paper's normalised score, return / (2 x 100 steps); the oracle reaches 0.955 on the "
         "fixed task. **XP** (the paper's measure, zero-shot coordination): per seed, the mean score with "
         "each other seed of its algorithm (both seat orders, all episodes, all levels of the set), then the "
-        "mean over seeds; ± is the standard error over seeds (the independent units: pairs share seeds). "
+        "mean over seeds; its ± is the leave-one-seed-out jackknife standard error (seeds are the units, "
+        "and a seed's pairs are shared with the other seeds); the other scores' ± is the standard error "
+        "over seeds. "
         "The multi-task variant's fixed task is its two-pair layout. CEC never trains on either task set "
         "(both fixed tasks and the 100 generated evaluation tasks are excluded from its generator).\n"
     )
