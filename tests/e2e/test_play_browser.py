@@ -16,6 +16,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -25,6 +26,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from websockets.asyncio.client import connect as ws_connect
 from websockets.exceptions import InvalidStatus
@@ -382,3 +384,48 @@ def test_the_server_validates_what_clients_send(server: dict[str, Any]) -> None:
     assert [f["t"] for f in frames] == list(range(1, 25)) and all("ack" not in f for f in frames)
     with urllib.request.urlopen(base + "/metrics") as res:
         assert "cec_play_steps_total" in res.read().decode()
+
+
+def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_the_default_free_play(tmp_path: Path) -> None:
+    """The README's play command with its defaults (`cec play serve --partner cec`: Cramped Room, a 200-step
+    turn-based round, sampled agent actions) played in the browser by a "person" who cooks like the scripted
+    cook, reading the state on screen (`window.cecStats.lastState`) and pressing arrow keys. The team must
+    score: the shipped agent may not freeze or block the pot for a whole round."""
+    import jax
+
+    from cec.envs.overcooked.scripted import scripted_actions
+    from services.play.game import expand_state, resolve_level
+
+    _browser_paths()
+    server = PlayServer(["--partner", "cec", "--port", "0", "--data", str(tmp_path)], "free_play")
+    _, level = resolve_level("cramped_room", ROOT, np.random.default_rng(0))
+    cook = jax.jit(lambda state: scripted_actions(jax.random.PRNGKey(0), state, epsilon=0.0))
+    player = Player(server.url)
+    try:
+        player.d.get(server.url)
+        player.click("start")
+        player.stage("instructions")
+        player.click("instructions-continue")
+        player.stage("round")
+        player.start_round()
+        seat_class = player.d.find_element(By.CSS_SELECTOR, ".hud span[class^=you-]").get_attribute("class")
+        seat = int(seat_class.removeprefix("you-"))
+        for i in range(200):
+            state = expand_state(player.stats()["lastState"], level)
+            player.turn(i, int(cook(state)[seat]))
+        player.wait.until(EC.text_to_be_present_in_element((By.ID, "hint"), "Round over"))
+        hint = player.d.find_element(By.ID, "hint").text
+    finally:
+        player.close()
+        code = server.stop(signal.SIGINT)
+    assert code == 0 and "Traceback" not in server.log, server.log
+    files = FileStore(tmp_path, "free_play")
+    try:
+        ((pid,),) = [files.participants()]
+        (rnd,) = finished_rounds(pid, files.events(pid))
+    finally:
+        files.close()
+    score = rnd.end["return"]
+    assert f"Team score: {score:g}." in hint
+    agent_actions = [s["actions"][1 - seat] for s in rnd.steps]
+    assert len(rnd.steps) == 200 and score > 0, (score, agent_actions)
