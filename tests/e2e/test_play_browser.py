@@ -386,7 +386,7 @@ def test_the_server_validates_what_clients_send(server: dict[str, Any]) -> None:
         assert "cec_play_steps_total" in res.read().decode()
 
 
-def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_the_default_free_play(tmp_path: Path) -> None:
+def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_default_free_play(tmp_path: Path) -> None:
     """The README's play command with its defaults (`cec play serve --partner cec`: Cramped Room, a 200-step
     turn-based round, sampled agent actions) played in the browser by a "person" who cooks like the scripted
     cook, reading the state on screen (`window.cecStats.lastState`) and pressing arrow keys. The team must
