@@ -105,16 +105,16 @@ def evaluate(run: Path, episodes: int) -> list[dict[str, Any]]:
 
 
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
-    import matplotlib
+    from cec.evaluation.plotting import distinct_colours, pyplot
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6, 4))
-    for run in sorted({r["run"] for r in rows}):
+    runs = sorted({r["run"] for r in rows})
+    for run, colour in zip(runs, distinct_colours(len(runs)), strict=True):
         mine = sorted((r for r in rows if r["run"] == run), key=lambda r: r["core_hours_per_seed"])
-        ax.plot([r["core_hours_per_seed"] for r in mine], [r["xp"] for r in mine], "o-", label=f"{run} XP")
-        ax.plot([r["core_hours_per_seed"] for r in mine], [r["sp"] for r in mine], "x--", label=f"{run} SP")
+        hours = [r["core_hours_per_seed"] for r in mine]
+        ax.plot(hours, [r["xp"] for r in mine], "o-", color=colour, label=f"{run} XP")
+        ax.plot(hours, [r["sp"] for r in mine], "x--", color=colour, label=f"{run} SP")
     ax.axhline(20, color="grey", lw=0.8, ls=":")
     ax.set_xlabel("core-hours per seed (this CPU, one core per run)")
     ax.set_ylabel("team return per 400 steps, 100 held-out kitchens")

@@ -33,6 +33,7 @@ from apps.reproduce.dd_paper import (
 )
 from apps.reproduce.dd_reasons import TOLERANCE, cec_gap_reason, difference_reason, ordering_reason
 from apps.reproduce.dd_summary import ALPHA, LEARNED, Score, check_ablations, check_claims
+from cec.evaluation.plotting import pyplot
 
 if TYPE_CHECKING:
     from apps.reproduce.dd_modes import Mode
@@ -80,11 +81,7 @@ def _fits(raw: Score | None, clipped: Score | None, p: PaperNumber | None) -> st
 def bar_plot(summary: dict[str, dict[str, dict[str, Score]]], variant: str, path: Path) -> Path:
     """The paper's bar figure for one variant: XP per algorithm on both task sets, standard error bars,
     the paper's values as black markers, the oracle's ceiling on the fixed task dashed."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     width = 0.26
     for k, algo in enumerate(ALGORITHMS):

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from cec.evaluation.plotting import distinct_colours, pyplot
+
 #: (metrics.csv column, panel title)
 PANELS: tuple[tuple[str, str], ...] = (
     ("mean_return", "team return per training episode"),
@@ -58,15 +60,9 @@ def plot_learning_curves(
 ) -> Path:
     """One PNG with a panel per metric and a line per (run, seed), labelled by the keys of `runs` (a key
     may name several run directories, e.g. one per seed: they share its colour)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 3.8), squeeze=False)
-    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    for k, (label, dirs) in enumerate(runs.items()):
-        color = colors[k % len(colors)]
+    for (label, dirs), color in zip(runs.items(), distinct_colours(len(runs)), strict=True):
         dirs = [dirs] if isinstance(dirs, str | Path) else list(dirs)
         for ax, (column, panel_title) in zip(axes[0], panels, strict=True):
             curves = [c for d in dirs for _, c in sorted(read_curve(d, column).items())]

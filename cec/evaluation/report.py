@@ -20,20 +20,11 @@ import numpy as np
 from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
+from cec.evaluation.plotting import colour_range, distinct_colours, pyplot
 from cec.evaluation.results import EpisodeTable
 from cec.evaluation.stats import compare, compare_crossplay, crossplay_estimate, sem
 
 MAX_BARS = 12  # level sets with more levels get one aggregate bar per algorithm instead of per-level bars
-
-
-def _plt() -> Any:
-    """matplotlib.pyplot on the non-interactive Agg backend (imported on first use)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    return plt
 
 
 def _fmt(x: float, digits: int = 2) -> str:
@@ -66,6 +57,8 @@ def _heatmap(
 ) -> None:
     """A labelled heatmap with the values written in the cells (NaN cells left blank)."""
     vals = np.ma.masked_invalid(m.values)
+    if vmin is None or vmax is None:
+        vmin, vmax = colour_range(m.values)
     im = ax.imshow(vals, cmap="viridis", vmin=vmin, vmax=vmax)
     ax.set_xticks(range(len(m.labels)), m.labels, rotation=45, ha="right")
     ax.set_yticks(range(len(m.labels)), m.labels)
@@ -97,7 +90,7 @@ class _Report:
         path = self.out / name
         fig.tight_layout()
         fig.savefig(path, dpi=110)
-        _plt().close(fig)
+        pyplot().close(fig)
         self.figures.append(path)
         return name
 
@@ -205,13 +198,11 @@ class _Report:
             self.md.append(_table(["level", "oracle return", "oracle normalised"], rows))
 
     def seed_matrices(self, pl: an.PairLevel, slug: str) -> None:
-        plt = _plt()
+        plt = pyplot()
         algos = an.algorithms_of(pl.policies)
         mats = [an.seed_matrix(pl, a) for a in algos]
-        values = np.concatenate([m.values.ravel() for m in mats])
-        values = values[~np.isnan(values)]
         # One colour scale for every algorithm, so that the panels compare.
-        vmin, vmax = (float(values.min()), float(values.max())) if values.size else (None, None)
+        vmin, vmax = colour_range(np.concatenate([m.values.ravel() for m in mats]))
         cols = min(3, len(algos))
         rows = math.ceil(len(algos) / cols)
         fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 3.8 * rows), squeeze=False)
@@ -227,7 +218,7 @@ class _Report:
             self.md.append(_matrix_md(m, self.digits))
 
     def algorithm_heatmap(self, pl: an.PairLevel, set_name: str, slug: str) -> None:
-        plt = _plt()
+        plt = pyplot()
         m = an.algorithm_matrix(pl)
         k = len(m.labels)
         fig, ax = plt.subplots(figsize=(1.2 * k + 2.5, 1.1 * k + 1.8))
@@ -239,7 +230,7 @@ class _Report:
         self.md.append(_matrix_md(m, self.digits))
 
     def per_level(self, pl: an.PairLevel, levels: list[str], set_name: str, slug: str) -> None:
-        plt = _plt()
+        plt = pyplot()
         algos = an.algorithms_of(pl.policies)
         stats = an.per_level(pl, "xp")
         if not stats:
@@ -250,7 +241,7 @@ class _Report:
             lv_names = sorted({s.level for s in stats})
             width = 0.8 / max(len(algos), 1)
             fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * len(lv_names) * max(1, len(algos)) / 2), 4))
-            for k, alpha in enumerate(algos):
+            for k, (alpha, colour) in enumerate(zip(algos, distinct_colours(len(algos)), strict=True)):
                 got = {s.level: s for s in stats if s.algorithm == alpha}
                 xs = [i + k * width for i, lv in enumerate(lv_names) if lv in got]
                 ax.bar(
@@ -259,6 +250,7 @@ class _Report:
                     width,
                     yerr=[0 if math.isnan(got[lv].sem) else got[lv].sem for lv in lv_names if lv in got],
                     capsize=3,
+                    color=colour,
                     label=alpha,
                 )
             ax.set_xticks(
@@ -273,8 +265,9 @@ class _Report:
             self.md.append(_table(["level", "algorithm", "XP mean ± SE", "pairs"], rows))
         else:
             fig, ax = plt.subplots(figsize=(6, 4))
-            for alpha in algos:
-                ax.hist([s.mean for s in stats if s.algorithm == alpha], bins=20, alpha=0.5, label=alpha)
+            for alpha, colour in zip(algos, distinct_colours(len(algos)), strict=True):
+                level_means = [s.mean for s in stats if s.algorithm == alpha]
+                ax.hist(level_means, bins=20, alpha=0.5, color=colour, label=alpha)
             ax.set_xlabel(f"XP {self.unit} on one level")
             ax.set_ylabel("levels")
             ax.set_title(f"distribution of per-level XP ({set_name})")
@@ -358,7 +351,7 @@ class _Report:
         grad = egta.replicator_gradient(payoff, uniform)
         points = egta.rest_points(payoff)
         traj = egta.integrate(payoff, uniform)
-        plt = _plt()
+        plt = pyplot()
         fig, axes = plt.subplots(1, 2, figsize=(11, 4))
         axes[0].bar(m.labels, grad)
         axes[0].axhline(0, color="k", lw=0.5)
@@ -368,8 +361,8 @@ class _Report:
             ax = fig.add_subplot(1, 2, 2)
             _simplex(ax, payoff, m.labels, points)
         else:
-            for i, label in enumerate(m.labels):
-                axes[1].plot(traj[:, i], label=label)
+            for i, (label, colour) in enumerate(zip(m.labels, distinct_colours(k), strict=True)):
+                axes[1].plot(traj[:, i], color=colour, label=label)
             axes[1].set_xlabel("time (steps of 0.05, payoffs scaled to unit range)")
             axes[1].set_ylabel("population share")
             axes[1].set_title("replicator trajectory from the uniform mixture")

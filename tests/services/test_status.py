@@ -39,6 +39,12 @@ def test_status_reads_progress_checkpoints_and_eta_from_the_run_files(tmp_path: 
     assert "env steps 500 / 1,000 (50.0%)" in screen and "ETA 10 s" in screen and "return 10" in screen
     assert "update_000000020" in screen and "(2 on disk)" in screen
     assert find_run(tmp_path) == run
+    # What a `cec up` that failed after starting Redis leaves: newer, but not a run.
+    failed = tmp_path / "failed-start"
+    for sub in ("logs", "redis"):
+        (failed / sub).mkdir(parents=True)
+    (failed / "logs" / "level_server.log").write_text("error\n")
+    assert find_run(tmp_path) == run
     assert main(["status", str(run)]) == 0 and "no `cec up` running" in capsys.readouterr().out
     assert main(["status", str(tmp_path / "gone")]) == 2
     assert "does not exist" in capsys.readouterr().err
