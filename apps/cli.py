@@ -279,12 +279,10 @@ def _at_run_directory(config: TrainConfig, run_dir: Path) -> TrainConfig:
 def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -> int:
     """`cec train --distributed`: the learner and actors on an existing Ray cluster (`ray up`), Redis from
     `store.url` / CEC_REDIS_URL, kitchens from `distributed.level_server`."""
-    import ray
-
     from cec.config import load_config
     from cec.training.config import TrainConfig
     from services.learner.config import DistributedConfig
-    from services.learner.driver import run_distributed
+    from services.learner.driver import connect_ray, disconnect_ray, run_distributed
     from services.store import StoreConfig
 
     run_config = Path(args.resume) / "config.yaml" if args.resume else None
@@ -299,11 +297,11 @@ def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -
     store = load_config(
         StoreConfig, None, [o.removeprefix("store.") for o in service_overrides if o.startswith("store.")]
     )
-    ray.init(address=dist.ray_address or "auto")
+    connect_ray(dist.ray_address or "auto")
     try:
         return run_distributed(config, dist, store, resume=bool(args.resume), max_updates=args.max_updates)
     finally:
-        ray.shutdown()
+        disconnect_ray()
 
 
 def build_parser() -> argparse.ArgumentParser:

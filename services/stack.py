@@ -283,7 +283,7 @@ class Stack:
             # Ray's token authentication (its default for a new local cluster; the token is Ray's own,
             # ~/.ray/auth_token): the head and this driver must agree, and Ray reads the mode when imported.
             os.environ.setdefault("RAY_AUTH_MODE", "token")
-        import ray
+        from services.learner.driver import connect_ray
 
         address = self.dist.ray_address
         if not address:  # a local Ray started by its own CLI: no fork of this (JAX-threaded) process
@@ -310,7 +310,7 @@ class Stack:
             self._started(head)
             address = f"127.0.0.1:{port}"
             self.ray_head_port = port
-        info = ray.init(address=address, logging_level=logging.WARNING)
+        info = connect_ray(address, logging_level=logging.WARNING)
         self.ray_started = True
         dash = getattr(info, "dashboard_url", "") or ""
         if dash:
@@ -389,9 +389,9 @@ class Stack:
 
     def stop(self) -> None:
         if self.ray_started:
-            import ray
+            from services.learner.driver import disconnect_ray
 
-            ray.shutdown()
+            disconnect_ray()
         for service in reversed(self.services):
             service.stop()
         if self.ray_head_port is not None:

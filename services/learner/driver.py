@@ -129,6 +129,22 @@ def learner_options(dist: DistributedConfig, devices: int = 1) -> dict[str, Any]
     }
 
 
+def connect_ray(address: str, **options: Any) -> Any:
+    """`ray.init(address)`; the learner's and actors' lines Ray forwards here carry no colour codes when
+    stderr is not a terminal (a log file, a pipe), as Ray's RAY_COLOR_PREFIX=0 makes them."""
+    import ray
+
+    if not sys.stderr.isatty():
+        os.environ.setdefault("RAY_COLOR_PREFIX", "0")
+    return ray.init(address=address, **options)
+
+
+def disconnect_ray() -> None:
+    import ray
+
+    ray.shutdown()
+
+
 def run_distributed(
     train: TrainConfig,
     dist: DistributedConfig,

@@ -202,6 +202,7 @@ def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_re
         timeout=300,
     )  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert "pid=" in resumed.stderr and "\x1b[" not in resumed.stderr  # Ray's prefix, no colours
     more = [r["update"] for r in _rows(run_dir)]
     assert more[: len(rows)] == rows and more[len(rows) :] == [rows[-1] + 1, rows[-1] + 2], more
 
