@@ -1,1 +1,1 @@
-"""Ray actor workers running the jitted rollout on level buffers (not built yet)."""
+"""Rollout actors: a slice of a seed's envs stepped by the jitted rollout, fed by the level server."""

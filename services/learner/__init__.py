@@ -1,1 +1,1 @@
-"""IPPO learner: trajectory intake, updates, weight publication, checkpoints (not built yet)."""
+"""The learner: gathers the actors' rollouts, applies the PPO update, publishes weights and checkpoints."""
