@@ -8,6 +8,11 @@ Routes:
                            429 or 503 with {"error", "limit"} beyond the study's `limits` (config.py)
     GET  /api/state        the participant's current stage (`{"stage": "welcome"}` without a session)
     POST /api/submit       a form of the current stage (consent, info, instructions, survey) -> next stage
+
+When a store cannot record (Redis down, a full disk), `/api/join` and `/api/submit` answer 503 with
+`{"error", "store"}` naming the store and `Retry-After`, and nothing changes for the participant; a retry is
+recorded once (`services.play.recording`). A round whose events cannot be recorded ends with an `error`
+message and close code 1013 (try again later); reloading plays it again.
     WS   /ws/round         the current round: start message, then steps (see below)
     GET  /metrics          Prometheus exposition; GET /healthz: "ok"
 
@@ -121,7 +126,7 @@ def create_app(study: Study) -> Starlette:
             )
         except (OSError, StoreError) as err:  # the records cannot be written: say so, admit nobody
             log.error("cannot record a new participant: %s", err)
-            return JSONResponse({"error": "the server cannot record a new participant now; try later"}, 503)
+            return _unavailable(err, "a new participant")
         response = JSONResponse(study.view(joined))
         response.set_cookie(
             COOKIE, token, httponly=True, samesite="strict", secure=request.url.scheme == "https", path="/"
@@ -145,6 +150,9 @@ def create_app(study: Study) -> Starlette:
             return JSONResponse({"error": str(err)}, status_code=413)
         except InputError as err:
             return JSONResponse({"error": str(err)}, status_code=400)
+        except (OSError, StoreError) as err:  # nothing changed for the participant: they may retry
+            log.error("participant %s: cannot record a form: %s", p.id, err)
+            return _unavailable(err, "your answer")
         return JSONResponse(view)
 
     async def metrics_route(request: Request) -> Response:
@@ -169,6 +177,10 @@ def create_app(study: Study) -> Starlette:
             await ws.send_json({"type": "error", "message": str(err), "fatal": True})
             await ws.close()
             return
+        except (OSError, StoreError) as err:
+            log.error("participant %s: cannot record the start of a round: %s", p.id, err)
+            await _close_unrecorded(ws, err)
+            return
         await ws.send_json(start)
         try:
             if start["mode"] == "turn_based":
@@ -177,6 +189,10 @@ def create_app(study: Study) -> Starlette:
                 await _real_time(ws, study, p, rnd)
         except WebSocketDisconnect:
             pass
+        except (OSError, StoreError) as err:  # a step not recorded: the round cannot go on
+            log.error("participant %s: cannot record a step; the round ends: %s", p.id, err)
+            await _close_unrecorded(ws, err)
+            return
         except _ProtocolError as err:  # the client's fault: one line, no traceback
             log.warning("participant %s: round connection closed (%d): %s", p.id, err.code, err.reason)
             with contextlib.suppress(RuntimeError, WebSocketDisconnect):
@@ -185,9 +201,11 @@ def create_app(study: Study) -> Starlette:
             log.exception("participant %s: the round's connection failed", p.id)
             with contextlib.suppress(RuntimeError, WebSocketDisconnect):
                 await ws.close(code=1011, reason="server error; reload the page to play the round again")
-        finally:
-            if not rnd.done:
+        finally:  # a round not ended (or whose end could not be recorded) is recorded as aborted
+            try:
                 await asyncio.to_thread(study.abort_round, p, rnd)
+            except (OSError, StoreError) as err:  # recorded when the participant starts it again
+                log.error("participant %s: cannot record the round's abort now: %s", p.id, err)
         if rnd.done:
             with contextlib.suppress(RuntimeError, WebSocketDisconnect):
                 await ws.send_json({"type": "end", "return": rnd.team_return, "collisions": rnd.collisions})
@@ -204,6 +222,35 @@ def create_app(study: Study) -> Starlette:
         Mount("/static", StaticFiles(directory=STATIC), name="static"),
     ]
     return Starlette(routes=routes)
+
+
+def _store_name(err: BaseException) -> str:
+    return str(getattr(err, "store", "the study's records"))
+
+
+def _unavailable(err: BaseException, what: str) -> JSONResponse:
+    """503 for an action whose events a store cannot record (the cause named; no detail of the store)."""
+    store = _store_name(err)
+    return JSONResponse(
+        {
+            "error": f"the server cannot record {what} now ({store} is unavailable); nothing was changed: "
+            "please try again in a minute",
+            "store": store,
+        },
+        503,
+        {"Retry-After": "30"},
+    )
+
+
+async def _close_unrecorded(ws: WebSocket, err: BaseException) -> None:
+    """Tells the browser that the round cannot be recorded now and closes with 1013 (try again later)."""
+    message = (
+        f"the server cannot record the game now ({_store_name(err)} is unavailable); reload the page in a "
+        "minute to play the round again"
+    )
+    with contextlib.suppress(RuntimeError, WebSocketDisconnect):
+        await ws.send_json({"type": "error", "message": message, "fatal": True})
+        await ws.close(code=1013, reason="records unavailable; try again later")
 
 
 def _is_json(request: Request) -> bool:

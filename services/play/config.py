@@ -276,9 +276,9 @@ class StudyConfig:
         limits: bounds on joins (per client address, participants in progress, participants in all).
     """
 
-    name: str
-    levels: tuple[str, ...]
-    partners: tuple[PartnerSpec, ...]
+    name: str = ""  # required: `load_study` names a missing one (an empty file included)
+    levels: tuple[str, ...] = ()
+    partners: tuple[PartnerSpec, ...] = ()
     title: str = "Cooking together"
     consent: str = ""
     instructions: str = (
@@ -302,6 +302,13 @@ class StudyConfig:
     limits: LimitsConfig = field(default_factory=LimitsConfig)
 
     def __post_init__(self) -> None:
+        missing = [key for key in ("name", "levels", "partners") if not getattr(self, key)]
+        if len(missing) == 3:
+            raise ConfigError(
+                "a study needs at least `name`, `levels` and `partners` (see configs/study/default.yaml)"
+            )
+        if not self.name:
+            raise ConfigError("the study has no `name` (1-64 letters, digits, '_' or '-'; records go there)")
         if not _NAME.match(self.name):
             raise ConfigError(f"study name {self.name!r} must be 1-64 letters, digits, '_' or '-'")
         if not self.levels:
@@ -349,5 +356,10 @@ def load_study(path: str | Path, overrides: tuple[str, ...] | list[str] = ()) ->
     """Loads a study file (and `key=value` overrides); returns the config and the folder its paths are
     relative to. Raises `ConfigError` naming the problem."""
     p = Path(path)
-    config = load_config(StudyConfig, p, list(overrides))
+    try:
+        config = load_config(StudyConfig, p, list(overrides))
+    except ConfigError as err:
+        if str(p) in str(err):  # the reader's errors name the file already
+            raise
+        raise ConfigError(f"study file {str(p)!r}: {err}") from err
     return config, p.resolve().parent

@@ -155,7 +155,7 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
     import uvicorn
 
     from services.play.app import MAX_WS_MESSAGE_BYTES, create_app
-    from services.play.recording import Recorder, open_stores
+    from services.play.recording import Recorder, open_stores, read_all
     from services.play.study import Study
 
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
@@ -174,8 +174,13 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
         )
         recorder = Recorder(stores)
         study = Study(config, base_dir, pools, recorder)
-        known = stores[0].participants()
-        restored = study.restore({pid: stores[0].events(pid) for pid in known})
+        records = read_all(stores[0])  # validated: bad lines are quarantined with a warning, never fatal
+        restored = study.restore(records)
+        if stores[0].quarantined:
+            log.warning(
+                "%d record line(s) quarantined (left out; `cec play export` lists them)",
+                len(stores[0].quarantined),
+            )
         app = create_app(study)
         sock.listen(128)
         bound = sock.getsockname()[1]
@@ -183,7 +188,7 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
         where += [f"Redis {config.storage.redis_url}"] if config.storage.redis_url else []
         log.info(
             "recording to %s (%d participants so far, %d can continue)",
-            " and ".join(where), len(known), restored,
+            " and ".join(where), len(records), restored,
         )  # fmt: skip
         uv = uvicorn.Config(
             app, log_level="warning", access_log=False, ws_max_size=MAX_WS_MESSAGE_BYTES, lifespan="off"
@@ -228,10 +233,12 @@ def _cmd_export(args: argparse.Namespace) -> int:
     stores = open_stores(
         config.name, directory, config.storage.redis_url, config.storage.key_prefix, create=False
     )
+    problems: list[str] = []
     try:
         if not stores[0].participants():
             raise RecordError(f"no records of study {config.name!r} in {directory or 'Redis'}")
-        table, survey = export_tables(stores[0])
+        table, survey = export_tables(stores[0], problems)
+        quarantined = list(stores[0].quarantined)
     finally:
         for s in stores:
             s.close()
@@ -241,6 +248,11 @@ def _cmd_export(args: argparse.Namespace) -> int:
     participants = len(set(table.policy_a.tolist()))
     print(f"wrote {results} ({len(table)} rounds, {participants} participants)")
     print(f"wrote {answers} ({len(survey)} answers)")
+    if quarantined or problems:
+        print(f"left out {len(quarantined)} quarantined record line(s) and {len(problems)} round(s) or "
+              "participant(s) whose records are inconsistent:")  # fmt: skip
+        for line in [*map(str, quarantined), *problems]:
+            print(f"  {line}")
     return 0
 
 

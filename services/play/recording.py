@@ -1,10 +1,23 @@
 """Durable records of a study: one append-only event log per participant, in files and/or Redis; export to
 the evaluator's result table (`cec.evaluation.results`) and a survey table.
 
-Every event is a JSON object with `type`, `at` (Unix time on the server) and the participant's opaque id.
-`append` returns only after the event is on disk (file written and fsynced) and/or acknowledged by Redis
-(whose own durability is its `appendfsync` setting; `LocalRedis` fsyncs every write), and the server answers
-the action that caused an event only after that, so a crash loses at most the step being played.
+Every event is a JSON object with `type`, `at` (Unix time on the server), the participant's opaque id and
+`seq`, its number in the participant's log (0, 1, ...: the event id). `append` returns only after the event
+is on disk (file written and fsynced) and/or acknowledged by Redis (whose own durability is its
+`appendfsync` setting; `LocalRedis` fsyncs every write), and the server answers the action that caused an
+event only after that, so a crash loses at most the step being played.
+
+Store faults (`Recorder`): an event goes to the primary store (files when configured, else Redis) first,
+then to the others. When a store fails, `RecordUnavailableError` names it and the action fails (the web
+layer answers 503); the participant's next event keeps the same `seq`: a retry of the same event is written
+only to the stores that miss it, and any other event (a retry with other answers, the abort of a round)
+is written to every store under that `seq`. Readers keep the last event of a `seq`, so a retry is never
+counted twice, and every store reads back the same log.
+
+Reading back validates every event (`check_event`: a JSON object of a known `type` with the fields the
+readers use, of their types, nested at most `MAX_RECORD_DEPTH` levels). A bad line (or Redis entry) is
+quarantined: left out, with a warning naming the file and line, and listed in the store's `quarantined`
+(which `cec play export` reports), so a damaged record never stops a restart or an export.
 
 Event types, in the order a participant produces them:
 
@@ -38,14 +51,15 @@ import json
 import logging
 import os
 import re
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, fields
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, Protocol
 
 import redis
 
 from cec.evaluation.results import EpisodeTable, make_table
+from services.play.limits import json_depth
 from services.store import StoreConfig, StoreError, StoreUnavailableError
 
 log = logging.getLogger("cec.play")
@@ -55,14 +69,162 @@ HUMAN_ALGORITHM = "human"
 SURVEY_COLUMNS = ("participant", "round", "partner", "policy", "algorithm", "seed", "level", "item", "answer")
 
 
+#: Deepest nesting of a recorded event (a step's state is 4 levels deep; more is damage, not a record).
+MAX_RECORD_DEPTH = 32
+#: Longest record line (or Redis entry) read (a step is ~1 kB; a line this long is not one of ours).
+MAX_RECORD_BYTES = 1 << 20
+
+
 class RecordError(ValueError):
     """Records are missing or inconsistent; the message names the participant, the round and the problem."""
 
 
-class EventStore(Protocol):
-    """Where events are appended and read back."""
+class RecordUnavailableError(StoreUnavailableError):
+    """A store could not record an event (Redis down, a full disk...): the action is refused (HTTP 503) and
+    may be retried; `store` names the store for a participant (`Redis`, `the records folder`)."""
 
-    def append(self, participant: str, event: dict[str, Any]) -> None: ...
+    def __init__(self, message: str, store: str) -> None:
+        super().__init__(message)
+        self.store = store
+
+
+@dataclass(frozen=True)
+class Quarantined:
+    """A record line (or Redis entry) left out on reading: `where` (file and line, or key and entry id)
+    and the cause."""
+
+    where: str
+    cause: str
+
+    def __str__(self) -> str:
+        return f"{self.where}: {self.cause}"
+
+
+def _int(v: Any) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _nonneg(v: Any) -> bool:
+    return _int(v) and v >= 0
+
+
+def _num(v: Any) -> bool:
+    return isinstance(v, int | float) and not isinstance(v, bool)
+
+
+def _any(v: Any) -> bool:
+    return True
+
+
+_CHECKS: dict[str, tuple[str, Callable[[Any], bool]]] = {
+    "int": ("an integer", _int),
+    "nonneg": ("an integer >= 0", _nonneg),
+    "num": ("a number", _num),
+    "bool": ("true or false", lambda v: isinstance(v, bool)),
+    "str": ("a string", lambda v: isinstance(v, str)),
+    "list": ("a list", lambda v: isinstance(v, list)),
+    "dict": ("an object", lambda v: isinstance(v, dict)),
+    "any": ("present", _any),
+}
+
+#: The fields each event type must have for the readers (restore, export, `cec humans bc --from-play`),
+#: and their kinds (`_CHECKS`).
+EVENT_FIELDS: dict[str, dict[str, str]] = {
+    "participant": {"index": "nonneg", "session": "str", "code": "str", "config_digest": "str"},
+    "consent": {"accepted": "bool"},
+    "info": {"fields": "dict"},
+    "instructions": {},
+    "round_start": {
+        "round": "int", "attempt": "nonneg", "practice": "bool", "partner": "any", "policy": "any",
+        "algorithm": "any", "seed": "any", "level": "str", "level_ascii": "str", "human_seat": "int",
+        "steps": "nonneg", "agent_actions": "any", "state": "any",
+    },
+    "step": {
+        "round": "int", "attempt": "nonneg", "t": "int", "actions": "list", "human_action": "any",
+        "reward": "num", "collision": "bool", "done": "bool", "state": "any",
+    },
+    "round_end": {
+        "round": "int", "attempt": "nonneg", "steps": "nonneg", "return": "num", "shaped_return": "num",
+        "collisions": "nonneg", "deliveries": "int",
+    },
+    "round_abort": {"round": "int", "attempt": "nonneg", "steps": "int"},
+    "survey": {"round": "int", "partner": "any", "answers": "dict"},
+    "complete": {"code": "str"},
+}  # fmt: skip
+
+
+def check_event(event: Any) -> str | None:
+    """What is wrong with a recorded event (None: nothing): a JSON object whose `type` is one of
+    `EVENT_FIELDS`, with that type's fields of their kinds, and `seq` (when given) an integer >= 0."""
+    if not isinstance(event, dict):
+        return f"not a JSON object but a {type(event).__name__}"
+    kind = event.get("type")
+    if not isinstance(kind, str) or kind not in EVENT_FIELDS:
+        return f"`type` {_brief(kind)} is not an event type ({', '.join(EVENT_FIELDS)})"
+    if "seq" in event and not _nonneg(event["seq"]):
+        return f"an event of type {kind!r} whose `seq` {_brief(event['seq'])} is not an integer >= 0"
+    for name, check in EVENT_FIELDS[kind].items():
+        what, ok = _CHECKS[check]
+        if name not in event:
+            return f"an event of type {kind!r} without `{name}`"
+        if not ok(event[name]):
+            return f"an event of type {kind!r} whose `{name}` {_brief(event[name])} is not {what}"
+    return None
+
+
+def _brief(value: Any, limit: int = 40) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def parse_event(text: str | bytes) -> tuple[dict[str, Any] | None, str]:
+    """(the event, '') from one record line or Redis entry, or (None, what is wrong with it): too long,
+    not UTF-8 or JSON, nested deeper than `MAX_RECORD_DEPTH` (checked before parsing, without recursion),
+    or not an event (`check_event`)."""
+    if len(text) > MAX_RECORD_BYTES:
+        return None, f"{len(text):,} bytes long (a record is at most {MAX_RECORD_BYTES:,})"
+    try:
+        line = text.decode("utf-8") if isinstance(text, bytes) else text
+    except UnicodeDecodeError as err:
+        return None, f"not UTF-8 text ({err.reason} at byte {err.start})"
+    depth = json_depth(line)
+    if depth > MAX_RECORD_DEPTH:
+        return None, f"nested {depth} levels deep (a record is at most {MAX_RECORD_DEPTH})"
+    try:
+        event = json.loads(line, parse_constant=_constant)
+    except json.JSONDecodeError as err:
+        return None, f"not JSON ({err.msg} at column {err.colno})"
+    except (ValueError, RecursionError) as err:
+        return None, f"not JSON ({err})"
+    problem = check_event(event)
+    if problem is not None:
+        return None, problem
+    return event, ""
+
+
+def _latest_per_seq(events: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """`events` as the server acted on them: an event whose `seq` is not above the one before it was
+    written again after a store fault (a retry, or what replaced it), so it replaces the events from that
+    `seq` on; every event id is counted once."""
+    out: list[dict[str, Any]] = []
+    for ev in events:
+        if "seq" in ev:
+            while out and "seq" in out[-1] and out[-1]["seq"] >= ev["seq"]:
+                out.pop()
+        out.append(ev)
+    return out
+
+
+class EventStore(Protocol):
+    """Where events are appended and read back; `quarantined`: what reading left out so far."""
+
+    quarantined: list[Quarantined]
+
+    def append(self, participant: str, *events: dict[str, Any]) -> None: ...
 
     def participants(self) -> list[str]: ...
 
@@ -84,11 +246,15 @@ class FileStore:
     """Append-only JSON lines, one file per participant, fsynced after every event.
 
     A file is open only while an event is written to it (opened for appending, written, fsynced, closed),
-    so the server holds no descriptor per participant, however many join.
+    so the server holds no descriptor per participant, however many join. A file whose last line was cut
+    off (a crash while it was written) gets a line break before the next event, so that event stays whole.
     """
+
+    name = "the records folder"
 
     def __init__(self, root: str | Path, study: str, *, create: bool = True) -> None:
         self.dir = Path(root) / study
+        self.quarantined: list[Quarantined] = []
         if create:
             self.dir.mkdir(parents=True, exist_ok=True)
 
@@ -96,10 +262,14 @@ class FileStore:
         _check_id(participant)
         return self.dir / f"{participant}.jsonl"
 
-    def append(self, participant: str, event: dict[str, Any]) -> None:
-        data = (_dumps(event) + "\n").encode("utf-8")
-        fd = os.open(self.path(participant), os.O_WRONLY | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o666)
+    def append(self, participant: str, *events: dict[str, Any]) -> None:
+        """Appends `events` (one write, one fsync) to the participant's file."""
+        data = "".join(_dumps(event) + "\n" for event in events).encode("utf-8")
+        fd = os.open(self.path(participant), os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o666)
         try:
+            size = os.fstat(fd).st_size
+            if size and os.pread(fd, 1, size - 1) != b"\n":  # a cut-off last line: end it first
+                data = b"\n" + data
             view = memoryview(data)
             while view:  # one write() for a line in practice; O_APPEND keeps lines whole at the end
                 view = view[os.write(fd, view) :]
@@ -111,22 +281,41 @@ class FileStore:
         return sorted(p.stem for p in self.dir.glob("p*.jsonl") if PARTICIPANT_ID.match(p.stem))
 
     def events(self, participant: str) -> list[dict[str, Any]]:
+        """The participant's events in order; a bad line is quarantined (`Quarantined`, with a warning
+        naming the file and line), never an error. `RecordError` when the participant has no file."""
         path = self.path(participant)
         if not path.is_file():
             raise RecordError(f"no records of participant {participant} in {self.dir}")
-        lines = path.read_text(encoding="utf-8").splitlines()
         out = []
-        for n, line in enumerate(lines, start=1):
-            if not line.strip():
-                continue
-            try:
-                out.append(json.loads(line))
-            except json.JSONDecodeError as err:
-                if n == len(lines):  # a crash while the last event was being written
-                    log.warning("%s: the last line is cut off; ignored", path)
+        with path.open("rb") as f:  # line by line: an overlong line costs at most MAX_RECORD_BYTES
+            n = 0
+            while True:
+                raw = f.readline(MAX_RECORD_BYTES + 1)
+                if not raw:
                     break
-                raise RecordError(f"{path}, line {n}: not JSON ({err})") from err
-        return out
+                n += 1
+                cut = not raw.endswith(b"\n")
+                if len(raw) > MAX_RECORD_BYTES:
+                    while raw and not raw.endswith(b"\n"):  # skip the rest of the line
+                        raw = f.readline(MAX_RECORD_BYTES + 1)
+                    self._quarantine(path, n, f"longer than {MAX_RECORD_BYTES:,} bytes")
+                    continue
+                if not raw.strip():
+                    continue
+                event, problem = parse_event(raw.rstrip(b"\n"))
+                if event is None:
+                    if cut:  # only the last line lacks its line break
+                        problem += " (the last line, cut off: a crash while it was written)"
+                    self._quarantine(path, n, problem)
+                    continue
+                out.append(event)
+        return _latest_per_seq(out)
+
+    def _quarantine(self, path: Path, line: int, cause: str) -> None:
+        entry = Quarantined(f"{path}, line {line}", cause)
+        if entry not in self.quarantined:
+            self.quarantined.append(entry)
+            log.warning("%s; quarantined (left out of the records read)", entry)
 
     def close(self) -> None:
         """Nothing to close: no file stays open between events."""
@@ -135,14 +324,17 @@ class FileStore:
 class RedisStore:
     """One Redis stream per participant plus the set of participants."""
 
+    name = "Redis"
+
     def __init__(self, config: StoreConfig, study: str) -> None:
         self.config = config
         self.study = study
+        self.quarantined: list[Quarantined] = []
         try:
             self._r: Any = redis.Redis.from_url(
                 config.resolved_url,
                 password=config.resolved_password or None,
-                decode_responses=True,
+                decode_responses=False,
                 socket_connect_timeout=config.connect_timeout_s,
                 socket_timeout=config.socket_timeout_s,
             )
@@ -159,45 +351,144 @@ class RedisStore:
     def _key(self, *parts: str) -> str:
         return ":".join((self.config.key_prefix, "play", self.study, *parts))
 
-    def append(self, participant: str, event: dict[str, Any]) -> None:
+    def append(self, participant: str, *events: dict[str, Any]) -> None:
+        """Appends `events` to the participant's stream (one transaction)."""
         _check_id(participant)
         try:
             pipe = self._r.pipeline(transaction=True)
             pipe.sadd(self._key("participants"), participant)
-            pipe.xadd(self._key(participant), {"event": _dumps(event)})
+            for event in events:
+                pipe.xadd(self._key(participant), {"event": _dumps(event)})
             pipe.execute()
         except redis.RedisError as err:
             raise StoreUnavailableError(
                 f"Redis at {self.config.display_url} failed to record an event: {err}"
             ) from err
 
+    def _call(self, key: str, what: str, call: Callable[[], Any]) -> Any:
+        """`call()`, with Redis's errors named: `RecordError` for a key of the wrong type (someone else's
+        data), `StoreUnavailableError` when Redis cannot answer."""
+        try:
+            return call()
+        except redis.ResponseError as err:
+            raise RecordError(
+                f"Redis key {key!r} at {self.config.display_url} is not {what} ({err}); it is not this "
+                "study's record: remove it, or choose another storage.key_prefix"
+            ) from err
+        except redis.RedisError as err:
+            raise StoreUnavailableError(
+                f"cannot read the records from Redis at {self.config.display_url}: {err}"
+            ) from err
+
     def participants(self) -> list[str]:
-        return sorted(str(p) for p in self._r.smembers(self._key("participants")))
+        key = self._key("participants")
+        members = self._call(key, "a set of participant ids", lambda: self._r.smembers(key))
+        out = []
+        for m in members:
+            pid = m.decode("utf-8", "replace") if isinstance(m, bytes) else str(m)
+            if PARTICIPANT_ID.match(pid):
+                out.append(pid)
+            else:
+                self._quarantine(f"Redis key {key!r}, member {_brief(pid)}", "not a participant id")
+        return sorted(out)
 
     def events(self, participant: str) -> list[dict[str, Any]]:
+        """The participant's events in order; a bad entry is quarantined (`Quarantined`, with a warning
+        naming the key and entry), never an error. `RecordError` when the participant has no stream."""
         _check_id(participant)
-        entries = self._r.xrange(self._key(participant))
+        key = self._key(participant)
+        entries = self._call(key, "a stream of events", lambda: self._r.xrange(key))
         if not entries:
             raise RecordError(
                 f"no records of participant {participant} in Redis at {self.config.display_url}"
             )
-        return [json.loads(fields["event"]) for _, fields in entries]
+        out = []
+        for entry_id, data in entries:
+            ident = entry_id.decode() if isinstance(entry_id, bytes) else str(entry_id)
+            where = f"Redis key {key!r}, entry {ident}"
+            raw = data.get(b"event")
+            if raw is None:
+                self._quarantine(where, "no `event` field")
+                continue
+            event, problem = parse_event(raw)
+            if event is None:
+                self._quarantine(where, problem)
+                continue
+            out.append(event)
+        return _latest_per_seq(out)
+
+    def _quarantine(self, where: str, cause: str) -> None:
+        entry = Quarantined(where, cause)
+        if entry not in self.quarantined:
+            self.quarantined.append(entry)
+            log.warning("%s; quarantined (left out of the records read)", entry)
 
     def close(self) -> None:
         self._r.close()
 
 
+@dataclass
+class _Pending:
+    """Events some stores hold and others do not (their failure is being retried)."""
+
+    seq: int
+    events: list[dict[str, Any]]
+    held: set[int] = field(default_factory=set)  # indices of the stores that hold them
+
+
+def _same_events(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> bool:
+    """Whether `b` is `a` again (its retry): equal but for the times."""
+
+    def strip(events: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+        return [{k: v for k, v in e.items() if k != "at"} for e in events]
+
+    return strip(a) == strip(b)
+
+
 class Recorder:
-    """Appends every event to all configured stores (files first, then Redis)."""
+    """Appends every event to all configured stores, the primary (the first: files when configured) first,
+    numbering each participant's events (`seq`) so that a retry after a store fault is recorded once in each
+    store (module docstring)."""
 
     def __init__(self, stores: Sequence[EventStore]) -> None:
         if not stores:
             raise ValueError("a recorder needs at least one store")
         self.stores = list(stores)
+        self._next: dict[str, int] = {}  # participant -> the seq of its next event
+        self._pending: dict[str, _Pending] = {}
 
-    def append(self, participant: str, event: dict[str, Any]) -> None:
-        for store in self.stores:
-            store.append(participant, event)
+    def resume(self, participant: str, events: Sequence[dict[str, Any]]) -> None:
+        """Continues the numbering of a participant recorded by an earlier run (`events`: as read back)."""
+        seqs = [int(e["seq"]) for e in events if "seq" in e]
+        self._next[participant] = max(len(events), max(seqs, default=-1) + 1)
+
+    def append(self, participant: str, *events: dict[str, Any]) -> list[dict[str, Any]]:
+        """Records `events` (the events of one action, each with its `seq` added) in every store; returns
+        them. `RecordUnavailableError` naming the store that failed: the events then wait, under the same
+        `seq`s, for a retry (written only where they are missing) or for other events that replace them."""
+        seq = self._next.get(participant, 0)
+        batch = [{**event, "seq": seq + i} for i, event in enumerate(events)]
+        pending = self._pending.pop(participant, None)
+        held: set[int] = set()
+        if pending is not None and pending.seq == seq and _same_events(pending.events, batch):
+            batch, held = pending.events, pending.held  # a retry: only the stores that miss it
+        for i, store in enumerate(self.stores):
+            if i in held:
+                continue
+            name = str(getattr(store, "name", type(store).__name__))
+            try:
+                store.append(participant, *batch)
+            except (OSError, StoreError) as err:
+                self._pending[participant] = _Pending(seq, batch, held)
+                raise RecordUnavailableError(f"{name} cannot record events now: {err}", name) from err
+            held.add(i)
+        self._next[participant] = seq + len(batch)
+        return batch
+
+    def discard(self, participant: str) -> None:
+        """Forgets a participant whose join failed (nobody can continue it)."""
+        self._pending.pop(participant, None)
+        self._next.pop(participant, None)
 
     def close(self) -> None:
         for store in self.stores:
@@ -239,9 +530,12 @@ class RoundRecord:
         return bool(self.start["practice"])
 
 
-def finished_rounds(participant: str, events: Iterable[dict[str, Any]]) -> list[RoundRecord]:
+def finished_rounds(
+    participant: str, events: Iterable[dict[str, Any]], problems: list[str] | None = None
+) -> list[RoundRecord]:
     """The rounds that ended (`round_end`), each checked: steps numbered 1..n without gaps, and the end
-    event's totals equal to the sums over the steps. Aborted attempts are left out. `RecordError` if not."""
+    event's totals equal to the sums over the steps. Aborted attempts are left out. An inconsistent round
+    raises `RecordError`, or, given a `problems` list, is left out with its problem appended to it."""
     rounds: list[RoundRecord] = []
     current: dict[str, Any] | None = None
     steps: list[dict[str, Any]] = []
@@ -255,37 +549,66 @@ def finished_rounds(participant: str, events: Iterable[dict[str, Any]]) -> list[
             current, steps = None, []
         elif kind == "round_end" and current is not None:
             where = f"participant {participant}, round {current['round']} attempt {current['attempt']}"
-            if [s["t"] for s in steps] != list(range(1, len(steps) + 1)):
-                raise RecordError(f"{where}: step numbers are not 1..{len(steps)}")
-            if ev["steps"] != len(steps):
-                raise RecordError(
-                    f"{where}: the end event counts {ev['steps']} steps, {len(steps)} are recorded"
-                )
-            total = sum(s["reward"] for s in steps)
-            collisions = sum(bool(s["collision"]) for s in steps)
-            if abs(total - ev["return"]) > 1e-6 or collisions != ev["collisions"]:
-                raise RecordError(
-                    f"{where}: the end event's return/collisions differ from the sum of its steps"
-                )
-            rounds.append(RoundRecord(participant, current, tuple(steps), ev))
+            problem = _round_problem(steps, ev)
+            if problem is None:
+                rounds.append(RoundRecord(participant, current, tuple(steps), ev))
+            elif problems is None:
+                raise RecordError(f"{where}: {problem}")
+            else:
+                problems.append(f"{where}: {problem}; the round is left out")
+                log.warning("%s: %s; the round is left out", where, problem)
             current, steps = None, []
     return rounds
 
 
-def export_tables(store: EventStore) -> tuple[EpisodeTable, list[dict[str, Any]]]:
+def _round_problem(steps: list[dict[str, Any]], end: dict[str, Any]) -> str | None:
+    """What makes a finished round's steps disagree with its end event (None: nothing)."""
+    if [s["t"] for s in steps] != list(range(1, len(steps) + 1)):
+        return f"step numbers are not 1..{len(steps)}"
+    if end["steps"] != len(steps):
+        return f"the end event counts {end['steps']} steps, {len(steps)} are recorded"
+    total = sum(s["reward"] for s in steps)
+    collisions = sum(bool(s["collision"]) for s in steps)
+    if abs(total - end["return"]) > 1e-6 or collisions != end["collisions"]:
+        return "the end event's return/collisions differ from the sum of its steps"
+    return None
+
+
+def read_all(store: EventStore, problems: list[str] | None = None) -> dict[str, list[dict[str, Any]]]:
+    """Every participant's events (validated; bad lines quarantined by the store). A participant whose
+    records cannot be read at all is left out with a warning (and its problem appended to `problems`)."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    for participant in store.participants():
+        try:
+            out[participant] = store.events(participant)
+        except RecordError as err:
+            log.warning("%s; left out", err)
+            if problems is not None:
+                problems.append(f"{err}; left out")
+    return out
+
+
+def export_tables(
+    store: EventStore, problems: list[str] | None = None
+) -> tuple[EpisodeTable, list[dict[str, Any]]]:
     """(result table of every finished study round, survey rows) from a store.
 
     Result rows: `policy_a` the participant id, `algorithm_a` `human`, `seed_a` 0; `policy_b` the partner's
     policy (zoo entry or partner name), its algorithm and seed; `seat` the human's seat; `episode` the round
     index; the outcome columns; `actions` how the agent chose (`greedy`/`sampled`). Practice rounds are
-    left out. Survey rows: one per answered item (`SURVEY_COLUMNS`).
+    left out. Survey rows: one per answered item (`SURVEY_COLUMNS`). Bad record lines are quarantined by the
+    store (`store.quarantined`); a round whose records are inconsistent, or a participant whose records
+    cannot be read, is left out and named in `problems` (when given; else `RecordError`).
     """
     cols: dict[str, list[Any]] = {f.name: [] for f in fields(EpisodeTable) if f.name != "skipped"}
     surveys: list[dict[str, Any]] = []
-    for participant in store.participants():
-        events = store.events(participant)
+    if problems is None:
+        records = {p: store.events(p) for p in store.participants()}
+    else:
+        records = read_all(store, problems)
+    for participant, events in records.items():
         by_round: dict[int, RoundRecord] = {}
-        for r in finished_rounds(participant, events):
+        for r in finished_rounds(participant, events, problems):
             if r.practice:
                 continue
             by_round[r.round] = r  # a round is finished once; a later attempt would replace an earlier one

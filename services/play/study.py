@@ -5,7 +5,10 @@ instructions, the practice round (if any), then for each study round the round a
 survey has items), and finally the completion code. `Study` holds the participants of one server process;
 every method validates its input and raises `InputError` (the web layer answers 400 with its message) for
 anything a client could send wrong. Every state change is recorded (`services.play.recording`) before the
-method returns.
+method returns, the events of one action together. When a store cannot record them, the method raises
+`RecordUnavailableError` and leaves the participant's stage as it was (a round being played is ended: its
+connection closes and the round is played again), so the action can be retried without being recorded
+twice.
 
 The round plan of participant i (their partners in order, the human's seat, the zoo draws, the kitchen and
 the round seeds) comes from `numpy.random.default_rng([study.seed, i])`, so a study is reproducible; a
@@ -190,17 +193,21 @@ class Study:
             token = secrets.token_urlsafe(24)
             code = self.config.completion_code or "C" + secrets.token_hex(4).upper()
             p = self._participant("p" + secrets.token_hex(10), index, code)
-            self._record(
-                p,
-                "participant",
-                study=self.config.name,
-                index=index,
-                level=p.level_spec,
-                plan=[r.partner for r in p.rounds if not r.practice],
-                config_digest=self.digest,
-                session=_token_hash(token),
-                code=code,
-            )
+            try:
+                self._record(
+                    p,
+                    "participant",
+                    study=self.config.name,
+                    index=index,
+                    level=p.level_spec,
+                    plan=[r.partner for r in p.rounds if not r.practice],
+                    config_digest=self.digest,
+                    session=_token_hash(token),
+                    code=code,
+                )
+            except Exception:  # not admitted (no cookie): nobody will retry this participant's events
+                self.recorder.discard(p.id)
+                raise
         finally:
             with self._lock:
                 self._joining -= 1
@@ -302,20 +309,23 @@ class Study:
         """Takes back the participants of earlier runs of this server from their records, so that a
         participant whose server restarted continues where they were (with the same cookie). A round that
         was being played is recorded as aborted and is played again. Participants recorded under another
-        study config cannot continue (their records stay as they are). Returns how many were restored."""
+        study config, or whose participant event is missing, cannot continue (their records stay as they
+        are). `records`: as the stores read them back (validated, `services.play.recording`). Returns how
+        many were restored."""
         restored = 0
         for pid, events in records.items():
             head = events[0] if events else {}
             index = int(head.get("index", -1))
             with self._lock:
                 self._next_index = max(self._next_index, index + 1)
-            if (
-                head.get("type") != "participant"
-                or head.get("config_digest") != self.digest
-                or "session" not in head
-            ):
+            if head.get("type") != "participant":
+                log.warning("participant %s: the records do not start with the participant event (see the "
+                            "quarantined lines); cannot continue", pid)  # fmt: skip
+                continue
+            if head.get("config_digest") != self.digest or "session" not in head:
                 log.warning("participant %s: recorded under another study config; cannot continue", pid)
                 continue
+            self.recorder.resume(pid, events)
             p = self._participant(pid, index, str(head["code"]))
             running: int | None = None
             for ev in events[1:]:
@@ -362,8 +372,16 @@ class Study:
         policy = eligible[int(rng.integers(len(eligible)))]
         return RoundPlan(index, partner, policy, level_spec, seat, steps, mode, int(rng.integers(2**31 - 1)))
 
+    def _event(self, p: Participant, kind: str, **fields: Any) -> dict[str, Any]:
+        return {"type": kind, "at": round(time.time(), 6), "participant": p.id, **fields}
+
     def _record(self, p: Participant, kind: str, **fields: Any) -> None:
-        self.recorder.append(p.id, {"type": kind, "at": round(time.time(), 6), "participant": p.id, **fields})
+        self._record_all(p, [self._event(p, kind, **fields)])
+
+    def _record_all(self, p: Participant, events: list[dict[str, Any]]) -> None:
+        """Records the events of one action together (`RecordUnavailableError`: none is taken as
+        recorded, and the participant's state is left as it was, so the action can be retried)."""
+        self.recorder.append(p.id, *events)
 
     # --- views ----------------------------------------------------------------------------------------
 
@@ -432,23 +450,27 @@ class Study:
                 accept = payload.get("accept")
                 if not isinstance(accept, bool):
                     raise InputError("consent needs `accept`: true or false")
-                self._record(p, "consent", accepted=accept)
-                if not accept:
-                    p.stages = [*p.stages[: p.stage + 1], ("declined", 0)]
+                stages = p.stages if accept else [*p.stages[: p.stage + 1], ("declined", 0)]
+                self._record_all(
+                    p, [self._event(p, "consent", accepted=accept), *self._completion(p, stages)]
+                )
+                p.stages = stages
                 self._advance(p)
             elif kind == "info":
-                self._record(p, "info", fields=self.validate_info(payload.get("fields")))
+                info = self._event(p, "info", fields=self.validate_info(payload.get("fields")))
+                self._record_all(p, [info, *self._completion(p)])
                 self._advance(p)
             elif kind == "instructions":
-                self._record(p, "instructions")
+                self._record_all(p, [self._event(p, "instructions"), *self._completion(p)])
                 self._advance(p)
             elif kind == "survey":
                 if payload.get("round") != index:
                     raise InputError(f"this survey is about round {index}, not {brief(payload.get('round'))}")
                 answers = self.validate_answers(payload.get("answers"))
-                self._record(
+                survey = self._event(
                     p, "survey", round=index, partner=self._plan_of(p, index).partner, answers=answers
                 )
+                self._record_all(p, [survey, *self._completion(p)])
                 metrics.SURVEYS.inc()
                 self._advance(p)
             else:
@@ -489,13 +511,23 @@ class Study:
             out[key] = value
         return out
 
+    def _completion(
+        self, p: Participant, stages: list[tuple[str, int]] | None = None
+    ) -> list[dict[str, Any]]:
+        """The `complete` event when going on from the current stage (of `stages`, default the
+        participant's) reaches the end of the study, to be recorded with the event that goes on."""
+        stages = p.stages if stages is None else stages
+        if p.current[0] != "done" and stages[min(p.stage + 1, len(stages) - 1)][0] == "done":
+            return [self._event(p, "complete", code=p.code)]
+        return []
+
     def _advance(self, p: Participant) -> None:
+        """Goes on to the next stage (its events are recorded: `_completion`)."""
         p.stage = min(p.stage + 1, len(p.stages) - 1)
         if p.finished:
             with self._lock:
                 self._active.pop(p.id, None)
         if p.current[0] == "done":
-            self._record(p, "complete", code=p.code)
             log.info("participant %s completed the study", p.id)
 
     # --- rounds ---------------------------------------------------------------------------------------
@@ -578,37 +610,44 @@ class Study:
                 self._seen(p)
             result = rnd.step(action, with_branches=plan.mode == "turn_based")
             attempt = p.attempts[plan.index] - 1
-            self._record(
-                p,
-                "step",
-                round=plan.index,
-                attempt=attempt,
-                t=result.t,
-                actions=result.actions,
-                human_action=action,
-                rt_ms=rt,
-                reward=result.reward,
-                shaped=result.shaped,
-                collision=result.collision,
-                done=result.done,
-                state=result.state,
-                compute_ms=round(result.compute_s * 1000, 3),
-            )
+            events = [
+                self._event(
+                    p,
+                    "step",
+                    round=plan.index,
+                    attempt=attempt,
+                    t=result.t,
+                    actions=result.actions,
+                    human_action=action,
+                    rt_ms=rt,
+                    reward=result.reward,
+                    shaped=result.shaped,
+                    collision=result.collision,
+                    done=result.done,
+                    state=result.state,
+                    compute_ms=round(result.compute_s * 1000, 3),
+                )
+            ]
+            if result.done:  # the step, the round's end (and the study's) are recorded together
+                delivery = float(self.config.env.delivery_reward)
+                events.append(
+                    self._event(
+                        p,
+                        "round_end",
+                        round=plan.index,
+                        attempt=attempt,
+                        steps=rnd.t,
+                        **{"return": rnd.team_return},
+                        shaped_return=rnd.shaped_return,
+                        collisions=rnd.collisions,
+                        deliveries=round(rnd.team_return / delivery) if delivery > 0 else 0,
+                    )
+                )
+                events += self._completion(p)
+            self._record_all(p, events)
             metrics.STEPS.labels(plan.mode).inc()
             metrics.STEP_SECONDS.observe(result.compute_s)
             if result.done:
-                delivery = float(self.config.env.delivery_reward)
-                self._record(
-                    p,
-                    "round_end",
-                    round=plan.index,
-                    attempt=attempt,
-                    steps=rnd.t,
-                    **{"return": rnd.team_return},
-                    shaped_return=rnd.shaped_return,
-                    collisions=rnd.collisions,
-                    deliveries=round(rnd.team_return / delivery) if delivery > 0 else 0,
-                )
                 p.round = None
                 metrics.ACTIVE_ROUNDS.dec()
                 metrics.ROUNDS.labels("completed").inc()

@@ -324,9 +324,19 @@ def test_records_hold_every_step_and_export_to_the_result_table(
 
 
 def test_inconsistent_or_cut_records_are_caught(tmp_path: Path) -> None:
-    start: dict[str, Any] = {"type": "round_start", "round": 0, "attempt": 0, "practice": False}
-    step: dict[str, Any] = {"type": "step", "reward": 20.0, "collision": True}
-    end: dict[str, Any] = {"type": "round_end", "steps": 2, "return": 40.0, "collisions": 2}
+    start: dict[str, Any] = {
+        "type": "round_start", "round": 0, "attempt": 0, "practice": False, "partner": "a", "policy": "a",
+        "algorithm": "cec", "seed": 0, "level": "coord_ring", "level_ascii": "", "human_seat": 0,
+        "steps": 2, "agent_actions": "greedy", "state": {},
+    }  # fmt: skip
+    step: dict[str, Any] = {
+        "type": "step", "round": 0, "attempt": 0, "actions": [0, 0], "human_action": 0, "reward": 20.0,
+        "collision": True, "done": False, "state": {},
+    }  # fmt: skip
+    end: dict[str, Any] = {
+        "type": "round_end", "round": 0, "attempt": 0, "steps": 2, "return": 40.0, "shaped_return": 0.0,
+        "collisions": 2, "deliveries": 2,
+    }  # fmt: skip
     good = [start, {**step, "t": 1}, {**step, "t": 2}, end]
     assert len(finished_rounds(PID, good)) == 1
     with pytest.raises(RecordError, match="step numbers"):
@@ -335,6 +345,9 @@ def test_inconsistent_or_cut_records_are_caught(tmp_path: Path) -> None:
         finished_rounds(PID, [start, {**step, "t": 1}, end])
     with pytest.raises(RecordError, match="differ"):
         finished_rounds(PID, [start, {**step, "t": 1}, {**step, "t": 2}, {**end, "return": 20.0}])
+    problems: list[str] = []  # given a list, an inconsistent round is left out and named there
+    assert finished_rounds(PID, [start, {**step, "t": 1}, end, *good], problems) == finished_rounds(PID, good)
+    assert len(problems) == 1 and "counts 2 steps" in problems[0]
     aborted: list[dict[str, Any]] = [start, {**step, "t": 1}, {"type": "round_abort"}]
     assert finished_rounds(PID, aborted + good) == finished_rounds(PID, good)
 
@@ -345,9 +358,12 @@ def test_inconsistent_or_cut_records_are_caught(tmp_path: Path) -> None:
     path = store.path(PID)
     path.write_text(path.read_text() + '{"type": "st')  # a crash while the last event was written
     assert store.events(PID) == good
-    path.write_text('{"oops\n' + path.read_text())
-    with pytest.raises(RecordError, match="line 1"):
-        store.events(PID)
+    assert "line 5" in str(store.quarantined[-1]) and "cut off" in str(store.quarantined[-1])
+    store.append(PID, {"type": "round_abort", "round": 1, "attempt": 0, "steps": -1})  # after a restart
+    assert store.events(PID) == [*good, {"type": "round_abort", "round": 1, "attempt": 0, "steps": -1}]
+    path.write_text('{"oops\n' + path.read_text())  # a damaged line: quarantined, the rest read
+    assert store.events(PID)[:4] == good
+    assert any(str(path) in q.where and "line 1" in q.where for q in store.quarantined)
     with pytest.raises(ValueError, match="participant id"):
         store.append("../etc", {})
     with pytest.raises(RecordError, match="no records"):

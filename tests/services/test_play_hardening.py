@@ -166,7 +166,7 @@ def test_record_files_are_open_only_while_written(tmp_path: Path) -> None:
     before = _open_fds()
     pids = [f"p{i:020x}" for i in range(300)]
     for pid in pids:
-        store.append(pid, {"type": "participant", "n": 1})
+        store.append(pid, {"type": "participant", "index": 0, "session": "", "code": "", "config_digest": ""})
     assert _open_fds() == before  # the old store kept one descriptor per participant
     for pid in pids[:3]:
         store.append(pid, {"type": "consent", "accepted": True})

@@ -1,0 +1,212 @@
+"""`cec play` under store faults and over damaged records (issue 44): with Redis down an admitted
+participant's form is answered 503 naming the store and a retry is recorded once in each store; a record
+line that is not an event is quarantined with a warning naming the file and line, so the study restarts
+over it and `cec play export` lists it; malformed Redis entries and an empty study file end in a clear
+error, never a traceback.
+
+Through the entry point where practical: `python -m apps.cli play serve|export` on a real `redis-server`.
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import urllib.error
+import urllib.request
+from http.cookiejar import CookieJar
+from pathlib import Path
+from typing import Any
+
+import pytest
+import redis
+
+from services.play.recording import FileStore, Recorder, RecordUnavailableError, RedisStore, parse_event
+from services.store import LocalRedis, StoreConfig
+from tests.play_server import ROOT, PlayServer
+
+STUDY = """\
+name: faults
+levels: [cramped_room]
+partners: [{name: a, random_init: true}]
+consent: "Do you agree?"
+env: {max_steps: 4, random_start_facing: false}
+survey: {items: []}
+"""
+PID = "p" + "cd" * 10
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "apps.cli", "play", *args], cwd=ROOT, capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+
+
+class _Browser:
+    """One participant's browser: a cookie jar and JSON requests."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.opener = urllib.request.build_opener(urllib.request.HTTPCookieProcessor(CookieJar()))
+
+    def post(self, path: str, body: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+        request = urllib.request.Request(
+            self.url + path.lstrip("/"), json.dumps(body).encode(), {"Content-Type": "application/json"}
+        )
+        try:
+            with self.opener.open(request, timeout=30) as response:
+                return response.status, json.loads(response.read())
+        except urllib.error.HTTPError as err:
+            return err.code, json.loads(err.read())
+
+
+def _types(events: list[dict[str, Any]]) -> list[str]:
+    return [e["type"] for e in events]
+
+
+@pytest.fixture
+def own_redis() -> Any:
+    """A Redis of this test's own (it is stopped and started again)."""
+    with LocalRedis() as server:
+        yield server
+
+
+def test_the_recorder_records_a_retry_once_in_each_store(tmp_path: Path, own_redis: LocalRedis) -> None:
+    files = FileStore(tmp_path, "s")
+    red = RedisStore(StoreConfig(url=own_redis.url, key_prefix="t", retries=1), "s")
+    recorder = Recorder([files, red])
+    head = {"type": "participant", "index": 0, "session": "x", "code": "C", "config_digest": "d"}
+    recorder.append(PID, head)
+    own_redis.stop()
+    consent = {"type": "consent", "accepted": True}
+    for _ in range(3):  # retries while Redis is down: the file gets the event once
+        with pytest.raises(RecordUnavailableError, match="Redis") as caught:
+            recorder.append(PID, {**consent, "at": 1.0})
+        assert caught.value.store == "Redis"
+    assert _types(files.events(PID)) == ["participant", "consent"]
+    assert len(files.path(PID).read_text().splitlines()) == 2
+    own_redis.start()
+    recorder.append(PID, {**consent, "at": 2.0})  # the retry: only Redis misses it
+    assert len(files.path(PID).read_text().splitlines()) == 2
+    assert files.events(PID) == red.events(PID) and _types(red.events(PID)) == ["participant", "consent"]
+    assert [e["seq"] for e in red.events(PID)] == [0, 1]
+
+    # a step not recorded in Redis, then replaced by another event (the round's abort) under its seq
+    step = {"type": "step", "round": 0, "attempt": 0, "t": 1, "actions": [0, 0], "human_action": 0,
+            "reward": 0.0, "collision": False, "done": False, "state": {}}  # fmt: skip
+    own_redis.stop()
+    with pytest.raises(RecordUnavailableError):
+        recorder.append(PID, step)
+    own_redis.start()
+    recorder.append(PID, {"type": "round_abort", "round": 0, "attempt": 0, "steps": 1})
+    assert _types(files.events(PID)) == _types(red.events(PID)) == ["participant", "consent", "round_abort"]
+    assert files.events(PID) == red.events(PID)
+    recorder.close()
+
+
+def test_parse_event_refuses_what_is_not_an_event() -> None:
+    assert parse_event('{"type": "instructions"}')[0] == {"type": "instructions"}
+    for line, cause in [
+        ("[]", "not a JSON object"),
+        ("[" * 100_000 + "]" * 100_000, "nested 100000 levels"),
+        ("{}", "`type` None"),
+        ('{"type": "rocket"}', "not an event type"),
+        ('{"type": "consent"}', "without `accepted`"),
+        ('{"type": "consent", "accepted": "yes"}', "not true or false"),
+        ('{"type": "instructions", "seq": -1}', "seq"),
+        ('{"type": "step", "x": NaN}', "NaN"),
+        (b"\xff", "not UTF-8"),
+        ('{"type": ', "not JSON"),
+    ]:
+        event, problem = parse_event(line)
+        assert event is None and cause in problem, (line[:20], problem)
+
+
+def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_lines(
+    tmp_path: Path, own_redis: LocalRedis
+) -> None:
+    study = tmp_path / "study.yaml"
+    study.write_text(STUDY)
+    data = tmp_path / "data"
+    args = [str(study), "--port", "0", "--data", str(data), "--redis-url", own_redis.url]
+    server = PlayServer(args, "faults")
+    try:
+        browser = _Browser(server.url)
+        status, view = browser.post("/api/join", {})
+        assert status == 200 and view["stage"] == "consent"
+        pid = view["participant"]
+        own_redis.stop()
+        for _ in range(3):  # the participant retries while Redis is down
+            status, body = browser.post("/api/submit", {"stage": "consent", "accept": True})
+            assert status == 503 and body["store"] == "Redis" and "Redis is unavailable" in body["error"]
+        status, _ = _Browser(server.url).post("/api/join", {})
+        assert status == 503  # new participants too
+        own_redis.start()
+        status, view = browser.post("/api/submit", {"stage": "consent", "accept": True})
+        assert status == 200 and view["stage"] == "instructions"
+    finally:
+        code = server.stop(signal.SIGINT)
+    assert code == 0 and "Traceback" not in server.log, server.log
+    files = FileStore(data, "faults", create=False)
+    red = RedisStore(StoreConfig(url=own_redis.url, key_prefix="cec", retries=1), "faults")
+    assert _types(files.events(pid)) == _types(red.events(pid)) == ["participant", "consent"]
+    assert files.events(pid) == red.events(pid)
+    red.close()
+
+    # damaged lines: a list, a 100,000-deep line, an event without its fields; the study restarts over them
+    path = files.path(pid)
+    path.write_text(path.read_text() + "[]\n" + "[" * 100_000 + "]" * 100_000 + "\n" + '{"type": "info"}\n')
+    server = PlayServer(args, "faults")
+    try:
+        browser.url = server.url  # another port; the same cookie
+        status, view = browser.post("/api/submit", {"stage": "instructions"})  # the participant goes on
+        assert status == 200 and view["stage"] == "round"
+    finally:
+        code = server.stop(signal.SIGINT)
+    assert code == 0 and "Traceback" not in server.log, server.log
+    for line in (3, 4, 5):
+        assert f"{path}, line {line}:" in server.log and "quarantined" in server.log
+    assert "3 record line(s) quarantined" in server.log
+
+    out = _cli("export", str(study), "--data", str(data), "--out", str(tmp_path / "out"))
+    assert out.returncode == 0, out.stderr
+    assert "left out 3 quarantined record line(s)" in out.stdout
+    assert f"{path}, line 3: not a JSON object but a list" in out.stdout
+    assert f"{path}, line 4: nested 100000 levels deep" in out.stdout
+    assert f"{path}, line 5: an event of type 'info' without `fields`" in out.stdout
+    assert "Traceback" not in out.stderr
+
+
+def test_export_from_redis_quarantines_malformed_entries(tmp_path: Path, redis_server: LocalRedis) -> None:
+    study = tmp_path / "study.yaml"
+    study.write_text(STUDY + "storage: {key_prefix: rq}\n")
+    r = redis.Redis.from_url(redis_server.url)
+    key = "rq:play:faults"
+    head = {"type": "participant", "index": 0, "session": "x", "code": "C", "config_digest": "d", "seq": 0}
+    r.sadd(f"{key}:participants", PID)
+    r.xadd(f"{key}:{PID}", {"event": json.dumps(head)})
+    r.xadd(f"{key}:{PID}", {"other": "x"})  # no `event`
+    r.xadd(f"{key}:{PID}", {"event": "[]"})
+    out = _cli("export", str(study), "--redis-url", redis_server.url, "--out", str(tmp_path / "out"))
+    assert out.returncode == 0 and "Traceback" not in out.stderr, out.stderr
+    assert "left out 2 quarantined record line(s)" in out.stdout
+    assert "no `event` field" in out.stdout and "not a JSON object but a list" in out.stdout
+
+    r.delete(f"{key}:participants")
+    r.set(f"{key}:participants", "not a set")
+    out = _cli("export", str(study), "--redis-url", redis_server.url, "--out", str(tmp_path / "out"))
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert f"Redis key '{key}:participants'" in out.stderr and "storage.key_prefix" in out.stderr
+    r.delete(f"{key}:participants", f"{key}:{PID}")
+    r.close()
+
+
+def test_an_empty_study_file_is_a_config_error_naming_it(tmp_path: Path) -> None:
+    study = tmp_path / "empty.yaml"
+    study.write_text("")
+    for command in (["serve", str(study), "--port", "0"], ["export", str(study), "--out", str(tmp_path)]):
+        out = _cli(*command)
+        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+        assert str(study) in out.stderr and "`name`, `levels` and `partners`" in out.stderr
