@@ -210,3 +210,16 @@ def test_an_empty_study_file_is_a_config_error_naming_it(tmp_path: Path) -> None
         out = _cli(*command)
         assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
         assert str(study) in out.stderr and "`name`, `levels` and `partners`" in out.stderr
+
+
+def test_behaviour_cloning_records_quarantine_a_bad_line(tmp_path: Path) -> None:
+    """`cec humans bc --from-play` reads the records with the same checks: a `[]` line is left out (it was a
+    traceback); a folder that holds no finished round after that is a config error naming it."""
+    from cec.config import ConfigError
+    from services.play.human_samples import read_play_records
+
+    store = FileStore(tmp_path, "s")
+    store.append(PID, {"type": "participant", "index": 0, "session": "x", "code": "C", "config_digest": "d"})
+    store.path(PID).write_text(store.path(PID).read_text() + "[]\n")
+    with pytest.raises(ConfigError, match="none of its 1 participant"):
+        read_play_records(tmp_path / "s")
