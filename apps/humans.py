@@ -226,9 +226,9 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     returns its zoo entry (restricted to `kitchen` when one is given)."""
     from cec import checkpoints
     from cec.agents.policy import Policy, save_policy
+    from cec.envs.task import EnvConfig
     from cec.training.config import TrainConfig
     from cec.training.run import config_dict
-    from cec.training.tasks import EnvConfig
 
     carrier = TrainConfig(
         algorithm="ippo",

@@ -30,8 +30,8 @@ import jax
 from cec.agents.network import network_preset
 from cec.agents.policy import Policy, random_policy
 from cec.envs import overcooked as oc
+from cec.envs.task import EnvConfig
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels, plan_games
-from cec.training.tasks import EnvConfig
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     from env_throughput import git_rev, machine  # type: ignore[import-not-found]

@@ -122,6 +122,13 @@ def network_preset(name: str, env: str) -> NetworkConfig:
     return per_env[env]
 
 
+def network_of(preset: str, overrides: NetworkConfig | None, env: str, partner_history: int) -> NetworkConfig:
+    """A run's network: the preset for `env` (or the explicit `overrides`) with the partner-modelling
+    history of its partner settings (`partner.predict_partner`)."""
+    net = overrides or network_preset(preset, env)
+    return dataclasses.replace(net, partner_history=partner_history)
+
+
 class LSTMState(NamedTuple):
     """The recurrent carry: cell `c` and hidden `h`, float32[..., lstm_features] each."""
 

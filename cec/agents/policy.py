@@ -19,13 +19,12 @@ import jax
 import numpy as np
 
 from cec import checkpoints
-from cec.agents.network import ActorCritic, NetworkConfig, init_params, network_preset
+from cec.agents.network import ActorCritic, NetworkConfig, init_params, network_of, network_preset
 from cec.agents.scripted import scripted_kind
 from cec.agents.zoo import SkippedEntry, ZooEntry, shipped_entries
 from cec.config import ConfigError, from_dict
 from cec.envs.registry import game
-from cec.training.config import TrainConfig
-from cec.training.tasks import EnvConfig, Task
+from cec.envs.task import EnvConfig, Task
 
 
 @dataclass(frozen=True)
@@ -178,7 +177,7 @@ def load_policy(entry: ZooEntry) -> Policy:
             "or fix the entry"
         )
     try:
-        config = from_dict(TrainConfig, meta["config"])
+        config = _RunFields.of(meta["config"])
     except (ConfigError, KeyError, TypeError) as err:
         raise checkpoints.CheckpointError(
             f"checkpoint {path} holds a config this code cannot read ({err}); re-export it with this "
@@ -215,6 +214,29 @@ def load_policy(entry: ZooEntry) -> Policy:
     params = jax.tree.map(lambda x: np.asarray(x[index]), stacked)
     algorithm = entry.algorithm or str(metadata.get("algorithm", config.algorithm))
     return Policy(entry.name, algorithm, seed, params, config.network_config, config.env, entry.levels)
+
+
+@dataclass(frozen=True)
+class _RunFields:
+    """What a policy needs of the training config its checkpoint holds (not the whole `TrainConfig`)."""
+
+    algorithm: str
+    seed: int
+    num_seeds: int
+    env: EnvConfig
+    network_config: NetworkConfig
+
+    @classmethod
+    def of(cls, config: dict[str, Any]) -> _RunFields:
+        env = from_dict(EnvConfig, config["env"], where="env")
+        overrides = config.get("network_overrides")
+        network = network_of(
+            str(config["network"]),
+            None if overrides is None else from_dict(NetworkConfig, overrides, where="network_overrides"),
+            env.name,
+            int((config.get("partner") or {}).get("predict_partner", 0)),
+        )
+        return cls(str(config["algorithm"]), int(config["seed"]), int(config["num_seeds"]), env, network)
 
 
 def load_policies(entries: Sequence[ZooEntry]) -> tuple[list[Policy], list[SkippedEntry]]:

@@ -38,9 +38,9 @@ from cec.agents.network import ActorCritic, NetworkConfig, embed_partner_model
 from cec.agents.policy import Policy
 from cec.config import ConfigError
 from cec.envs.registry import game
+from cec.envs.task import Task
 from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
 from cec.training.rollout import init_carry, rollout
-from cec.training.tasks import Task
 
 log = logging.getLogger("cec.evaluation")
 

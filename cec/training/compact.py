@@ -19,8 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import serialization
 
+from cec.envs.task import Task
 from cec.training.rollout import Trajectory
-from cec.training.tasks import Task
 
 
 class CompactRollout(NamedTuple):

@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass, field
 
-from cec.agents.network import NETWORK_PRESETS, NetworkConfig, network_preset
+from cec.agents.network import NETWORK_PRESETS, NetworkConfig, network_of
 from cec.config import ConfigError
+from cec.envs.task import EnvConfig
 from cec.training.partners import PartnerConfig
 from cec.training.ppo import PPOConfig
-from cec.training.tasks import EnvConfig
 from cec.training.tracking import TrackingConfig
 
 #: algorithm -> (partner kind, trains on a procedural distribution)
@@ -195,8 +194,7 @@ class TrainConfig:
     @property
     def network_config(self) -> NetworkConfig:
         """The preset (or the overrides), with the partner model of `partner.predict_partner`."""
-        net = self.network_overrides or network_preset(self.network, self.env.name)
-        return dataclasses.replace(net, partner_history=self.partner.predict_partner)
+        return network_of(self.network, self.network_overrides, self.env.name, self.partner.predict_partner)
 
     @property
     def steps_per_update(self) -> int:

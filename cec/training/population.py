@@ -15,8 +15,8 @@ from cec import checkpoints
 from cec.agents.policy import load_policy
 from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
+from cec.envs.task import Task
 from cec.training.partners import PartnerConfig, Population
-from cec.training.tasks import Task
 
 
 def _pick(milestones: list[Any], pick: str) -> Any:

@@ -19,8 +19,8 @@ import jax
 import jax.numpy as jnp
 
 from cec.agents.network import ActorCritic, LSTMState, empty_history, forward
+from cec.envs.task import Task, env_keys
 from cec.training.partners import SELF_PLAY, PartnerConfig, mixture_log_probs
-from cec.training.tasks import Task, env_keys
 
 NUM_SEATS = 2
 

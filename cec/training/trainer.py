@@ -34,11 +34,11 @@ from cec.agents.network import ActorCritic, init_params
 from cec.agents.policy import load_policy
 from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
+from cec.envs.task import Task
 from cec.training.config import TrainConfig
 from cec.training.population import load_population
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
 from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
-from cec.training.tasks import Task
 
 
 class TrainState(NamedTuple):

@@ -43,12 +43,12 @@ from cec.agents.policy import Policy, load_policies, load_policy, random_policy
 from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.envs import overcooked as oc
+from cec.envs.task import EnvConfig
 from cec.levels import GRID_SIZE, Direction, Item, Level, Tile, unstack_levels
 from cec.levels.classic import CLASSIC_ASCII, classic_level
 from cec.levels.generator import GeneratorConfig, generate_batch
 from cec.levels.heldout import heldout_levels
 from cec.levels.named import load_kitchens
-from cec.training.tasks import EnvConfig
 from services.play.config import PartnerSpec, StudyConfig
 
 log = logging.getLogger("cec.play")

@@ -12,9 +12,9 @@ import pytest
 from cec.agents.policy import scripted_policy
 from cec.envs import overcooked as oc
 from cec.envs.overcooked.scripted import _seat_action, scripted_actions, state_from_obs
+from cec.envs.task import EnvConfig
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from cec.levels.heldout import heldout_levels
-from cec.training.tasks import EnvConfig
 
 PARAMS = oc.EnvParams(max_steps=400)
 

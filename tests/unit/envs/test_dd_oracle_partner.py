@@ -15,8 +15,8 @@ from cec.agents.zoo import parse_zoo
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.envs.dual_destination.partner import MEMORY_SIZE, oracle_partner_step
+from cec.envs.task import EnvConfig
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.training.tasks import EnvConfig
 
 KEY = jax.random.PRNGKey(0)
 STEPS = 100

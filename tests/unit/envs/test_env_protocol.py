@@ -13,7 +13,7 @@ from cec.config import ConfigError
 from cec.envs import base, registry
 from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc
-from cec.training.tasks import ENV_NAMES, EnvConfig, Task
+from cec.envs.task import ENV_NAMES, EnvConfig, Task
 
 MAX_STEPS = 3  # an episode ends every 3 steps: 10 steps cross 3 dones and wrap a buffer of K = 3 levels
 STEPS = 10

@@ -20,12 +20,12 @@ from cec.agents.zoo import load_zoo, parse_zoo
 from cec.config import ConfigError
 from cec.envs import dual_destination as dd
 from cec.envs import overcooked as oc
+from cec.envs.task import EnvConfig, Task
 from cec.evaluation.analysis import pair_level_scores, pair_scores, policies_of
 from cec.evaluation.crossplay import EvalConfig, crossplay, episode_key, eval_levels, plan_games
 from cec.evaluation.results import EpisodeTable, read_csv, write_csv
 from cec.levels.classic import CLASSIC_ASCII
 from cec.training.rollout import init_carry, rollout
-from cec.training.tasks import EnvConfig, Task
 
 STEPS = 24
 EPISODES = 3

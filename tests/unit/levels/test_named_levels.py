@@ -14,6 +14,7 @@ import pytest
 
 from apps.cli import main
 from cec.config import ConfigError, from_dict
+from cec.envs.task import EnvConfig, Task
 from cec.evaluation.results import read_csv
 from cec.levels.ascii import to_ascii
 from cec.levels.classic import classic_level
@@ -21,7 +22,6 @@ from cec.levels.heldout import heldout_levels
 from cec.levels.named import load_kitchens, resolve_levels
 from cec.training.config import TrainConfig
 from cec.training.run import train
-from cec.training.tasks import EnvConfig, Task
 from services.play.game import check_level_spec, resolve_level
 
 UNSOLVABLE = "WWWWW\nO0 1O\nWWWWW\nWPBXW\nWWWWW\n"  # pot, plates and goal walled off

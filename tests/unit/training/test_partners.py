@@ -253,8 +253,8 @@ def test_networks_with_and_without_a_partner_model_cross_play_exactly():
 
     from cec.agents.network import ActorCritic, embed_partner_model, forward_partner, network_preset
     from cec.agents.policy import random_policy
+    from cec.envs.task import EnvConfig
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-    from cec.training.tasks import EnvConfig
 
     base = network_preset("small", "dual_destination")
     rng = np.random.default_rng(0)
