@@ -277,8 +277,9 @@ def _at_run_directory(config: TrainConfig, run_dir: Path) -> TrainConfig:
 
 
 def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -> int:
-    """`cec train --distributed`: the learner and actors on an existing Ray cluster (`ray up`), Redis from
-    `store.url` / CEC_REDIS_URL, kitchens from `distributed.level_server`."""
+    """`cec train --distributed`: the learner and actors on an existing Ray cluster (`ray up`), or in this
+    process with `distributed.pool=local`; Redis from `store.url` / CEC_REDIS_URL, kitchens from
+    `distributed.level_server`."""
     from cec.config import load_config
     from cec.training.config import TrainConfig
     from services.learner.config import DistributedConfig
@@ -297,11 +298,14 @@ def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -
     store = load_config(
         StoreConfig, None, [o.removeprefix("store.") for o in service_overrides if o.startswith("store.")]
     )
-    connect_ray(dist.ray_address or "auto")
+    on_ray = dist.pool == "ray"  # `local`: the learner and its actors in this process, no Ray
+    if on_ray:
+        connect_ray(dist.ray_address or "auto")
     try:
         return run_distributed(config, dist, store, resume=bool(args.resume), max_updates=args.max_updates)
     finally:
-        disconnect_ray()
+        if on_ray:
+            disconnect_ray()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -389,8 +393,9 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--distributed",
         action="store_true",
-        help="run the Ray learner + actors on an existing Ray cluster (distributed.KEY=VALUE and "
-        "store.KEY=VALUE set services/learner/config.py and the Redis settings; see docs/distributed.md)",
+        help="run the learner + actors on an existing Ray cluster, or in this process with "
+        "distributed.pool=local (distributed.KEY=VALUE and store.KEY=VALUE set services/learner/config.py "
+        "and the Redis settings; see docs/distributed.md)",
     )
     tr.set_defaults(func=_cmd_train)
 

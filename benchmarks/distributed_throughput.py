@@ -51,10 +51,12 @@ def main() -> int:
     from apps.machine import machine_info
     from cec.config import load_config
     from cec.training.config import TrainConfig
-    from cec.training.run import config_dict, train
+    from cec.training.run import train
     from cec.training.trainer import Trainer
     from services import metrics as M  # noqa: N812
+    from services.learner.config import DistributedConfig
     from services.learner.learner import Learner
+    from services.learner.ray_pool import RayPool
 
     tmp = Path(tempfile.mkdtemp(prefix="cec-dist-bench-"))
     base = [*args.overrides, "updates_per_call=1", f"run_dir={tmp}", "checkpoint.every_updates=0",
@@ -99,7 +101,8 @@ def main() -> int:
             b0, a0 = _counter(M.LEARNER_BYTES_RECEIVED), _counter(M.LEARNER_AGENT_STEPS_RECEIVED)
             cfg = load_config(TrainConfig, args.preset, [*base, f"name={name}"])
             t0 = time.perf_counter()
-            Learner(config_dict(cfg), {"num_actors": n, "mode": mode, "metrics_port": -1}).run(resume=False)
+            dist = DistributedConfig(num_actors=n, mode=mode, metrics_port=-1)
+            Learner(cfg, dist, pool=RayPool(dist)).run(resume=False)
             wall = time.perf_counter() - t0
             sps = _median_sps(tmp / name)
             spent = {s: round(_counter(M.LEARNER_STAGE_SECONDS, s) - before[s], 3) for s in stages}

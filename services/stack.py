@@ -278,7 +278,41 @@ class Stack:
             self.say(f"evaluator              consuming checkpoint events  (log: {evaluator.log_path})")
             if eport >= 0:
                 self.urls["evaluator metrics"] = f"http://127.0.0.1:{eport}/metrics"
-        # 4. Ray
+        # 4. Ray (none when the learner and its actors run in this process: distributed.pool=local)
+        if self.dist.pool == "ray":
+            self._start_ray(logs)
+        # 5. monitoring
+        if cfg.monitoring:
+            from services.monitoring import MonitoringError, start_monitoring
+
+            targets = {
+                job: [url.split("//", 1)[1].split("/", 1)[0]]
+                for job, url in (
+                    ("level_server", self.urls.get("level server metrics", "")),
+                    ("learner", self.urls.get("learner metrics", "")),
+                    ("evaluator", self.urls.get("evaluator metrics", "")),
+                )
+                if url
+            }
+            try:
+                self.monitoring = start_monitoring(
+                    self.run_dir / "monitoring", targets, cfg.monitoring_config
+                )
+                self.say(self.monitoring.describe())
+                for server in (self.monitoring.prometheus, self.monitoring.grafana):
+                    if server is not None and server.pid is not None:
+                        self.children.add(server.name, server.pid)
+            except MonitoringError as err:
+                self.say(f"monitoring not started: {err}")
+        for name, url in self.urls.items():
+            self.say(f"{name:<22} {url}")
+        self.stack_file = write_stack_file(self.run_dir, self.urls, bool(self.store.resolved_password))
+        self.say(f"status                 cec status {self.run_dir}  [--watch]")
+
+    def _start_ray(self, logs: Path) -> None:
+        """Connects to `distributed.ray_address`, or starts a local Ray head (its own CLI, its own session)
+        and connects to it."""
+        cfg = self.config
         if not self.dist.ray_address:
             # Ray's token authentication (its default for a new local cluster; the token is Ray's own,
             # ~/.ray/auth_token): the head and this driver must agree, and Ray reads the mode when imported.
@@ -315,33 +349,6 @@ class Stack:
         dash = getattr(info, "dashboard_url", "") or ""
         if dash:
             self.urls["ray dashboard"] = dash if dash.startswith("http") else f"http://{dash}"
-        # 5. monitoring
-        if cfg.monitoring:
-            from services.monitoring import MonitoringError, start_monitoring
-
-            targets = {
-                job: [url.split("//", 1)[1].split("/", 1)[0]]
-                for job, url in (
-                    ("level_server", self.urls.get("level server metrics", "")),
-                    ("learner", self.urls.get("learner metrics", "")),
-                    ("evaluator", self.urls.get("evaluator metrics", "")),
-                )
-                if url
-            }
-            try:
-                self.monitoring = start_monitoring(
-                    self.run_dir / "monitoring", targets, cfg.monitoring_config
-                )
-                self.say(self.monitoring.describe())
-                for server in (self.monitoring.prometheus, self.monitoring.grafana):
-                    if server is not None and server.pid is not None:
-                        self.children.add(server.name, server.pid)
-            except MonitoringError as err:
-                self.say(f"monitoring not started: {err}")
-        for name, url in self.urls.items():
-            self.say(f"{name:<22} {url}")
-        self.stack_file = write_stack_file(self.run_dir, self.urls, bool(self.store.resolved_password))
-        self.say(f"status                 cec status {self.run_dir}  [--watch]")
 
     def _started(self, service: ServiceProcess) -> None:
         self.services.append(service)

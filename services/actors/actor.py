@@ -1,9 +1,10 @@
 """A rollout actor: a slice of a seed's envs, their carries, a level feed and the jitted rollout.
 
-The same object runs in-process (tests, one-process debugging) and as a Ray actor (`ray.remote(RolloutActor)`,
-see `services.learner`). Everything it exchanges with the learner is msgpack bytes or plain numbers:
+The same object runs in the learner's process (`services.learner.pool.LocalPool`) and as a Ray actor
+(`services.learner.ray_pool.RayPool`). Everything it exchanges with the learner is msgpack bytes or plain
+numbers:
 
-    actor = RolloutActor(config_dict, index=0, env_start=0, env_stop=64)
+    actor = RolloutActor(train_config, index=0, env_start=0, env_stop=64)
     actor.reset(incarnation=0, carry=<bytes of its carry slice> or None, key=[..])
     batch = actor.rollout(weights, version=3, k_levels=[..], k_roll=[..])   # -> bytes (see `decode_batch`)
 
@@ -27,7 +28,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec.config import from_dict
 from cec.training.compact import CompactRollout, from_bytes, to_bytes
 from cec.training.config import TrainConfig
 from cec.training.rollout import RolloutCarry, init_carry
@@ -64,7 +64,7 @@ class RolloutActor:
 
     def __init__(
         self,
-        config: dict,
+        config: TrainConfig,
         index: int,
         env_start: int,
         env_stop: int,
@@ -73,7 +73,7 @@ class RolloutActor:
         level_seed: int = 0,
         level_buffer_rollouts: int = 8,
     ) -> None:
-        self.config = from_dict(TrainConfig, config)
+        self.config = config
         self.index, self.env_start, self.env_stop = index, env_start, env_stop
         self.trainer = Trainer(self.config)
         self.trainer.load_partners()

@@ -1,4 +1,4 @@
-"""How training is distributed over Ray: actors, sync/async, staleness, the level feed, metrics."""
+"""How training is distributed: where the actors run, sync/async, staleness, the level feed, metrics."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ from cec.config import ConfigError
 from cec.training.config import TrainConfig
 
 MODES = ("sync", "async")
+POOLS = ("ray", "local")
 
 
 @dataclass(frozen=True)
@@ -20,7 +21,10 @@ class DistributedConfig:
             actors never wait; the learner updates on the first `num_actors` batches to arrive and drops
             those more than `max_policy_lag` versions old (PPO's ratio uses each batch's own behaviour
             log-probabilities).
-        num_actors: Ray actors; each plays `num_envs / num_actors` of the run's envs.
+        pool: where the learner and its actors run. `ray`: the learner and each actor a Ray actor (Ray
+            restarts a dead one; across a cluster's nodes). `local`: all of them in the driver's process, no
+            Ray (one machine; the same updates as `ray` in `sync` mode; nothing restarts a dead process).
+        num_actors: rollout actors; each plays `num_envs / num_actors` of the run's envs.
         max_policy_lag: async only: the oldest weights (in versions behind the learner) a batch may be from.
         actor_cpus: CPUs Ray reserves per actor.
         actor_threads: XLA CPU threads per actor process (0: XLA's default, all cores).
@@ -51,6 +55,7 @@ class DistributedConfig:
     """
 
     mode: str = "sync"
+    pool: str = "ray"
     num_actors: int = 2
     max_policy_lag: int = 1
     actor_cpus: float = 1.0
@@ -73,6 +78,8 @@ class DistributedConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ConfigError(f"distributed.mode {self.mode!r} is unknown; choose one of {list(MODES)}")
+        if self.pool not in POOLS:
+            raise ConfigError(f"distributed.pool {self.pool!r} is unknown; choose one of {list(POOLS)}")
         if self.num_actors < 1:
             raise ConfigError(f"distributed.num_actors must be >= 1, got {self.num_actors}")
         if self.max_policy_lag < 0:

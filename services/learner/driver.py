@@ -23,7 +23,7 @@ from cec import checkpoints
 from cec.config import ConfigError
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
-from cec.training.run import RunFiles, config_dict, trains_as
+from cec.training.run import RunFiles, trains_as
 from cec.training.tracking import describe
 from services.learner.config import DistributedConfig
 from services.store import StoreConfig
@@ -154,18 +154,57 @@ def run_distributed(
     max_updates: int | None = None,
     log_to: TextIO = sys.stderr,
 ) -> int:
-    """Runs the learner (Ray must be initialised) until the run ends; 0, or 130 when interrupted."""
+    """Runs the learner until the run ends: in this process with its actors when `dist.pool` is `local`,
+    else as a Ray actor (Ray must be initialised). 0, or 130 when interrupted."""
+    check_start(train, dist, store, resume)
+    for line in describe(Path(train.run_dir) / train.run_name, train.tracking):
+        print(line, file=log_to, flush=True)
+    if dist.pool == "local":
+        summary: dict | None = _run_here(train, dist, store, resume, max_updates)
+    else:
+        summary = _run_on_ray(train, dist, store, resume, max_updates, log_to)
+    if summary is None:
+        return 1
+    print(
+        f"learner: {summary['status']} after {summary['updates']} updates ({summary['run_dir']})", file=log_to
+    )
+    return EXIT_INTERRUPTED if summary["status"] == "interrupted" else 0
+
+
+def _run_here(
+    train: TrainConfig,
+    dist: DistributedConfig,
+    store: StoreConfig | None,
+    resume: bool,
+    max_updates: int | None,
+) -> dict:
+    """The learner and its actors in this process (`LocalPool`)."""
+    from services.learner.learner import Learner
+    from services.learner.pool import LocalPool
+
+    learner = Learner(train, dist, store, LocalPool())
+    with GracefulStop("the learner finishes its update and checkpoints", on_first=learner.stop):
+        return learner.run(resume=resume, max_updates=max_updates)
+
+
+def _run_on_ray(
+    train: TrainConfig,
+    dist: DistributedConfig,
+    store: StoreConfig | None,
+    resume: bool,
+    max_updates: int | None,
+    log_to: TextIO,
+) -> dict | None:
+    """The learner as a Ray actor with Ray actors (`RayPool`), restarted when its process dies; None when
+    it died more often than `learner_max_restarts`."""
     import ray
 
     from services.learner.learner import Learner
+    from services.learner.ray_pool import RayPool
 
-    check_start(train, dist, store, resume)
     check_cluster(dist, ray.cluster_resources())
-    for line in describe(Path(train.run_dir) / train.run_name, train.tracking):
-        print(line, file=log_to, flush=True)
     remote = ray.remote(Learner).options(**learner_options(dist, train.devices))
-    store_dict = None if store is None else _asdict(store)
-    learner: Any = remote.remote(config_dict(train), _asdict(dist), store_dict)
+    learner: Any = remote.remote(train, dist, store, RayPool(dist))
     stopping = threading.Event()
 
     def stop() -> None:
@@ -186,7 +225,7 @@ def run_distributed(
                 restarts += 1
                 if restarts > dist.learner_max_restarts >= 0:
                     print(f"the learner died {restarts} times; giving up: {err}", file=log_to, flush=True)
-                    return 1
+                    return None
                 print(
                     f"the learner process died ({type(err).__name__}); Ray restarts it and it resumes from "
                     f"its latest checkpoint (restart {restarts})",
@@ -196,12 +235,9 @@ def run_distributed(
                 if stopping.is_set():  # the stop request went to the dead process: ask the new one
                     time.sleep(1.0)
                     stop()
-    print(
-        f"learner: {summary['status']} after {summary['updates']} updates ({summary['run_dir']})", file=log_to
-    )
     with contextlib.suppress(Exception):
         ray.kill(learner, no_restart=True)
-    return EXIT_INTERRUPTED if summary["status"] == "interrupted" else 0
+    return summary
 
 
 def _wait(ref: Any) -> dict:
@@ -211,9 +247,3 @@ def _wait(ref: Any) -> dict:
         ready, _ = ray.wait([ref], timeout=0.5)
         if ready:
             return dict(ray.get(ref))
-
-
-def _asdict(config: Any) -> dict:
-    import dataclasses
-
-    return dataclasses.asdict(config)

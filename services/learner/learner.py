@@ -1,13 +1,16 @@
-"""The learner: drives Ray rollout actors, applies the PPO update, publishes weights, checkpoints.
+"""The learner: drives the rollout actors, applies the PPO update, publishes weights, checkpoints.
 
-    learner = Learner(train_config_dict, distributed_config_dict, store_config_dict)
+    learner = Learner(train_config, distributed_config, store_config, pool=LocalPool())
     summary = learner.run(resume=True)           # until the run's end, `stop()`, or `max_updates`
 
-It is a plain object (DESIGN rule 5): the driver (`cec up`, `cec train --distributed`) runs it as a Ray
-actor so that Ray restarts it if its process dies; `run(resume=True)` then continues from the latest
-checkpoint with exact counters. Each update:
+It is a plain object (DESIGN rule 5) that reaches its actors only through an `ActorPool`
+(`services.learner.pool`): `LocalPool` keeps them in its own process (`distributed.pool=local`: the whole
+actor-learner loop in one process, no Ray), `RayPool` makes them Ray actors. The driver (`cec up`, `cec train
+--distributed`) runs the learner in-process with a `LocalPool`, or as a Ray actor with a `RayPool` so that Ray
+restarts it if its process dies; `run(resume=True)` then continues from the latest checkpoint with exact
+counters. Each update:
 
-    sync:  weights -> ray.put (once) -> every actor's rollout(weights, version, k_levels, k_roll)
+    sync:  weights -> pool.share (once) -> every actor's rollout(weights, version, k_levels, k_roll)
            -> concatenate the slices in env order -> expand observations -> Trainer.learn
     async: the same calls, but each actor is resubmitted with the newest weights the moment its batch
            lands; the update takes the first num_actors batches no older than max_policy_lag versions
@@ -22,30 +25,30 @@ Every update's metrics row (`metrics.jsonl`, `metrics.csv`, and the TensorBoard 
 `cec.training.tracking`) holds the trainer's columns plus the learner's own (`DISTRIBUTED_COLUMNS`): the
 policy lag of the update's batches, the batches dropped while gathering them, and the actors' level feed.
 
-Faults: a dead actor (its call raises) is restarted by Ray; the learner gives it a new incarnation and a
-fresh carry and resubmits the rollout (batches stamped with an older incarnation are dropped and counted).
+Faults: a dead actor (its call raises `ActorLostError`) is restarted by Ray; the learner gives it a new
+incarnation and a fresh carry and resubmits the rollout (batches stamped with an older incarnation are
+dropped and counted).
 Redis being down queues checkpoint events in the run's outbox; they are published when it returns.
 
-Size: one Ray actor, `Learner`, whose sync and async paths share the actor slots, incarnations and
-the weight publication they must keep consistent.
+Size: one class, `Learner`, whose sync and async paths share the actor slots, incarnations and the weight
+publication they must keep consistent.
 """
 
 from __future__ import annotations
 
-import contextlib
+import dataclasses
 import logging
 import os
 import sys
 import threading
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec.config import from_dict
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
 from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo
@@ -53,8 +56,12 @@ from cec.training.rollout import RolloutCarry
 from cec.training.run import Progress, RunFiles, metrics_rows
 from cec.training.trainer import Trainer, TrainState
 from services import metrics as M  # noqa: N812 - the metric objects, read as M.NAME
-from services.actors.actor import ActorNotReadyError, RolloutActor, decode_batch
+from services.actors.actor import decode_batch
 from services.learner.config import DistributedConfig
+from services.learner.pool import ActorLostError, ActorPool, ActorSpec, LocalPool
+
+if TYPE_CHECKING:
+    from services.store import StoreConfig
 
 log = logging.getLogger("cec.learner")
 
@@ -111,7 +118,6 @@ class _FeedStats:
 class _Slot:
     """The learner's view of one actor."""
 
-    handle: Any
     start: int
     stop: int
     incarnation: int = 0
@@ -121,12 +127,18 @@ class _Slot:
 class Learner:
     """See the module docstring."""
 
-    def __init__(self, train: dict, distributed: dict, store: dict | None = None) -> None:
-        self.train_dict = train
-        self.config = from_dict(TrainConfig, train)
-        self.dist = from_dict(DistributedConfig, distributed)
+    def __init__(
+        self,
+        train: TrainConfig,
+        distributed: DistributedConfig,
+        store: StoreConfig | None = None,
+        pool: ActorPool | None = None,
+    ) -> None:
+        self.config = train
+        self.dist = distributed
         self.dist.check(self.config)
-        self.store_dict = store
+        self.store = store
+        self.pool: ActorPool = LocalPool() if pool is None else pool
         self.trainer = Trainer(self.config)
         self.trainer.load_partners()
         self.files = RunFiles(self.config)
@@ -274,44 +286,27 @@ class Learner:
     # ---- actors -----------------------------------------------------------------------------------------
 
     def _start_actors(self, carry: RolloutCarry) -> None:
-        import ray
-
         cfg, d = self.config, self.dist
         n = cfg.num_envs // d.num_actors
-        env_vars = {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
-        if d.actor_threads > 0:
-            env_vars["XLA_FLAGS"] = (
-                f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={d.actor_threads}"
-            )
-        remote = ray.remote(RolloutActor).options(
-            num_cpus=d.actor_cpus,
-            resources={d.actor_resource: 1} if d.actor_resource else None,
-            scheduling_strategy="SPREAD" if d.actor_spread else "DEFAULT",
-            max_restarts=d.actor_max_restarts,
-            max_task_retries=0,
-            runtime_env={"env_vars": env_vars},
-        )
         token = d.level_token or os.environ.get("CEC_LEVEL_SERVER_TOKEN", "")
-        self.slots = []
-        for i in range(d.num_actors):
-            handle = remote.remote(
-                {**self.train_dict, "devices": 1},  # an actor plays its slice on its one device
-                i,
-                i * n,
-                (i + 1) * n,
-                d.level_server,
-                token,
-                cfg.seed * 1000 + i,
+        one_device = dataclasses.replace(cfg, devices=1)  # an actor plays its slice on its one device
+        specs = [
+            ActorSpec(
+                one_device, i, i * n, (i + 1) * n, d.level_server, token, cfg.seed * 1000 + i,
                 d.level_buffer_rollouts,
             )
-            self.slots.append(_Slot(handle, i * n, (i + 1) * n))
-        ray.get([s.handle.reset.remote(0, to_bytes(_rows(carry, s.start, s.stop))) for s in self.slots])
+            for i in range(d.num_actors)
+        ]  # fmt: skip
+        self.pool.start(specs)
+        self.slots = [_Slot(s.env_start, s.env_stop) for s in specs]
+        calls = [self.pool.call(i, "reset", 0, to_bytes(_rows(carry, s.start, s.stop))) for i, s in
+                 enumerate(self.slots)]  # fmt: skip
+        for call in calls:
+            self.pool.result(call)
         log.info("%d actors ready (%d envs each, %s mode)", d.num_actors, n, d.mode)
 
     def _revive(self, i: int, key: jax.Array) -> None:
-        """After slot i's actor died: wait for Ray's restart, give it a new incarnation and fresh episodes."""
-        import ray
-
+        """After slot i's actor died: wait for its restart, give it a new incarnation and fresh episodes."""
         slot = self.slots[i]
         slot.incarnation += 1
         M.ACTOR_RESTARTS.inc()
@@ -320,25 +315,23 @@ class Learner:
         deadline = time.monotonic() + 300
         while True:
             try:
-                ray.get(slot.handle.reset.remote(slot.incarnation, None, fresh), timeout=120)
+                self.pool.result(self.pool.call(i, "reset", slot.incarnation, None, fresh), timeout=120)
                 return
-            except (ray.exceptions.RayActorError, ray.exceptions.GetTimeoutError) as err:
+            except ActorLostError as err:
                 if time.monotonic() > deadline:
                     raise RuntimeError(f"actor {i} did not come back after a crash: {err}") from err
                 time.sleep(0.5)
 
     def _submit(self, i: int, weights: Any, version: int, k_levels: Any, k_roll: Any) -> Any:
-        return self.slots[i].handle.rollout.remote(weights, version, np.asarray(k_levels), np.asarray(k_roll))
+        return self.pool.call(i, "rollout", weights, version, np.asarray(k_levels), np.asarray(k_roll))
 
     def _fetch(self, i: int, ref: Any) -> tuple[Any, Any] | None:
         """(header, rollout bytes) of a finished rollout, or None if its actor died (it is revived)."""
-        import ray
-
         t0 = time.perf_counter()
         try:
-            data = ray.get(ref)
-        except (ray.exceptions.RayActorError, ActorNotReadyError) as err:
-            log.warning("actor %d: rollout lost (%s)", i, type(err).__name__)
+            data = self.pool.result(ref)
+        except ActorLostError as err:
+            log.warning("actor %d: rollout lost (%s)", i, err)
             return None
         header, stats, payload = decode_batch(data)
         self.feed.actor(i, stats)
@@ -369,11 +362,9 @@ class Learner:
         return True
 
     def _sync_batches(self, weights: Any, version: int, k_levels: Any, k_roll: Any, template: Any) -> list:
-        import ray
-
         refs = [self._submit(i, weights, version, k_levels, k_roll) for i in range(len(self.slots))]
         t0 = time.perf_counter()
-        ray.wait(refs, num_returns=len(refs))
+        self.pool.wait_all(refs)
         M.LEARNER_STAGE_SECONDS.labels("wait").inc(time.perf_counter() - t0)
         parts = []
         for i, ref in enumerate(refs):
@@ -398,8 +389,6 @@ class Learner:
         """One batch from every actor (its whole slice, so an update sees every env), taken as they land;
         an actor that delivers again before the others is resubmitted at once and its batch held for the
         next update (a newer one replaces it)."""
-        import ray
-
         root = jax.random.PRNGKey(self.config.seed + 7919)  # actors' own key chain, not the learner's
         busy = set(pending.values())
         for i in range(len(self.slots)):
@@ -412,10 +401,10 @@ class Learner:
         self._held.clear()
         while len(parts) < len(self.slots):
             t0 = time.perf_counter()
-            ready, _ = ray.wait(list(pending), num_returns=1)
+            ready = self.pool.wait_any(list(pending))
             M.LEARNER_STAGE_SECONDS.labels("wait").inc(time.perf_counter() - t0)
-            i = pending.pop(ready[0])
-            got = self._fetch(i, ready[0])
+            i = pending.pop(ready)
+            got = self._fetch(i, ready)
             if got is None:
                 self._revive(i, root)
             pending[self._submit(i, weights, version, *self._async_keys(root, i))] = i  # never idle
@@ -432,8 +421,6 @@ class Learner:
 
     def _gather_carry(self, key: Any, pending: dict) -> RolloutCarry:
         """Every actor's carry, concatenated in env order (for the checkpoint)."""
-        import ray
-
         template = jax.tree.map(
             lambda x: jax.ShapeDtypeStruct(
                 (self.config.num_envs // self.dist.num_actors, *x.shape[1:]), x.dtype
@@ -441,30 +428,24 @@ class Learner:
             jax.eval_shape(self.trainer.init_one, jax.random.PRNGKey(0)).carry,
         )
         parts = []
-        for i, slot in enumerate(self.slots):
+        for i in range(len(self.slots)):
             while True:
                 try:
-                    parts.append(from_bytes(template, ray.get(slot.handle.carry_bytes.remote())))
+                    parts.append(from_bytes(template, self.pool.result(self.pool.call(i, "carry_bytes"))))
                     break
-                except (ray.exceptions.RayActorError, ActorNotReadyError):
+                except ActorLostError:
                     self._revive(i, key)
         return jax.tree.map(lambda *xs: jnp.concatenate([jnp.asarray(x) for x in xs]), *parts)
 
     def _close_actors(self) -> None:
-        import ray
-
-        for slot in self.slots:
-            with contextlib.suppress(Exception):  # already gone
-                ray.kill(slot.handle, no_restart=True)
+        self.pool.close()
         self.slots = []
 
     # ---- weights, checkpoints, Redis, metrics --------------------------------------------------------------
 
     def _publish(self, params: Any, version: int) -> Any:
-        import ray
-
         t0 = time.perf_counter()
-        ref = ray.put(to_bytes(params))
+        ref = self.pool.share(to_bytes(params))
         M.LEARNER_POLICY_VERSION.set(version)
         M.LEARNER_STAGE_SECONDS.labels("publish").inc(time.perf_counter() - t0)
         return ref
@@ -495,14 +476,12 @@ class Learner:
             M.LEARNER_CHECKPOINT_EVENTS_QUEUED.set(len(self.plane.pending_outbox()))
 
     def _connect_store(self, resume: bool) -> None:
-        if not (self.dist.publish_checkpoints and self.store_dict is not None):
+        if not (self.dist.publish_checkpoints and self.store is not None):
             return
         from cec.training.run import config_dict
-        from services.store import ControlPlane, StoreConfig
+        from services.store import ControlPlane
 
-        self.plane = ControlPlane.connect(
-            from_dict(StoreConfig, self.store_dict), outbox_dir=self.files.run_dir
-        )
+        self.plane = ControlPlane.connect(self.store, outbox_dir=self.files.run_dir)
         self.plane.register_run(
             self.config.run_name, config=config_dict(self.config), algorithm=self.config.algorithm
         )

@@ -22,10 +22,12 @@ from ray._private.utils import read_ray_address  # noqa: E402
 
 from cec.config import ConfigError, load_config  # noqa: E402
 from cec.training.config import TrainConfig  # noqa: E402
-from cec.training.run import config_dict, train  # noqa: E402
+from cec.training.run import train  # noqa: E402
 from services.learner.config import DistributedConfig  # noqa: E402
 from services.learner.driver import check_start  # noqa: E402
 from services.learner.learner import Learner  # noqa: E402
+from services.learner.pool import LocalPool  # noqa: E402
+from services.learner.ray_pool import RayPool  # noqa: E402
 from services.processes import free_port  # noqa: E402
 from services.store import StoreConfig  # noqa: E402
 
@@ -61,20 +63,6 @@ def _wait_rows(run_dir: Path, n: int, timeout: float = 300) -> None:
         time.sleep(0.2)
 
 
-def _learner_run(learner: Learner) -> tuple[threading.Thread, dict]:
-    out: dict = {}
-
-    def go() -> None:
-        try:
-            out["summary"] = learner.run(resume=False)
-        except BaseException as err:  # surfaced by the test
-            out["error"] = err
-
-    thread = threading.Thread(target=go)
-    thread.start()
-    return thread, out
-
-
 def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: Any, tmp_path: Path) -> None:
     """Dual Destination fixed task, `small` preset, same seed: sync mode plays the single-process trainer's
     updates to float rounding. The learner's update is compiled on its own (the trainer fuses rollout and
@@ -85,11 +73,19 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: 
     all end at 0.94-0.95 (measured on that AMD EPYC, 2026-11-26)."""
     base = ["total_env_steps=512000", "updates_per_call=1", f"run_dir={tmp_path}"]  # 40 updates
     train(load_config(TrainConfig, DD_QUICK, [*base, "name=single"]), progress=False)
-    for mode in ("sync", "async"):
-        cfg = load_config(TrainConfig, DD_QUICK, [*base, f"name={mode}"])
-        Learner(config_dict(cfg), {"num_actors": 2, "mode": mode, "metrics_port": -1}).run(resume=False)
-    want, sync, asyn = (_rows(tmp_path / n) for n in ("single", "sync", "async"))
+    for name, mode, pool in (("sync", "sync", "ray"), ("local", "sync", "local"), ("async", "async", "ray")):
+        cfg = load_config(TrainConfig, DD_QUICK, [*base, f"name={name}"])
+        dist = DistributedConfig(num_actors=2, mode=mode, pool=pool, metrics_port=-1)
+        Learner(cfg, dist, pool=RayPool(dist) if pool == "ray" else LocalPool()).run(resume=False)
+    want, sync, local, asyn = (_rows(tmp_path / n) for n in ("single", "sync", "local", "async"))
     assert [r["update"] for r in sync] == [r["update"] for r in want] == list(range(1, 41))
+    # the actor-learner loop in one process (no Ray) plays the Ray run's updates
+    assert [r["update"] for r in local] == list(range(1, 41))
+    for a, b in zip(sync, local, strict=True):
+        assert b["normalised_return"] == pytest.approx(a["normalised_return"], rel=1e-6, abs=1e-9), a[
+            "update"
+        ]
+        assert b["total_loss"] == pytest.approx(a["total_loss"], rel=1e-4, abs=1e-7), a["update"]
     for a, b in zip(want[:2], sync[:2], strict=True):
         assert b["normalised_return"] == pytest.approx(a["normalised_return"], rel=1e-6), a["update"]
         assert b["total_loss"] == pytest.approx(a["total_loss"], rel=1e-4), a["update"]
@@ -232,3 +228,19 @@ def test_bad_inputs_stop_start_up_with_the_fix(tmp_path: Path) -> None:
 
 def _asdict(config: Any) -> dict:
     return dataclasses.asdict(config)
+
+
+def test_cec_train_distributed_runs_in_one_process_without_ray(tmp_path: Path) -> None:
+    """`distributed.pool=local`: the learner and its actors in the `cec train` process, no Ray started."""
+    cmd = [
+        sys.executable, "-m", "apps.cli", "train", "--distributed", "--config", DD_QUICK,
+        "total_env_steps=51200", "updates_per_call=1", f"run_dir={tmp_path}", "name=local",
+        "distributed.pool=local", "distributed.num_actors=2", "distributed.metrics_port=-1",
+        "distributed.publish_checkpoints=false",
+    ]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert [r["update"] for r in _rows(tmp_path / "local")] == [1, 2, 3, 4]
+    assert "learner: finished after 4 updates" in proc.stderr
+    # Ray would say "Started a local Ray instance"
+    assert "ray" not in proc.stderr.lower().replace("array", ""), proc.stderr[-2000:]

@@ -27,12 +27,12 @@ REPO = Path(__file__).resolve().parents[2]
 
 CHILD = textwrap.dedent(
     """
-    import json, sys
+    import dataclasses, json, sys
     import jax, jax.numpy as jnp, numpy as np
     from cec.config import load_config
     from cec.training.compact import from_bytes, to_bytes
     from cec.training.config import TrainConfig
-    from cec.training.run import config_dict
+    from services.learner.config import DistributedConfig
     from services.actors.actor import RolloutActor, decode_batch
     from services.learner.learner import Learner
 
@@ -42,10 +42,10 @@ CHILD = textwrap.dedent(
             "num_envs=8", "num_steps=16", "ppo.num_minibatches=2", f"devices={devices}", f"run_dir={out}",
             f"name=d{devices}", "network_overrides={conv_features: [], encoder_features: [16], "
             "lstm_features: 8, actor_features: [16], critic_features: [16]}"])
-        return Learner(config_dict(cfg), {"num_actors": 1, "metrics_port": -1})
+        return Learner(cfg, DistributedConfig(num_actors=1, metrics_port=-1))
     one, two = learner(1), learner(2)
     state = one.trainer.init_one(jax.random.PRNGKey(0))
-    actor = RolloutActor({**one.train_dict, "devices": 1}, 0, 0, 8)
+    actor = RolloutActor(dataclasses.replace(one.config, devices=1), 0, 0, 8)
     actor.reset(0, to_bytes(state.carry))
     _, k_levels, k_roll, k_update = one.trainer.update_keys(state.key)
     _, _, raw = decode_batch(actor.rollout(to_bytes(state.params), 0, k_levels, k_roll))

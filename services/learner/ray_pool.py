@@ -1,0 +1,74 @@
+"""The learner's actors as Ray actors: `RayPool`, the `ActorPool` (`services.learner.pool`) of `cec up` and
+`cec train --distributed`. Ray restarts an actor whose process dies (`actor_max_restarts`); its calls then
+raise `ActorLostError` and the learner resets it. The only module of the learner and the actors that
+imports Ray.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Sequence
+from typing import Any
+
+import ray
+
+from services.actors.actor import ActorNotReadyError, RolloutActor
+from services.learner.config import DistributedConfig
+from services.learner.pool import ActorLostError, ActorSpec
+
+
+class RayPool:
+    """One Ray actor per `ActorSpec`, placed and restarted as `DistributedConfig` says."""
+
+    def __init__(self, dist: DistributedConfig) -> None:
+        self.dist = dist
+        self.handles: list[Any] = []
+
+    def start(self, specs: Sequence[ActorSpec]) -> None:
+        d = self.dist
+        env_vars = {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
+        if d.actor_threads > 0:
+            env_vars["XLA_FLAGS"] = (
+                f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={d.actor_threads}"
+            )
+        remote = ray.remote(RolloutActor).options(
+            num_cpus=d.actor_cpus,
+            resources={d.actor_resource: 1} if d.actor_resource else None,
+            scheduling_strategy="SPREAD" if d.actor_spread else "DEFAULT",
+            max_restarts=d.actor_max_restarts,
+            max_task_retries=0,
+            runtime_env={"env_vars": env_vars},
+        )
+        self.handles = [
+            remote.remote(
+                s.config, s.index, s.env_start, s.env_stop, s.level_server, s.level_token, s.level_seed,
+                s.level_buffer_rollouts,
+            )
+            for s in specs
+        ]  # fmt: skip
+
+    def call(self, i: int, method: str, *args: Any) -> Any:
+        return getattr(self.handles[i], method).remote(*args)
+
+    def wait_all(self, calls: Sequence[Any]) -> None:
+        ray.wait(list(calls), num_returns=len(calls))
+
+    def wait_any(self, calls: Sequence[Any]) -> Any:
+        ready, _ = ray.wait(list(calls), num_returns=1)
+        return ready[0]
+
+    def result(self, call: Any, timeout: float | None = None) -> Any:
+        try:
+            return ray.get(call, timeout=timeout)
+        except (ray.exceptions.RayActorError, ray.exceptions.GetTimeoutError, ActorNotReadyError) as err:
+            raise ActorLostError(f"{type(err).__name__}: {err}") from err
+
+    def share(self, value: Any) -> Any:
+        return ray.put(value)
+
+    def close(self) -> None:
+        for handle in self.handles:
+            with contextlib.suppress(Exception):  # already gone
+                ray.kill(handle, no_restart=True)
+        self.handles = []
