@@ -24,8 +24,9 @@ from cec.envs.overcooked.state import NUM_ACTIONS, NUM_CHANNELS
 from cec.humans.bc import Samples, seat_observations
 from cec.humans.data import KITCHENS
 from cec.levels import GRID_SIZE, LevelError, from_ascii
+from services.play.export import RoundRecord, finished_rounds
 from services.play.game import expand_state
-from services.play.recording import FileStore, RecordError, RoundRecord, finished_rounds
+from services.play.recording import FileStore, RecordError
 
 
 @dataclass(frozen=True)

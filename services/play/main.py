@@ -155,7 +155,8 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
     import uvicorn
 
     from services.play.app import MAX_WS_MESSAGE_BYTES, create_app
-    from services.play.recording import Recorder, open_stores, read_all
+    from services.play.export import read_all
+    from services.play.recording import Recorder, open_stores
     from services.play.study import Study
 
     sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM)
@@ -226,7 +227,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
 
 def _cmd_export(args: argparse.Namespace) -> int:
     from cec.evaluation.results import write_csv
-    from services.play.recording import RecordError, export_tables, open_stores, write_survey_csv
+    from services.play.export import export_tables, write_survey_csv
+    from services.play.recording import RecordError, open_stores
 
     config, _ = load_study(args.study, [*args.set, *_storage_overrides(args)])
     directory = "" if args.redis_url is not None else config.storage.dir

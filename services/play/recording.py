@@ -1,5 +1,5 @@
-"""Durable records of a study: one append-only event log per participant, in files and/or Redis; export to
-the evaluator's result table (`cec.evaluation.results`) and a survey table.
+"""Durable records of a study: one append-only event log per participant, in files and/or Redis, validated
+when read back (their export to result and survey tables: `services.play.export`).
 
 Every event is a JSON object with `type`, `at` (Unix time on the server), the participant's opaque id and
 `seq`, its number in the participant's log (0, 1, ...: the event id). `append` returns only after the event
@@ -43,6 +43,10 @@ Event types, in the order a participant produces them:
 Files: `<dir>/<study>/<participant>.jsonl`, one event per line. Redis: a stream per participant,
 `<prefix>:play:<study>:<participant>` (field `event`: the JSON), and the set of participants,
 `<prefix>:play:<study>:participants`.
+
+Size: the event format's validation, the two stores that read it back through it and the `Recorder` that
+keeps them consistent under faults change together (a new event field touches all three), so they stay one
+module; reading the records back into tables is `services.play.export`.
 """
 
 from __future__ import annotations
@@ -51,22 +55,19 @@ import json
 import logging
 import os
 import re
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
 import redis
 
-from cec.evaluation.results import EpisodeTable, make_table
 from services.play.limits import json_depth
 from services.store import StoreConfig, StoreError, StoreUnavailableError
 
 log = logging.getLogger("cec.play")
 
 PARTICIPANT_ID = re.compile(r"^p[0-9a-f]{20}$")
-HUMAN_ALGORITHM = "human"
-SURVEY_COLUMNS = ("participant", "round", "partner", "policy", "algorithm", "seed", "level", "item", "answer")
 
 
 #: Deepest nesting of a recorded event (a step's state is 4 levels deep; more is damage, not a record).
@@ -505,161 +506,3 @@ def open_stores(
     if redis_url:
         stores.append(RedisStore(StoreConfig(url=redis_url, key_prefix=key_prefix), study))
     return stores
-
-
-# ---------------------------------------------------------------------------------------------------------
-# READING BACK
-# ---------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class RoundRecord:
-    """A finished round as recorded: its start event, its steps, and its end event (checked consistent)."""
-
-    participant: str
-    start: dict[str, Any]
-    steps: tuple[dict[str, Any], ...]
-    end: dict[str, Any]
-
-    @property
-    def round(self) -> int:
-        return int(self.start["round"])
-
-    @property
-    def practice(self) -> bool:
-        return bool(self.start["practice"])
-
-
-def finished_rounds(
-    participant: str, events: Iterable[dict[str, Any]], problems: list[str] | None = None
-) -> list[RoundRecord]:
-    """The rounds that ended (`round_end`), each checked: steps numbered 1..n without gaps, and the end
-    event's totals equal to the sums over the steps. Aborted attempts are left out. An inconsistent round
-    raises `RecordError`, or, given a `problems` list, is left out with its problem appended to it."""
-    rounds: list[RoundRecord] = []
-    current: dict[str, Any] | None = None
-    steps: list[dict[str, Any]] = []
-    for ev in events:
-        kind = ev.get("type")
-        if kind == "round_start":
-            current, steps = ev, []
-        elif kind == "step" and current is not None:
-            steps.append(ev)
-        elif kind == "round_abort":
-            current, steps = None, []
-        elif kind == "round_end" and current is not None:
-            where = f"participant {participant}, round {current['round']} attempt {current['attempt']}"
-            problem = _round_problem(steps, ev)
-            if problem is None:
-                rounds.append(RoundRecord(participant, current, tuple(steps), ev))
-            elif problems is None:
-                raise RecordError(f"{where}: {problem}")
-            else:
-                problems.append(f"{where}: {problem}; the round is left out")
-                log.warning("%s: %s; the round is left out", where, problem)
-            current, steps = None, []
-    return rounds
-
-
-def _round_problem(steps: list[dict[str, Any]], end: dict[str, Any]) -> str | None:
-    """What makes a finished round's steps disagree with its end event (None: nothing)."""
-    if [s["t"] for s in steps] != list(range(1, len(steps) + 1)):
-        return f"step numbers are not 1..{len(steps)}"
-    if end["steps"] != len(steps):
-        return f"the end event counts {end['steps']} steps, {len(steps)} are recorded"
-    total = sum(s["reward"] for s in steps)
-    collisions = sum(bool(s["collision"]) for s in steps)
-    if abs(total - end["return"]) > 1e-6 or collisions != end["collisions"]:
-        return "the end event's return/collisions differ from the sum of its steps"
-    return None
-
-
-def read_all(store: EventStore, problems: list[str] | None = None) -> dict[str, list[dict[str, Any]]]:
-    """Every participant's events (validated; bad lines quarantined by the store). A participant whose
-    records cannot be read at all is left out with a warning (and its problem appended to `problems`)."""
-    out: dict[str, list[dict[str, Any]]] = {}
-    for participant in store.participants():
-        try:
-            out[participant] = store.events(participant)
-        except RecordError as err:
-            log.warning("%s; left out", err)
-            if problems is not None:
-                problems.append(f"{err}; left out")
-    return out
-
-
-def export_tables(
-    store: EventStore, problems: list[str] | None = None
-) -> tuple[EpisodeTable, list[dict[str, Any]]]:
-    """(result table of every finished study round, survey rows) from a store.
-
-    Result rows: `policy_a` the participant id, `algorithm_a` `human`, `seed_a` 0; `policy_b` the partner's
-    policy (zoo entry or partner name), its algorithm and seed; `seat` the human's seat; `episode` the round
-    index; the outcome columns; `actions` how the agent chose (`greedy`/`sampled`). Practice rounds are
-    left out. Survey rows: one per answered item (`SURVEY_COLUMNS`). Bad record lines are quarantined by the
-    store (`store.quarantined`); a round whose records are inconsistent, or a participant whose records
-    cannot be read, is left out and named in `problems` (when given; else `RecordError`).
-    """
-    cols: dict[str, list[Any]] = {f.name: [] for f in fields(EpisodeTable) if f.name != "skipped"}
-    surveys: list[dict[str, Any]] = []
-    if problems is None:
-        records = {p: store.events(p) for p in store.participants()}
-    else:
-        records = read_all(store, problems)
-    for participant, events in records.items():
-        by_round: dict[int, RoundRecord] = {}
-        for r in finished_rounds(participant, events, problems):
-            if r.practice:
-                continue
-            by_round[r.round] = r  # a round is finished once; a later attempt would replace an earlier one
-        for index in sorted(by_round):
-            r = by_round[index]
-            s, e = r.start, r.end
-            cols["policy_a"].append(participant)
-            cols["algorithm_a"].append(HUMAN_ALGORITHM)
-            cols["seed_a"].append(0)
-            cols["policy_b"].append(s["policy"])
-            cols["algorithm_b"].append(s["algorithm"])
-            cols["seed_b"].append(s["seed"])
-            cols["level"].append(s["level"])
-            cols["seat"].append(s["human_seat"])
-            cols["episode"].append(index)
-            cols["returns"].append(e["return"])
-            cols["deliveries"].append(e["deliveries"])
-            cols["collisions"].append(e["collisions"])
-            cols["shaped_return"].append(e["shaped_return"])
-            cols["env"].append("overcooked")
-            cols["episode_steps"].append(e["steps"])
-            cols["actions"].append(s["agent_actions"])
-        for ev in events:
-            if ev.get("type") != "survey":
-                continue
-            played = by_round.get(int(ev["round"]))
-            for item, answer in ev["answers"].items():
-                surveys.append(
-                    {
-                        "participant": participant,
-                        "round": ev["round"],
-                        "partner": ev["partner"],
-                        "policy": played.start["policy"] if played else "",
-                        "algorithm": played.start["algorithm"] if played else "",
-                        "seed": played.start["seed"] if played else "",
-                        "level": played.start["level"] if played else "",
-                        "item": item,
-                        "answer": answer,
-                    }
-                )
-    return make_table(cols), surveys
-
-
-def write_survey_csv(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
-    """Writes survey rows (`SURVEY_COLUMNS`) as CSV."""
-    import csv
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=SURVEY_COLUMNS)
-        writer.writeheader()
-        writer.writerows(rows)
-    return path

@@ -33,7 +33,8 @@ from websockets.exceptions import InvalidStatus
 from websockets.typing import Origin
 
 from cec.evaluation.results import read_csv
-from services.play.recording import FileStore, RedisStore, finished_rounds
+from services.play.export import finished_rounds
+from services.play.recording import FileStore, RedisStore
 from services.store import LocalRedis, StoreConfig
 from tests.play_server import PlayServer
 

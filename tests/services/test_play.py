@@ -18,6 +18,7 @@ from cec.evaluation.results import COLUMNS
 from cec.levels.classic import classic_level
 from cec.training.rollout import policy_step
 from services.play.config import PartnerSpec, StudyConfig, load_study
+from services.play.export import export_tables, finished_rounds
 from services.play.game import (
     Round,
     RoundSetup,
@@ -28,14 +29,7 @@ from services.play.game import (
     pot_cells,
     resolve_level,
 )
-from services.play.recording import (
-    PARTICIPANT_ID,
-    FileStore,
-    Recorder,
-    RecordError,
-    export_tables,
-    finished_rounds,
-)
+from services.play.recording import PARTICIPANT_ID, FileStore, Recorder, RecordError
 from services.play.study import InputError, Study, validate_action, validate_rt
 
 ROOT = Path(__file__).resolve().parents[2]

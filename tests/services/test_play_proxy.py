@@ -22,9 +22,10 @@ from cec.envs import overcooked as oc
 from cec.humans.bc import BCConfig
 from cec.levels.classic import classic_level
 from services.play.config import StudyConfig
+from services.play.export import finished_rounds
 from services.play.game import Round, RoundSetup, compact_state, expand_state, load_partner, pot_cells
 from services.play.human_samples import human_samples, read_play_records
-from services.play.recording import FileStore, finished_rounds
+from services.play.recording import FileStore
 from tests.services.test_play import ROOT, _play_study, _study_dict
 
 
