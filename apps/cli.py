@@ -45,22 +45,10 @@ log = logging.getLogger("cec")
 
 
 def _load_level(spec: str) -> Level:
-    """A classic layout name, a held-out kitchen's name (`generated_007`), or an ASCII kitchen file."""
-    from cec.envs.overcooked import CLASSIC_ASCII, classic_level
-    from cec.levels.heldout import heldout_levels
-    from cec.levels.named import read_kitchen
+    """One kitchen by name (`cec.levels.named.resolve_level`: classic, held-out, generated:SEED, a file)."""
+    from cec.levels.named import resolve_level
 
-    if spec in CLASSIC_ASCII:
-        return classic_level(spec)
-    heldout = dict(heldout_levels())
-    if spec in heldout:
-        return heldout[spec]
-    if not Path(spec).is_file():
-        raise LevelError(
-            f"{spec!r} is neither a classic layout ({', '.join(sorted(CLASSIC_ASCII))}), a held-out kitchen "
-            "(generated_000 .. generated_099) nor an ASCII kitchen file"
-        )
-    return read_kitchen(Path(spec))
+    return resolve_level(spec)[1]
 
 
 def _env_params(args: argparse.Namespace) -> EnvParams:
@@ -180,9 +168,11 @@ def _cmd_levels_sample(args: argparse.Namespace) -> int:
 def _cmd_levels_validate(args: argparse.Namespace) -> int:
     from cec.levels.fingerprint import content_hash
     from cec.levels.heldout import heldout_levels
+    from cec.levels.named import read_kitchen
     from cec.levels.solvability import validate_solvable
 
-    level = _load_level(args.file)  # malformed: LevelError, exit 2
+    path = Path(args.file)  # a file is read as it is (unsolvable: reported below), malformed: exit 2
+    level = read_kitchen(path) if path.is_file() else _load_level(args.file)
     problems = validate_solvable(level, args.allow_decoys)
     digest = content_hash(level)
     heldout = [name for name, lv in heldout_levels() if content_hash(lv) == digest]

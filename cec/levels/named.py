@@ -5,8 +5,13 @@ A level spec is a comma-separated list of tokens, each one of
     heldout            the held-out evaluation set (5 classic + 100 generated kitchens)
     classic            the 5 classic kitchens;  cramped_room, ... one of them
     generated          the 100 held-out generated kitchens;  generated_000 .. generated_099 one of them
+    generated:SEED     the procedural generator's kitchen for SEED (`generated:random` where one kitchen is
+                       asked for: a seed drawn per use, see `resolve_level`)
     path/to/file.txt   an ASCII kitchen file (`cec.levels.ascii`), named by its stem
     path/to/folder/    every `*.txt` kitchen file in the folder, sorted by name
+
+`resolve_levels` resolves a spec to {name: level}; `resolve_level` one kitchen (what `cec play`, `cec
+render` and `cec levels show` take), `check_level` checks such a name without building the kitchen.
 
 Relative paths are taken from `base_dir` (the working directory unless given). Files are read with a size
 bound, parsed and checked for solvability here, so a malformed or unsolvable kitchen is refused with its
@@ -15,7 +20,10 @@ reason (a `ConfigError` naming the file) before anything is compiled for it.
 
 from __future__ import annotations
 
+from functools import cache
 from pathlib import Path
+
+import numpy as np
 
 from cec.config import ConfigError
 from cec.levels.ascii import from_ascii
@@ -25,6 +33,8 @@ from cec.levels.level import Level, LevelError
 MAX_KITCHEN_FILE_BYTES = 64 * 1024
 KITCHEN_SUFFIX = ".txt"
 SET_NAMES = ("heldout", "classic", "generated")
+GENERATED_PREFIX = "generated:"
+RANDOM_SEED = "random"
 
 
 def is_path_spec(token: str) -> bool:
@@ -120,15 +130,76 @@ def resolve_levels(spec: str, base_dir: Path | None = None) -> dict[str, Level]:
             out.update({n: lv for n, lv in heldout.items() if n.startswith("generated_")})
         elif tok in heldout:
             out[tok] = heldout[tok]
+        elif tok.startswith(GENERATED_PREFIX):
+            out[tok] = generated_level(_generated_seed(tok, allow_random=False))
         elif is_path_spec(tok) or (base / tok).exists():
             for name, level in load_kitchens(base / Path(tok).expanduser()).items():
                 if name in out:
                     raise ConfigError(f"two kitchens are named {name!r} in levels {spec!r}; rename one file")
                 out[name] = level
         else:
-            raise ConfigError(
-                f"unknown Overcooked level {tok!r}; use heldout, classic, generated, a classic kitchen "
-                f"({', '.join(sorted(CLASSIC_ASCII))}), generated_000..generated_099, an ASCII kitchen "
-                f"file or a folder of {KITCHEN_SUFFIX} kitchen files"
-            )
+            raise _unknown(tok, "heldout, classic, generated, ")
     return out
+
+
+def _unknown(token: str, sets: str = "") -> ConfigError:
+    classic = ", ".join(sorted(CLASSIC_ASCII))
+    return ConfigError(
+        f"unknown Overcooked level {token!r}; use {sets}a classic kitchen ({classic}), generated_000.."
+        f"generated_099, generated:SEED, an ASCII kitchen file or a folder of {KITCHEN_SUFFIX} kitchen files"
+    )
+
+
+def _generated_seed(token: str, allow_random: bool) -> int | None:
+    """The seed of `generated:SEED` (None for `generated:random`); `ConfigError` if it is neither."""
+    text = token[len(GENERATED_PREFIX) :]
+    if allow_random and text == RANDOM_SEED:
+        return None
+    if not text.isdigit() or int(text) >= 2**31:
+        also = " or generated:random" if allow_random else ""
+        raise ConfigError(f"level {token!r}: write generated:SEED with an integer 0 <= SEED < 2**31{also}")
+    return int(text)
+
+
+@cache
+def generated_level(seed: int) -> Level:
+    """The procedural generator's kitchen for `seed` (its default settings; held-out kitchens included)."""
+    import jax
+
+    from cec.levels.generator import GeneratorConfig, generate_batch
+    from cec.levels.level import unstack_levels
+
+    batch = generate_batch(jax.random.PRNGKey(seed), 1, GeneratorConfig())
+    level: Level = jax.device_get(unstack_levels(batch)[0])
+    return level
+
+
+def check_level(token: str, base_dir: Path | None = None) -> None:
+    """`ConfigError` naming the problem if `token` names no single kitchen (nothing is generated; a kitchen
+    file is read and checked for solvability)."""
+    from cec.levels.heldout import heldout_levels
+
+    if token in CLASSIC_ASCII or token in dict(heldout_levels()):
+        return
+    if token.startswith(GENERATED_PREFIX):
+        _generated_seed(token, allow_random=True)
+        return
+    path = (base_dir or Path()) / Path(token).expanduser()
+    if not path.is_file():
+        raise _unknown(token)
+    load_kitchens(path)
+
+
+def resolve_level(
+    token: str, base_dir: Path | None = None, rng: np.random.Generator | None = None
+) -> tuple[str, Level]:
+    """(name, level) of one kitchen: a classic or held-out name, `generated:SEED` (`generated:random` draws
+    the seed from `rng`, and the name records it), or an ASCII kitchen file (named by its stem)."""
+    check_level(token, base_dir)
+    if token.startswith(GENERATED_PREFIX):
+        seed = _generated_seed(token, allow_random=True)
+        if seed is None:
+            seed = int((rng or np.random.default_rng()).integers(0, 2**31 - 1))
+        return f"{GENERATED_PREFIX}{seed}", generated_level(seed)
+    ((name, level),) = resolve_levels(token, base_dir).items()
+    return name, level

@@ -44,67 +44,19 @@ from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.envs import overcooked as oc
 from cec.envs.task import EnvConfig
-from cec.levels import GRID_SIZE, Direction, Item, Level, Tile, unstack_levels
-from cec.levels.classic import CLASSIC_ASCII, classic_level
-from cec.levels.generator import GeneratorConfig, generate_batch
-from cec.levels.heldout import heldout_levels
-from cec.levels.named import load_kitchens
+from cec.levels import GRID_SIZE, Direction, Item, Level, Tile
+from cec.levels.classic import classic_level
 from services.play.config import PartnerSpec, StudyConfig
 
 log = logging.getLogger("cec.play")
 
 NUM_ACTIONS = oc.NUM_ACTIONS
 STAY = int(oc.Action.STAY)
-GENERATED_PREFIX = "generated:"
 
 
 # ---------------------------------------------------------------------------------------------------------
 # LEVELS
 # ---------------------------------------------------------------------------------------------------------
-
-
-def check_level_spec(spec: str, base_dir: Path) -> None:
-    """Raises `ConfigError` if `spec` names no kitchen (without generating anything)."""
-    if spec in CLASSIC_ASCII or spec == GENERATED_PREFIX + "random":
-        return
-    if spec.startswith(GENERATED_PREFIX):
-        seed = spec[len(GENERATED_PREFIX) :]
-        if not seed.isdigit():
-            raise ConfigError(
-                f"level {spec!r}: write generated:SEED with a non-negative integer, or generated:random"
-            )
-        return
-    if spec in dict(heldout_levels()):
-        return
-    if not (base_dir / spec).is_file():
-        raise ConfigError(
-            f"level {spec!r} is not a classic kitchen ({', '.join(sorted(CLASSIC_ASCII))}), a held-out one "
-            "(generated_000 .. generated_099), generated:SEED, generated:random, or an ASCII kitchen file"
-        )
-    load_kitchens(base_dir / spec)  # malformed or unsolvable: refused with the reason
-
-
-def resolve_level(spec: str, base_dir: Path, rng: np.random.Generator) -> tuple[str, Level]:
-    """(recorded name, level) for a level spec; `generated:random` draws a seed from `rng`."""
-    if spec in CLASSIC_ASCII:
-        return spec, classic_level(spec)
-    if spec.startswith(GENERATED_PREFIX):
-        seed_text = spec[len(GENERATED_PREFIX) :]
-        seed = int(rng.integers(0, 2**31 - 1)) if seed_text == "random" else int(seed_text)
-        return f"{GENERATED_PREFIX}{seed}", _generated(seed)
-    held = dict(heldout_levels())
-    if spec in held:
-        return spec, jax.device_get(held[spec])
-    ((name, level),) = load_kitchens(base_dir / spec).items()
-    return name, level
-
-
-@cache
-def _generated(seed: int) -> Level:
-    level: Level = jax.device_get(
-        unstack_levels(generate_batch(jax.random.PRNGKey(seed), 1, GeneratorConfig()))[0]
-    )
-    return level
 
 
 def level_json(level: Level) -> dict[str, Any]:
@@ -528,12 +480,10 @@ __all__ = [
     "Round",
     "RoundSetup",
     "StepResult",
-    "check_level_spec",
     "compact_state",
     "compiled",
     "expand_state",
     "level_json",
     "load_partner",
-    "resolve_level",
     "warm_up",
 ]

@@ -124,10 +124,11 @@ def free_play_config(args: argparse.Namespace) -> StudyConfig:
 
 def prepare(config: StudyConfig, base_dir: Path) -> dict[str, Any]:
     """Checks the levels and loads (and compiles) every partner; `ConfigError` naming what is wrong."""
-    from services.play.game import check_level_spec, load_partner, warm_up
+    from cec.levels.named import check_level
+    from services.play.game import load_partner, warm_up
 
     for level in (*config.levels, *([config.practice.level] if config.practice else [])):
-        check_level_spec(level, base_dir)
+        check_level(level, base_dir)
     t0 = time.perf_counter()
     pools = {}
     for partner in config.partners:

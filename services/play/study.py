@@ -33,9 +33,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 
 from cec.levels import to_ascii
+from cec.levels.named import resolve_level
 from services.play import metrics
 from services.play.config import PracticeConfig, StudyConfig
 from services.play.game import (
@@ -45,7 +47,6 @@ from services.play.game import (
     RoundSetup,
     StepResult,
     level_json,
-    resolve_level,
 )
 from services.play.limits import RateLimiter, brief
 from services.play.recording import Recorder
@@ -552,6 +553,7 @@ class Study:
             level_name, level = resolve_level(
                 plan.level_spec, self.base_dir, np.random.default_rng(plan.seed)
             )
+            level = jax.device_get(level)
             setup = RoundSetup(policy, level_name, level, plan.human_seat, plan.steps, plan.mode, plan.seed)
             rnd = Round(setup, self.config)
             state, branches = rnd.start()

@@ -395,7 +395,8 @@ def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_default_free_pl
     import jax
 
     from cec.envs.overcooked.scripted import scripted_actions
-    from services.play.game import expand_state, resolve_level
+    from cec.levels.named import resolve_level
+    from services.play.game import expand_state
 
     _browser_paths()
     server = PlayServer(["--partner", "cec", "--port", "0", "--data", str(tmp_path)], "free_play")

@@ -16,18 +16,17 @@ from cec.config import ConfigError, from_dict
 from cec.envs import overcooked as oc
 from cec.evaluation.results import COLUMNS
 from cec.levels.classic import classic_level
+from cec.levels.named import check_level, resolve_level
 from cec.training.rollout import policy_step
 from services.play.config import PartnerSpec, StudyConfig, load_study
 from services.play.export import export_tables, finished_rounds
 from services.play.game import (
     Round,
     RoundSetup,
-    check_level_spec,
     compact_state,
     compiled,
     load_partner,
     pot_cells,
-    resolve_level,
 )
 from services.play.recording import PARTICIPANT_ID, FileStore, Recorder, RecordError
 from services.play.study import InputError, Study, validate_action, validate_rt
@@ -109,12 +108,12 @@ def test_bad_study_configs_name_the_problem(changes: dict[str, Any], message: st
 
 def test_level_specs(tmp_path: Path) -> None:
     for spec in ("counter_circuit", "generated_007", "generated:12", "generated:random"):
-        check_level_spec(spec, tmp_path)
+        check_level(spec, tmp_path)
     (tmp_path / "k.txt").write_text("WWPWW\nO0 1O\nW   W\nWBWXW\n")
-    check_level_spec("k.txt", tmp_path)
+    check_level("k.txt", tmp_path)
     for bad in ("generated:x", "nowhere", "generated_999"):
         with pytest.raises(ConfigError):
-            check_level_spec(bad, tmp_path)
+            check_level(bad, tmp_path)
     rng = np.random.default_rng(0)
     name, level = resolve_level("generated:12", tmp_path, rng)
     assert name == "generated:12" and np.array_equal(

@@ -43,7 +43,7 @@ def test_render_rejects_a_malformed_kitchen(tmp_path: Path, capsys: pytest.Captu
 
 def test_render_rejects_an_unknown_layout(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["render", "no_such_kitchen", "--png", "x.png"]) == 2
-    assert "neither a classic layout" in capsys.readouterr().err
+    assert "unknown Overcooked level 'no_such_kitchen'; use a classic kitchen" in capsys.readouterr().err
 
 
 def test_levels_sample_writes_a_contact_sheet_and_ascii(

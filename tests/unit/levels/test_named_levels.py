@@ -19,10 +19,9 @@ from cec.evaluation.results import read_csv
 from cec.levels.ascii import to_ascii
 from cec.levels.classic import classic_level
 from cec.levels.heldout import heldout_levels
-from cec.levels.named import load_kitchens, resolve_levels
+from cec.levels.named import check_level, load_kitchens, resolve_level, resolve_levels
 from cec.training.config import TrainConfig
 from cec.training.run import train
-from services.play.game import check_level_spec, resolve_level
 
 UNSOLVABLE = "WWWWW\nO0 1O\nWWWWW\nWPBXW\nWWWWW\n"  # pot, plates and goal walled off
 
@@ -68,7 +67,7 @@ def test_a_bad_kitchen_file_is_refused_with_its_reason(tmp_path: Path, content, 
     with pytest.raises(ConfigError, match=reason):  # training refuses it when the config is read
         EnvConfig(levels=str(bad))
     with pytest.raises(ConfigError, match=reason):  # and so does `cec play`
-        check_level_spec("bad.txt", tmp_path)
+        check_level("bad.txt", tmp_path)
     with pytest.raises(ConfigError, match="no kitchen file or folder"):
         resolve_levels(str(tmp_path / "gone.txt"))
     (tmp_path / "empty").mkdir()
@@ -135,3 +134,22 @@ def test_cec_trains_on_a_folder_and_cec_eval_scores_it_there(kitchens: Path, tmp
     assert main(["eval", "--zoo", str(zoo), "--levels", str(kitchens)]) == 2
     err = capsys.readouterr().err
     assert "broken.txt is not solvable" in err and "gone" not in err
+
+
+def test_one_resolver_names_generated_kitchens_for_training_play_and_the_cli(tmp_path: Path) -> None:
+    """`generated:SEED` is the same kitchen wherever it is named: in a training level spec, in `cec play`
+    and in `cec render`; `generated:random` only where one kitchen is drawn per use."""
+    from apps.cli import main
+
+    by_spec = resolve_levels("generated:12,cramped_room")
+    name, level = resolve_level("generated:12")
+    assert list(by_spec) == ["generated:12", "cramped_room"] and name == "generated:12"
+    assert _same(by_spec["generated:12"], level)
+    drawn, _ = resolve_level("generated:random", rng=np.random.default_rng(0))
+    assert drawn.startswith("generated:") and drawn != "generated:random"
+    with pytest.raises(ConfigError, match="generated:SEED with an integer"):
+        resolve_levels("generated:random")
+    for bad in ("generated:-1", "generated:x", "generated:99999999999"):
+        with pytest.raises(ConfigError, match="generated:SEED"):
+            check_level(bad)
+    assert main(["render", "generated:12", "--png", str(tmp_path / "k.png")]) == 0
