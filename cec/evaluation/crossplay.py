@@ -39,7 +39,7 @@ from cec.agents.policy import Policy
 from cec.config import ConfigError
 from cec.envs.registry import game
 from cec.envs.task import Task
-from cec.evaluation.results import EpisodeTable, SkippedEntry, make_table
+from cec.evaluation.results import ARRAY_FIELDS, EpisodeTable, SkippedEntry, make_table
 from cec.training.rollout import init_carry, rollout
 
 log = logging.getLogger("cec.evaluation")
@@ -383,7 +383,7 @@ def crossplay(
     groups: dict[tuple[int, ...], list[Game]] = {}
     for g in games:
         groups.setdefault(g.levels, []).append(g)
-    rows: dict[str, list] = {k: [] for k in _ROW_FIELDS}
+    rows: dict[str, list] = {k: [] for k in ARRAY_FIELDS if k not in _SET_BY_TABLE}
     n = config.episodes
     for level_idx, group in groups.items():
         env_level = np.repeat(np.asarray(level_idx), n)  # env e plays level env_level[e], episode e % n
@@ -415,20 +415,8 @@ def crossplay(
     return _to_table(rows, reference, env_params, steps, config.greedy, skipped_out)
 
 
-_ROW_FIELDS = (
-    "policy_a",
-    "algorithm_a",
-    "seed_a",
-    "policy_b",
-    "algorithm_b",
-    "seed_b",
-    "level",
-    "seat",
-    "episode",
-    "returns",
-    "collisions",
-    "shaped_return",
-)
+#: Result fields `_to_table` fills for the whole table (deliveries from the returns), not `_append_rows`.
+_SET_BY_TABLE = ("deliveries", "env", "episode_steps", "actions")
 
 
 def _append_rows(

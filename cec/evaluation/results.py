@@ -91,7 +91,7 @@ class EpisodeTable:
 
     def select(self, mask: np.ndarray) -> EpisodeTable:
         """The rows where `mask` (bool[N]) is set (skipped entries kept)."""
-        cols = {name: getattr(self, name)[mask] for name in _ARRAY_FIELDS}
+        cols = {name: getattr(self, name)[mask] for name in ARRAY_FIELDS}
         return EpisodeTable(**cols, skipped=self.skipped)
 
     @staticmethod
@@ -99,7 +99,7 @@ class EpisodeTable:
         """All rows of `tables`, in order; skipped entries merged (each name once)."""
         if not tables:
             return empty_table()
-        cols = {name: np.concatenate([getattr(t, name) for t in tables]) for name in _ARRAY_FIELDS}
+        cols = {name: np.concatenate([getattr(t, name) for t in tables]) for name in ARRAY_FIELDS}
         seen: dict[str, SkippedEntry] = {}
         for t in tables:
             for s in t.skipped:
@@ -107,8 +107,9 @@ class EpisodeTable:
         return EpisodeTable(**cols, skipped=tuple(seen.values()))
 
 
-# EpisodeTable's array attributes: the columns (with `return` spelled `returns`), bar the status columns.
-_ARRAY_FIELDS = tuple("returns" if c == "return" else c for c in COLUMNS if c not in ("status", "reason"))
+#: EpisodeTable's array attributes: the columns (with `return` spelled `returns`), bar the status columns;
+#: what a producer of rows fills (`make_table`).
+ARRAY_FIELDS = tuple("returns" if c == "return" else c for c in COLUMNS if c not in ("status", "reason"))
 
 
 def _column_of(field: str) -> str:
@@ -118,7 +119,7 @@ def _column_of(field: str) -> str:
 def make_table(columns: Mapping[str, Iterable], skipped: Sequence[SkippedEntry] = ()) -> EpisodeTable:
     """Builds a table from per-field sequences (keys as `EpisodeTable` fields), with the right dtypes."""
     cols: dict[str, np.ndarray] = {}
-    for field in _ARRAY_FIELDS:
+    for field in ARRAY_FIELDS:
         col = _column_of(field)
         values = list(columns[field])
         if col in _STR:
@@ -134,7 +135,7 @@ def make_table(columns: Mapping[str, Iterable], skipped: Sequence[SkippedEntry] 
 
 
 def empty_table(skipped: Sequence[SkippedEntry] = ()) -> EpisodeTable:
-    return make_table({f: [] for f in _ARRAY_FIELDS}, skipped)
+    return make_table({f: [] for f in ARRAY_FIELDS}, skipped)
 
 
 def write_csv(table: EpisodeTable, path: str | Path) -> Path:
@@ -145,7 +146,7 @@ def write_csv(table: EpisodeTable, path: str | Path) -> Path:
     with open(tmp, "w", newline="") as f:
         writer = csv.writer(f)
         writer.writerow(COLUMNS)
-        arrays = [getattr(table, field) for field in _ARRAY_FIELDS]
+        arrays = [getattr(table, field) for field in ARRAY_FIELDS]
         for i in range(len(table)):
             row = [_fmt(a[i]) for a in arrays]
             writer.writerow([*row, "ok", ""])
@@ -178,7 +179,7 @@ def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
 def _read_one(path: Path) -> EpisodeTable:
     if not path.is_file():
         raise ResultsError(f"results file {str(path)!r} does not exist; write one with `cec eval`")
-    cols: dict[str, list] = {f: [] for f in _ARRAY_FIELDS}
+    cols: dict[str, list] = {f: [] for f in ARRAY_FIELDS}
     skipped: list[SkippedEntry] = []
     with open(path, newline="") as f:
         reader = csv.DictReader(f)
@@ -196,7 +197,7 @@ def _read_one(path: Path) -> EpisodeTable:
                     continue
                 if row["status"] != "ok":
                     raise ValueError(f"status must be ok or skipped, got {row['status']!r}")
-                for field in _ARRAY_FIELDS:
+                for field in ARRAY_FIELDS:
                     col = _column_of(field)
                     raw = row[col]
                     if col in _STR:

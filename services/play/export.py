@@ -7,11 +7,11 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from cec.evaluation.results import EpisodeTable, make_table
+from cec.evaluation.results import ARRAY_FIELDS, EpisodeTable, make_table
 from services.play.recording import EventStore, RecordError
 
 log = logging.getLogger("cec.play")
@@ -108,7 +108,7 @@ def export_tables(
     store (`store.quarantined`); a round whose records are inconsistent, or a participant whose records
     cannot be read, is left out and named in `problems` (when given; else `RecordError`).
     """
-    cols: dict[str, list[Any]] = {f.name: [] for f in fields(EpisodeTable) if f.name != "skipped"}
+    cols: dict[str, list[Any]] = {f: [] for f in ARRAY_FIELDS}
     surveys: list[dict[str, Any]] = []
     if problems is None:
         records = {p: store.events(p) for p in store.participants()}
