@@ -349,6 +349,21 @@ def empty_history(batch_shape: tuple[int, ...], k: int) -> jax.Array:
     return jnp.full((*batch_shape, k), -1, jnp.int32)
 
 
+def push_history(history: jax.Array, partner_action: jax.Array) -> jax.Array:
+    """The partner-action history [..., K] with `partner_action` [...] appended and the oldest dropped
+    (unchanged when K = 0: a network without a partner model)."""
+    if history.shape[-1] == 0:
+        return history
+    return jnp.concatenate([history[..., 1:], partner_action[..., None].astype(jnp.int32)], axis=-1)
+
+
+def select_action(key: jax.Array, logits: jax.Array, greedy: bool) -> jax.Array:
+    """int32 action of the distribution `logits` [A] (log-probabilities will do): its most likely action
+    when `greedy`, else a sample drawn with `key`."""
+    action = jnp.argmax(logits, axis=-1) if greedy else jax.random.categorical(key, logits)
+    return action.astype(jnp.int32)
+
+
 def forward(
     network: ActorCritic,
     params: Any,

@@ -18,7 +18,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 
-from cec.agents.network import ActorCritic, LSTMState, empty_history, forward
+from cec.agents.network import ActorCritic, LSTMState, empty_history, forward, push_history, select_action
 from cec.envs.task import Task, env_keys
 from cec.training.partners import SELF_PLAY, PartnerConfig, mixture_log_probs
 
@@ -234,10 +234,7 @@ def rollout(
         elif partner.kind == "e3t":
             is_partner = (jnp.arange(NUM_SEATS)[None, :] != seat[:, None])[..., None]  # [E, 2, 1]
             log_probs = jnp.where(is_partner, mixture_log_probs(logits, partner.epsilon), log_probs)
-        if greedy:
-            action = jnp.argmax(log_probs, axis=-1).astype(jnp.int32)  # [E, 2]
-        else:
-            action = jax.vmap(jax.random.categorical)(k_act, log_probs).astype(jnp.int32)  # [E, 2]
+        action = jax.vmap(select_action, in_axes=(0, 0, None))(k_act, log_probs, greedy)  # [E, 2]
         log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
         out = jax.vmap(task.step, in_axes=(0, 0, 0, 0, None))(k_env, c.env_state, action, levels, env_params)
         ep_return = c.episode_return + out.reward
@@ -284,8 +281,7 @@ def _push_partner_actions(history: jax.Array, action: jax.Array, done: jax.Array
     """Appends each seat's partner's latest action to its history ([E, 2, K]); cleared where episodes end."""
     if history.shape[-1] == 0:
         return history
-    partner_action = action[:, ::-1]  # seat s sees seat 1 - s
-    pushed = jnp.concatenate([history[..., 1:], partner_action[..., None]], axis=-1)
+    pushed = push_history(history, action[:, ::-1])  # seat s sees seat 1 - s
     return jnp.where(done[:, None, None], -1, pushed)
 
 

@@ -38,7 +38,16 @@ import jax.numpy as jnp
 import numpy as np
 
 from cec import checkpoints
-from cec.agents.network import ActorCritic, LSTMState, NetworkConfig, empty_history, forward, network_preset
+from cec.agents.network import (
+    ActorCritic,
+    LSTMState,
+    NetworkConfig,
+    empty_history,
+    forward,
+    network_preset,
+    push_history,
+    select_action,
+)
 from cec.agents.policy import Policy, load_policies, load_policy, random_policy
 from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
@@ -180,16 +189,7 @@ def _act(
     """The agent's next action on one observation ([9, 9, 26]); carry [1, H]."""
     hist = history if network.config.partner_history else None
     lstm, logits, _ = forward(network, params, lstm, obs[None, None], jnp.reshape(first, (1, 1)), hist)
-    action = jnp.argmax(logits[0, 0]) if greedy else jax.random.categorical(key, logits[0, 0])
-    return lstm, action.astype(jnp.int32)
-
-
-def _push(history: jax.Array, human_action: jax.Array) -> jax.Array:
-    if history.shape[-1] == 0:
-        return history
-    return jnp.concatenate(
-        [history[..., 1:], jnp.reshape(human_action, (1, 1, 1)).astype(jnp.int32)], axis=-1
-    )
+    return lstm, select_action(key, logits[0, 0], greedy)
 
 
 class Compiled:
@@ -223,7 +223,7 @@ class Compiled:
         env_params: oc.EnvParams,
     ) -> tuple[oc.StepOutput, Prepared]:
         out: oc.StepOutput = jax.tree.map(lambda x: x[human_action], prepared.branches)
-        history = _push(prepared.history, human_action)
+        history = push_history(prepared.history, jnp.reshape(human_action, (1, 1)))
         lstm, action = _act(
             self.network,
             params,
