@@ -63,7 +63,7 @@ from typing import Any, Protocol
 import redis
 
 from services.play.limits import json_depth
-from services.store import StoreConfig, StoreError, StoreUnavailableError
+from services.store import RedisClient, StoreConfig, StoreError, StoreUnavailableError
 
 log = logging.getLogger("cec.play")
 
@@ -331,40 +331,24 @@ class RedisStore:
         self.config = config
         self.study = study
         self.quarantined: list[Quarantined] = []
-        try:
-            self._r: Any = redis.Redis.from_url(
-                config.resolved_url,
-                password=config.resolved_password or None,
-                decode_responses=False,
-                socket_connect_timeout=config.connect_timeout_s,
-                socket_timeout=config.socket_timeout_s,
-            )
-            self._r.ping()
-        except ValueError as err:
-            raise StoreError(
-                f"Redis URL {config.display_url!r} is malformed ({err}); use redis://host:port/db"
-            ) from err
-        except redis.RedisError as err:
-            raise StoreUnavailableError(
-                f"cannot reach Redis at {config.display_url} ({err}); start it or fix storage.redis_url"
-            ) from err
+        self.client = RedisClient(config, decode_responses=False, fix="fix storage.redis_url")
+        self._r: Any = self.client.redis
+        self.client.call("answer PING", self._r.ping)
 
     def _key(self, *parts: str) -> str:
-        return ":".join((self.config.key_prefix, "play", self.study, *parts))
+        return self.client.key("play", self.study, *parts)
 
     def append(self, participant: str, *events: dict[str, Any]) -> None:
         """Appends `events` to the participant's stream (one transaction)."""
         _check_id(participant)
+        pipe = self._r.pipeline(transaction=True)
+        pipe.sadd(self._key("participants"), participant)
+        for event in events:
+            pipe.xadd(self._key(participant), {"event": _dumps(event)})
         try:
-            pipe = self._r.pipeline(transaction=True)
-            pipe.sadd(self._key("participants"), participant)
-            for event in events:
-                pipe.xadd(self._key(participant), {"event": _dumps(event)})
-            pipe.execute()
-        except redis.RedisError as err:
-            raise StoreUnavailableError(
-                f"Redis at {self.config.display_url} failed to record an event: {err}"
-            ) from err
+            self.client.call("record an event", pipe.execute)
+        except StoreError as err:  # any failure to record is the store's unavailability to the study
+            raise StoreUnavailableError(str(err)) from err
 
     def _call(self, key: str, what: str, call: Callable[[], Any]) -> Any:
         """`call()`, with Redis's errors named: `RecordError` for a key of the wrong type (someone else's
@@ -425,7 +409,7 @@ class RedisStore:
             log.warning("%s; quarantined (left out of the records read)", entry)
 
     def close(self) -> None:
-        self._r.close()
+        self.client.close()
 
 
 @dataclass

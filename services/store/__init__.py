@@ -44,11 +44,13 @@ Modules (everything public is re-exported here, so `from services.store import X
     config.py     StoreConfig, redact_url, StoreError, StoreUnavailableError, the environment variables
     records.py    RunRecord, CheckpointEvent, PublishResult, FlushResult, CheckpointMessage, PartnerRecord,
                   EvalResult, checkpoint_id
+    client.py     RedisClient: the connection pool and the errors, for the plane, the consumer and the study
     plane.py      ControlPlane: its Lua scripts, the checkpoint outbox
     consumer.py   CheckpointConsumer: the consumer group
     local.py      LocalRedis: a local redis-server
 """
 
+from services.store.client import RedisClient
 from services.store.config import (
     DEFAULT_URL,
     ENV_PASSWORD,
@@ -92,6 +94,7 @@ __all__ = [
     "OUTBOX_FILE",
     "PartnerRecord",
     "PublishResult",
+    "RedisClient",
     "RUN_STATUSES",
     "RunRecord",
     "StoreConfig",

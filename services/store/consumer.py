@@ -12,7 +12,7 @@ from services.store.config import StoreError
 from services.store.records import CheckpointEvent, CheckpointMessage, _check_name
 
 if TYPE_CHECKING:
-    from services.store.plane import ControlPlane
+    from services.store.client import RedisClient
 
 
 class CheckpointConsumer:
@@ -25,22 +25,25 @@ class CheckpointConsumer:
     malformed or were delivered `max_deliveries` times are moved to `<prefix>:dead:<group>`.
     """
 
-    def __init__(self, plane: ControlPlane, group: str, name: str, from_start: bool = True) -> None:
-        self.plane = plane
+    def __init__(
+        self, client: RedisClient, stream: str, group: str, name: str, from_start: bool = True
+    ) -> None:
+        self.client = client
+        self.config = client.config
         self.group = _check_name(group, "consumer group")
         self.name = _check_name(name, "consumer name")
-        self._r = plane._r
-        self._stream = plane.stream_key
-        self._consumed = plane.key("consumed", group)
-        self._dead = plane.key("dead", group)
-        self._claim_idle_ms = int(plane.config.claim_idle_s * 1000)
+        self._r = client.redis
+        self._stream = stream
+        self._consumed = client.key("consumed", group)
+        self._dead = client.key("dead", group)
+        self._claim_idle_ms = int(self.config.claim_idle_s * 1000)
         self._replay_from: str | None = "0"  # own unacknowledged events, read once after start
         self.ensure_group(from_start)
 
     def ensure_group(self, from_start: bool = True) -> None:
         """Creates the consumer group (and the stream) if missing."""
         try:
-            self.plane._call(
+            self.client.call(
                 "create a consumer group",
                 lambda: self._r.xgroup_create(
                     self._stream, self.group, id="0" if from_start else "$", mkstream=True
@@ -73,12 +76,12 @@ class CheckpointConsumer:
         claimed = self._reclaim(count)
         if claimed:
             return self._accept(claimed, redelivered=True)
-        limit = 0.8 * self.plane.config.socket_timeout_s
+        limit = 0.8 * self.config.socket_timeout_s
         block_ms = int(min(block_s, limit) * 1000) if block_s > 0 else None
         return self._accept(self._xreadgroup(">", count, block_ms), redelivered=False)
 
     def _xreadgroup(self, start: str, count: int, block_ms: int | None) -> list[tuple[str, Any]]:
-        reply = self.plane._call(
+        reply = self.client.call(
             "read checkpoint events",
             lambda: self._r.xreadgroup(
                 self.group, self.name, {self._stream: start}, count=count, block=block_ms
@@ -87,7 +90,7 @@ class CheckpointConsumer:
         return [(entry_id, data) for _stream, entries in reply or [] for entry_id, data in entries]
 
     def _reclaim(self, count: int) -> list[tuple[str, Any]]:
-        stale = self.plane._call(
+        stale = self.client.call(
             "list pending checkpoint events",
             lambda: self._r.xpending_range(
                 self._stream, self.group, "-", "+", count, idle=self._claim_idle_ms
@@ -95,14 +98,14 @@ class CheckpointConsumer:
         )
         if not stale:
             return []
-        limit = self.plane.config.max_deliveries
+        limit = self.config.max_deliveries
         for p in stale:
             if p["times_delivered"] >= limit:
                 self._bury(p["message_id"], f"delivered {p['times_delivered']} times without an ack", None)
         ids = [p["message_id"] for p in stale if p["times_delivered"] < limit]
         if not ids:
             return []
-        claimed = self.plane._call(
+        claimed = self.client.call(
             "claim pending checkpoint events",
             lambda: self._r.xclaim(self._stream, self.group, self.name, self._claim_idle_ms, ids),
         )
@@ -120,7 +123,7 @@ class CheckpointConsumer:
         if not messages:
             return []
         ids = [m.event.checkpoint_id for m in messages]
-        seen = self.plane._call("read consumed checkpoints", lambda: self._r.smismember(self._consumed, ids))
+        seen = self.client.call("read consumed checkpoints", lambda: self._r.smismember(self._consumed, ids))
         fresh: list[CheckpointMessage] = []
         skip: list[str] = []
         for message, done in zip(messages, seen, strict=True):
@@ -131,7 +134,7 @@ class CheckpointConsumer:
             else:
                 fresh.append(message)
         if skip:
-            self.plane._call(
+            self.client.call(
                 "acknowledge duplicate events", partial(self._r.xack, self._stream, self.group, *skip)
             )
         return fresh
@@ -147,7 +150,7 @@ class CheckpointConsumer:
                 p.xack(self._stream, self.group, entry_id)
                 p.execute()
 
-        self.plane._call("move an event to the dead letters", write)
+        self.client.call("move an event to the dead letters", write)
 
     def ack(self, message: CheckpointMessage) -> None:
         """Marks the event done for this group (its checkpoint id too, so duplicates are skipped)."""
@@ -158,21 +161,21 @@ class CheckpointConsumer:
                 p.sadd(self._consumed, message.event.checkpoint_id)
                 p.execute()
 
-        self.plane._call("acknowledge an event", write)
+        self.client.call("acknowledge an event", write)
 
     def touch(self, message: CheckpointMessage) -> None:
         """Keeps an event being worked on from being reclaimed by another consumer (resets its idle time)."""
-        self.plane._call(
+        self.client.call(
             "keep a pending event",
             lambda: self._r.xclaim(self._stream, self.group, self.name, 0, [message.entry_id], justid=True),
         )
 
     def pending_count(self) -> int:
         """Events of the group delivered and not acknowledged (all consumers)."""
-        summary = self.plane._call("count pending events", lambda: self._r.xpending(self._stream, self.group))
+        summary = self.client.call("count pending events", lambda: self._r.xpending(self._stream, self.group))
         return int(summary["pending"])
 
     def dead_letters(self) -> dict[str, dict[str, Any]]:
         """Events the group gave up on, by stream entry id: {reason, consumer, at, fields}."""
-        data = self.plane._call("read dead letters", lambda: self._r.hgetall(self._dead))
+        data = self.client.call("read dead letters", lambda: self._r.hgetall(self._dead))
         return {k: json.loads(v) for k, v in data.items()}

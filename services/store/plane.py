@@ -15,21 +15,14 @@ import os
 import socket
 import threading
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import asdict
 from functools import partial
 from pathlib import Path
 from typing import Any, TypeVar
 
-import redis
-from redis.backoff import ExponentialBackoff
-from redis.retry import Retry
-
+from services.store.client import RedisClient
 from services.store.config import (
-    ENV_PASSWORD,
-    ENV_URL,
-    INSTALL_HINT,
-    MIN_REDIS_VERSION,
     StoreConfig,
     StoreError,
     StoreUnavailableError,
@@ -71,13 +64,6 @@ return 1
 """
 
 
-def _redis_version(info: Mapping[str, Any]) -> tuple[int, ...]:
-    try:
-        return tuple(int(p) for p in str(info.get("redis_version", "0")).split(".")[:2])
-    except ValueError:
-        return (0,)
-
-
 class ControlPlane:
     """Run registry, checkpoint events, partner zoo and evaluation results in one Redis.
 
@@ -94,26 +80,9 @@ class ControlPlane:
     def __init__(self, config: StoreConfig | None = None, *, outbox_dir: str | Path | None = None) -> None:
         self.config = config or StoreConfig()
         self.outbox_dir = Path(outbox_dir) if outbox_dir is not None else None
-        c = self.config
-        try:
-            pool = redis.ConnectionPool.from_url(
-                c.resolved_url,
-                decode_responses=True,
-                protocol=2,
-                socket_connect_timeout=c.connect_timeout_s,
-                socket_timeout=c.socket_timeout_s,
-                retry=Retry(ExponentialBackoff(cap=c.retry_backoff_max_s, base=c.retry_backoff_s), c.retries),
-                retry_on_error=[redis.ConnectionError, redis.TimeoutError],
-            )
-        except ValueError as err:
-            raise StoreError(
-                f"Redis URL {c.display_url!r} is malformed ({err}); use redis://host:port/db "
-                f"(set it with the store url or {ENV_URL})"
-            ) from err
-        # The URL's own password wins inside redis-py; the documented order is config, URL, environment.
-        pool.connection_kwargs["password"] = c.resolved_password or None
-        # redis-py annotates results as `T | Awaitable[T]` (one API for sync and async); this client is sync.
-        self._r: Any = redis.Redis(connection_pool=pool)
+        self.client = RedisClient(self.config)
+        self._r: Any = self.client.redis
+        self._call = self.client.call
         self._publish = self._r.register_script(_PUBLISH_LUA)
         self._update = self._r.register_script(_UPDATE_LUA)
         self._outbox_lock = threading.Lock()
@@ -132,8 +101,7 @@ class ControlPlane:
         return plane
 
     def close(self) -> None:
-        self._r.close()
-        self._r.connection_pool.disconnect()
+        self.client.close()
 
     def __enter__(self) -> ControlPlane:
         return self
@@ -145,63 +113,21 @@ class ControlPlane:
 
     def key(self, *parts: str) -> str:
         """`<prefix>:<part>:<part>...`, the name of a key of this control plane."""
-        return ":".join((self.config.key_prefix, *parts))
+        return self.client.key(*parts)
 
     @property
     def stream_key(self) -> str:
         return self.key("checkpoints")
 
-    # --- errors -------------------------------------------------------------------------------------------
-
-    def _unreachable(self, err: BaseException) -> StoreUnavailableError:
-        return StoreUnavailableError(
-            f"cannot reach Redis at {self.config.display_url} ({err}). Start a Redis server there "
-            f"(`redis-server`; {INSTALL_HINT}), or point the control plane at a running one: set the "
-            f"store url or {ENV_URL}=redis://host:port/db"
-        )
-
-    def _auth_failed(self, err: BaseException) -> StoreError:
-        return StoreError(
-            f"Redis at {self.config.display_url} refused the credentials ({err}). Set the password that "
-            f"matches its `requirepass` with the store password or {ENV_PASSWORD} (or none if it has none)"
-        )
-
-    def _call(self, what: str, fn: Callable[[], T]) -> T:
-        """Runs `fn` (Redis commands), translating redis-py errors into StoreError."""
-        try:
-            return fn()
-        except (redis.AuthenticationError, redis.exceptions.NoPermissionError) as err:
-            raise self._auth_failed(err) from err
-        except (redis.ConnectionError, redis.TimeoutError) as err:
-            raise self._unreachable(err) from err
-        except redis.ResponseError as err:
-            if str(err).startswith(("NOAUTH", "WRONGPASS")):
-                raise self._auth_failed(err) from err
-            raise StoreError(f"Redis at {self.config.display_url} failed to {what}: {err}") from err
-        except redis.RedisError as err:
-            raise StoreError(f"Redis at {self.config.display_url} failed to {what}: {err}") from err
-
     # --- health -------------------------------------------------------------------------------------------
 
     def check(self) -> str:
         """Pings Redis and checks its version; returns the version. StoreError (naming the fix) otherwise."""
-        self._call("answer PING", self._r.ping)
-        info = self._call("report its version", lambda: self._r.info("server"))
-        version = _redis_version(info)
-        if version < MIN_REDIS_VERSION:
-            raise StoreError(
-                f"Redis at {self.config.display_url} is version {info.get('redis_version')}; the control "
-                f"plane needs >= {'.'.join(map(str, MIN_REDIS_VERSION))} (streams with XPENDING IDLE). "
-                f"Upgrade it; {INSTALL_HINT}"
-            )
-        return str(info.get("redis_version", ""))
+        return self.client.check()
 
     def ping(self) -> bool:
         """True if Redis answers now (never raises)."""
-        try:
-            return bool(self._r.ping())
-        except redis.RedisError:
-            return False
+        return self.client.ping()
 
     # --- run registry -------------------------------------------------------------------------------------
 
@@ -453,7 +379,8 @@ class ControlPlane:
         (e.g. `evaluator-0`) so that a restart resumes its own unacknowledged events at once (default:
         `<host>-<pid>`). A new group starts at the first event (`from_start`) or at new events only.
         """
-        return CheckpointConsumer(self, group, name or f"{socket.gethostname()}-{os.getpid()}", from_start)
+        name = name or f"{socket.gethostname()}-{os.getpid()}"
+        return CheckpointConsumer(self.client, self.stream_key, group, name, from_start)
 
     # --- partner zoo --------------------------------------------------------------------------------------
 
