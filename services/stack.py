@@ -32,6 +32,7 @@ from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
+from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS
 from services.processes import Child, ChildRecord, NotReadyError, free_port
 from services.status import write_stack_file
 from services.store import StoreConfig
@@ -67,11 +68,11 @@ class UpConfig:
     distributed: DistributedConfig = field(default_factory=DistributedConfig)
     store: StoreConfig = field(default_factory=StoreConfig)
     level_server_address: str = ""
-    level_server_port: int = 50051
-    level_server_metrics_port: int = 9401
+    level_server_port: int = LEVEL_SERVER_GRPC_PORT
+    level_server_metrics_port: int = METRICS_PORTS["level_server"]
     evaluator: bool = True
     evaluator_config: str = "configs/evaluator.yaml"
-    evaluator_metrics_port: int = 9403
+    evaluator_metrics_port: int = METRICS_PORTS["evaluator"]
     monitoring: bool = False
     monitoring_config: MonitoringConfig = field(default_factory=MonitoringConfig)
     ray_dashboard: bool = True

@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass, field
 
 from cec.config import ConfigError
+from services.ports import METRICS_PORTS
 from services.store import StoreConfig
 
 #: The partner group of self-play results (each seed of the checkpoint with itself).
@@ -143,7 +144,7 @@ class EvaluatorConfig:
     from_start: bool = True
     runs: tuple[str, ...] = ()
     poll_s: float = 2.0
-    metrics_port: int = 9403
+    metrics_port: int = METRICS_PORTS["evaluator"]
     metrics_host: str = "127.0.0.1"
 
     def __post_init__(self) -> None:

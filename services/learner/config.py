@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 from cec.config import ConfigError
 from cec.training.config import TrainConfig
+from services.ports import METRICS_PORTS
 
 MODES = ("sync", "async")
 POOLS = ("ray", "local")
@@ -69,7 +70,7 @@ class DistributedConfig:
     level_server: str = ""
     level_token: str = ""
     level_buffer_rollouts: int = 8
-    metrics_port: int = 9402
+    metrics_port: int = METRICS_PORTS["learner"]
     metrics_host: str = "127.0.0.1"
     publish_checkpoints: bool = True
     ray_address: str = ""

@@ -8,17 +8,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cec.config import ConfigError
+from services.ports import GRAFANA_PORT, LEVEL_SERVER_GRPC_PORT, METRICS_PORTS, PROMETHEUS_PORT  # noqa: F401 (re-exported)
 
 # --- where things are ---------------------------------------------------------------------------------------
 CLUSTER_DIR = Path(__file__).resolve().parent.parent.parent / "cluster"
 DASHBOARDS_DIR = CLUSTER_DIR / "grafana" / "dashboards"
 PROVISIONING_DIR = CLUSTER_DIR / "grafana" / "provisioning"
 
-# Default ports of the embedded stack (`cec up`); cluster/prometheus.yml and docs/monitoring.md use the same.
-LEVEL_SERVER_GRPC_PORT = 50051
-METRICS_PORTS: Mapping[str, int] = {"level_server": 9401, "learner": 9402, "evaluator": 9403}
-PROMETHEUS_PORT = 9090
-GRAFANA_PORT = 3000
 DEFAULT_TARGETS: Mapping[str, tuple[str, ...]] = {
     job: (f"127.0.0.1:{port}",) for job, port in METRICS_PORTS.items()
 }
