@@ -47,6 +47,18 @@ def _cmd_eval(args: argparse.Namespace) -> int:
         raise ConfigError(f"--levels names Overcooked kitchen files, but the zoo's policies play {env}")
     levels = own if own is not None else eval_levels(env, config.levels)
     games = plan_games(policies, levels.names, config.pairs) if policies else []
+    if policies and not games:
+        names = ", ".join(levels.names[:8]) + (", ..." if len(levels.names) > 8 else "")
+        off = "; ".join(
+            f"{p.name} plays only {list(p.levels)[:8]}"
+            for p in policies
+            if p.levels is not None and not set(p.levels) & set(levels.names)
+        )
+        raise ConfigError(
+            f"no game to play on --levels {config.levels!r} ({names}): no pair of the zoo's policies shares"
+            f" a level of it{'; ' + off if off else ''}; fix the entries' `levels` (level names of the set) "
+            "or choose --levels"
+        )
     log.info(
         "%d policies (%d skipped), %d levels, %d games x %d episodes",
         len(policies),

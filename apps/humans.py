@@ -274,13 +274,31 @@ def _write_proxies(
     from apps.zoo_build import MANIFEST, merge_manifest
 
     figures_file = out / "bc.json"
-    if figures_file.is_file():  # proxies of other kitchens trained earlier stay
-        figures = {**json.loads(figures_file.read_text())["proxies"], **figures}
+    if figures_file.exists():  # proxies of other kitchens trained earlier stay
+        figures = {**_read_figures(figures_file), **figures}
     doc = {"config": dataclasses.asdict(config), "proxies": figures}
     figures_file.write_text(json.dumps(doc, indent=1) + "\n")
     return merge_manifest(
         out / MANIFEST, "Written by `cec humans bc`: behaviour-cloned human proxies.", entries
     )
+
+
+#: The largest `bc.json` read (a proxy's figures and per-epoch history are a few kB).
+FIGURES_MAX_BYTES = 16 << 20
+
+
+def _read_figures(path: Path) -> dict[str, Any]:
+    """The `proxies` of a `bc.json` written earlier; `ConfigError` naming the file when it is not one (not a
+    regular file, larger than `FIGURES_MAX_BYTES`, not JSON, or without a `proxies` mapping)."""
+    from cec.config import read_user_json
+
+    doc = read_user_json(path, "proxy figures file", FIGURES_MAX_BYTES, f"{__name__}.FIGURES_MAX_BYTES")
+    if not isinstance(doc, dict) or not isinstance(doc.get("proxies"), dict):
+        raise ConfigError(
+            f"proxy figures file {str(path)!r} is not one `cec humans bc` writes (no `proxies` mapping); "
+            "move it away or give another --out"
+        )
+    return doc["proxies"]
 
 
 def play_proxy(
@@ -382,7 +400,7 @@ def _cmd_bc(args: argparse.Namespace) -> int:
     else:
         kitchens = args.kitchens or ("all", *KITCHENS)
         manifest = train_proxies(args.data or DEFAULT_DATA, args.out, kitchens=kitchens, config=config)
-    figures = json.loads((manifest.parent / "bc.json").read_text())["proxies"]
+    figures = _read_figures(manifest.parent / "bc.json")
     print(f"wrote {manifest}")
     print(f"{'proxy':<22} {'held-out games':<15} {'accuracy':>8} {'CE':>6}   frequency-only: accuracy, CE")
     for name, f in figures.items():

@@ -28,9 +28,13 @@ import jax
 import numpy as np
 from flax import serialization
 
+from cec.config import ConfigError, open_user_file, read_user_file
+
 FORMAT = "cec-checkpoint/1"
 STATE_FILE = "state.msgpack"
 META_FILE = "meta.json"
+#: The largest checkpoint metadata read (`save` writes a few kB: the run's config and metadata).
+META_MAX_BYTES = 16 << 20
 
 T = TypeVar("T")
 
@@ -61,8 +65,17 @@ class RunLock:
         self._fd: int | None = None
 
     def acquire(self) -> RunLock:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        """Takes the lock, creating the run directory; `RunBusyError` when another process holds it,
+        `ConfigError` naming the folder when it cannot be created or written (checked before any work)."""
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        except OSError as err:
+            raise ConfigError(
+                f"run directory {str(self.path.parent)!r} cannot be created or written "
+                f"({err.strerror or err}); give run_dir= a folder you can write (the run goes in "
+                "<run_dir>/<name>)"
+            ) from None
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -149,14 +162,19 @@ def save(
 def read_meta(path: str | Path) -> dict:
     """The metadata of the checkpoint at `path` (no state loaded)."""
     meta_file = Path(path) / META_FILE
-    if not meta_file.is_file():
+    if not meta_file.exists():
         raise CorruptCheckpointError(f"{path} is not a checkpoint: {META_FILE} is missing")
+    setting = f"{__name__}.META_MAX_BYTES"
+    text = read_user_file(
+        meta_file, "checkpoint metadata", META_MAX_BYTES, setting, error=CorruptCheckpointError
+    )
     try:
-        meta: dict = json.loads(meta_file.read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        meta: dict = json.loads(text)
+    except (json.JSONDecodeError, RecursionError) as err:
+        cause = "nested too deeply" if isinstance(err, RecursionError) else str(err)[:200]
         raise CorruptCheckpointError(
-            f"checkpoint metadata {meta_file} is corrupt ({err}); use another checkpoint"
-        ) from err
+            f"checkpoint metadata {meta_file} is corrupt ({cause}); use another checkpoint"
+        ) from None
     if not isinstance(meta, dict):
         raise CorruptCheckpointError(
             f"checkpoint metadata {meta_file} is not a JSON object; use another checkpoint"
@@ -202,9 +220,10 @@ def load(path: str | Path, template: T, *, part: str | None = None) -> tuple[T, 
     path = Path(path)
     meta = read_meta(path)
     state_file = path / STATE_FILE
-    if not state_file.is_file():
+    if not state_file.exists():
         raise CorruptCheckpointError(f"checkpoint {path} has no {STATE_FILE}")
-    data = state_file.read_bytes()
+    with open_user_file(state_file, "checkpoint state", error=CorruptCheckpointError) as f:
+        data = f.read()  # a regular file: its size is what was saved
     digest = hashlib.sha256(data).hexdigest()
     if digest != meta["sha256"]:
         raise CorruptCheckpointError(

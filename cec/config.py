@@ -12,12 +12,15 @@ from __future__ import annotations
 
 import dataclasses
 import difflib
+import json
 import math
+import os
 import re
+import stat
 import typing
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, BinaryIO, TypeVar
 
 import yaml
 
@@ -134,30 +137,100 @@ class _UniqueKeyLoader(yaml.SafeLoader):
 CONFIG_MAX_BYTES = 1 << 20
 
 
-def read_user_file(path: Path, kind: str, max_bytes: int) -> str:
-    """The text of a file a user or a run folder gave, read in bounded memory: a regular file only (not a
-    folder, FIFO or device, which could block or never end), at most `max_bytes`. `ConfigError` naming the
-    file, its kind and the cause otherwise."""
-    import stat
-
+def open_user_file(path: Path, kind: str, *, error: type[Exception] = ConfigError) -> BinaryIO:
+    """`path` opened for reading if it is a regular file (not a folder, FIFO, socket or device, which could
+    block or never end), else `error` naming the file, its kind and the cause. Opened without blocking and
+    checked on the open file, so a FIFO swapped in after a check cannot hang the reader."""
     try:
-        st = path.stat()
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except FileNotFoundError:
-        raise ConfigError(f"{kind} {str(path)!r} does not exist") from None
+        raise error(f"{kind} {str(path)!r} does not exist") from None
+    except IsADirectoryError:
+        raise error(f"{kind} {str(path)!r} is a folder; give the file inside it") from None
     except OSError as err:
-        raise ConfigError(f"{kind} {str(path)!r} cannot be read: {err}") from err
-    if stat.S_ISDIR(st.st_mode):
-        raise ConfigError(f"{kind} {str(path)!r} is a folder; give the file inside it")
-    if not stat.S_ISREG(st.st_mode):
-        raise ConfigError(f"{kind} {str(path)!r} is not a regular file (a FIFO, socket or device)")
-    with path.open("rb") as f:
-        data = f.read(max_bytes + 1)
+        raise error(f"{kind} {str(path)!r} cannot be read: {err.strerror or err}") from None
+    try:
+        mode = os.fstat(fd).st_mode
+        if stat.S_ISDIR(mode):
+            raise error(f"{kind} {str(path)!r} is a folder; give the file inside it")
+        if not stat.S_ISREG(mode):
+            raise error(f"{kind} {str(path)!r} is not a regular file (a FIFO, socket or device); give a file")
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_user_bytes(
+    path: Path, kind: str, max_bytes: int, setting: str, *, error: type[Exception] = ConfigError
+) -> bytes:
+    """The bytes of a file a user or a run folder gave, read in bounded memory and time: a regular file only
+    (`open_user_file`) of at most `max_bytes`; `error` naming the file, its kind, the cause and, for a file
+    too large, the cap and its `setting` (the constant or key that holds it) otherwise."""
+    with open_user_file(path, kind, error=error) as f:
+        try:
+            data = f.read(max_bytes + 1)
+        except OSError as err:
+            raise error(f"{kind} {str(path)!r} cannot be read: {err.strerror or err}") from None
     if len(data) > max_bytes:
-        raise ConfigError(f"{kind} {str(path)!r} is larger than {max_bytes:,} bytes, the most read")
+        raise error(
+            f"{kind} {str(path)!r} is larger than {max_bytes:,} bytes, the most read ({setting}); give the "
+            "right file"
+        )
+    return data
+
+
+def read_user_file(
+    path: Path,
+    kind: str,
+    max_bytes: int,
+    setting: str = "cec.config.CONFIG_MAX_BYTES",
+    *,
+    error: type[Exception] = ConfigError,
+) -> str:
+    """The UTF-8 text of a file a user or a run folder gave (`read_user_bytes`)."""
+    data = read_user_bytes(path, kind, max_bytes, setting, error=error)
     try:
         return data.decode()
     except UnicodeDecodeError as err:
-        raise ConfigError(f"{kind} {str(path)!r} is not UTF-8 text: {err}") from err
+        raise error(f"{kind} {str(path)!r} is not UTF-8 text: {err}") from None
+
+
+def read_user_json(
+    path: Path, kind: str, max_bytes: int, setting: str, *, error: type[Exception] = ConfigError
+) -> Any:
+    """The JSON value of a file a user or a run folder gave (`read_user_bytes`); `error` naming the file
+    when it is not JSON, nests too deeply to parse, or holds NaN/Infinity (not JSON)."""
+    text = read_user_file(path, kind, max_bytes, setting, error=error)
+    try:
+        return json.loads(text, parse_constant=_no_constant)
+    except (json.JSONDecodeError, _NonFiniteJSONError) as err:
+        raise error(f"{kind} {str(path)!r} is not valid JSON: {err}") from None
+    except RecursionError:
+        raise error(f"{kind} {str(path)!r} nests too deeply to be read") from None
+
+
+class _NonFiniteJSONError(ValueError):
+    """NaN or Infinity in a file read as JSON (Python's reader takes them; JSON has no such numbers)."""
+
+
+def _no_constant(name: str) -> Any:
+    raise _NonFiniteJSONError(f"{name} is not a JSON number")
+
+
+def read_user_yaml(
+    path: Path, kind: str, max_bytes: int, setting: str, *, error: type[Exception] = ConfigError
+) -> Any:
+    """The YAML value (safe loader) of a file a user or a run folder gave (`read_user_bytes`); `error`
+    naming the file when it is not YAML or nests too deeply to parse."""
+    text = read_user_file(path, kind, max_bytes, setting, error=error)
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        raise error(f"{kind} {str(path)!r} is not valid YAML: {err}") from None
+    except RecursionError:
+        raise error(f"{kind} {str(path)!r} nests too deeply to be read") from None
 
 
 def load_config(cls: type[T], path: str | Path | None = None, overrides: Sequence[str] = ()) -> T:
@@ -165,7 +238,7 @@ def load_config(cls: type[T], path: str | Path | None = None, overrides: Sequenc
     data: Any = {}
     if path is not None:
         p = Path(path)
-        text = read_user_file(p, "config file", CONFIG_MAX_BYTES)
+        text = read_user_file(p, "config file", CONFIG_MAX_BYTES, "cec.config.CONFIG_MAX_BYTES")
         try:
             data = yaml.load(text, Loader=_UniqueKeyLoader) or {}  # noqa: S506 (a safe loader)
         except yaml.YAMLError as err:

@@ -13,9 +13,10 @@ picks the seed out of a multi-seed checkpoint. `levels` (optional) restricts the
 (single-task agents): a pairing is played on the levels both partners accept. `sha256` (optional, written
 by `cec zoo build`) pins the checkpoint's state; `env`, `layout` and `env_steps` are descriptive only.
 
-A malformed manifest is a `ConfigError` (nothing is evaluated). An entry whose checkpoint is missing,
-corrupt or does not fit the evaluation is *skipped with its reason recorded* (`SkippedEntry`), never
-silently dropped.
+A malformed manifest is a `ConfigError` (nothing is evaluated), and so is one that is not a regular file,
+is larger than `ZOO_MAX_BYTES` or has more than `ZOO_MAX_ENTRIES` entries. An entry whose checkpoint is
+missing, corrupt or does not fit the evaluation is *skipped with its reason recorded* (`SkippedEntry`),
+never silently dropped.
 
 The package ships trained policies (`cec/shipped/zoo.yaml`, written by `cec zoo export`): the zoo name
 `shipped` is that manifest wherever a zoo is taken (`cec eval --zoo shipped`, the evaluator, `cec play`),
@@ -27,16 +28,13 @@ Turning entries into runnable policies is `cec.agents.policy` (`load_policy`, `l
 
 from __future__ import annotations
 
-import json
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
-
 from cec.agents.scripted import scripted_kind
-from cec.config import ConfigError
+from cec.config import ConfigError, read_user_json, read_user_yaml
 
 #: The zoo name that stands for the manifest of the policies shipped with the package.
 SHIPPED = "shipped"
@@ -47,6 +45,11 @@ HUMAN_PROXY = "human_proxy"
 _ENTRY_KEYS = ("name", "algorithm", "seed", "checkpoint", "scripted", "levels", "sha256")
 #: Descriptive keys `cec zoo build` also writes (not used to load the policy).
 _INFO_KEYS = ("env", "layout", "env_steps")
+#: The largest zoo manifest read (an entry is a few hundred bytes).
+ZOO_MAX_BYTES = 1 << 20
+#: The most entries a zoo may have: each loads a policy and joins every pairing, so 10,000 entries took
+#: gigabytes and minutes before any output (the largest reproduction's zoo has 84).
+ZOO_MAX_ENTRIES = 512
 
 
 @dataclass(frozen=True)
@@ -95,6 +98,11 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
         data = data.get("policies")
     if not isinstance(data, list) or not data:
         raise ConfigError(f"{where}: expected a non-empty list of policies (see docs/evaluation.md)")
+    if len(data) > ZOO_MAX_ENTRIES:
+        raise ConfigError(
+            f"{where}: {len(data):,} policies, more than the {ZOO_MAX_ENTRIES} a zoo may have "
+            f"({__name__}.ZOO_MAX_ENTRIES); split it into several zoos"
+        )
     entries: list[ZooEntry] = []
     for i, item in enumerate(data):
         at = f"{where}: policies[{i}]"
@@ -153,12 +161,10 @@ def load_zoo(path: str | Path) -> list[ZooEntry]:
     """Reads a zoo manifest (YAML or JSON); relative checkpoint paths are relative to its folder. The name
     `shipped` (`SHIPPED`) is the manifest of the policies shipped with the package."""
     p = SHIPPED_ZOO if str(path) == SHIPPED else Path(path)
-    if not p.is_file():
+    if not p.exists():
         raise ConfigError(f"zoo manifest {str(p)!r} does not exist (see docs/evaluation.md for the format)")
-    try:
-        data = json.loads(p.read_text()) if p.suffix == ".json" else yaml.safe_load(p.read_text())
-    except (yaml.YAMLError, json.JSONDecodeError) as err:
-        raise ConfigError(f"zoo manifest {str(p)!r} is not valid YAML/JSON: {err}") from err
+    read = read_user_json if p.suffix == ".json" else read_user_yaml
+    data = read(p, "zoo manifest", ZOO_MAX_BYTES, f"{__name__}.ZOO_MAX_BYTES")
     return parse_zoo(data, p.parent, where=str(p))
 
 

@@ -11,8 +11,9 @@ On disk (`cec humans import --out DIR`, default `data/humans`):
     DIR/train.npz, DIR/test.npz   the splits' arrays (`np.savez_compressed`, no pickled objects)
     DIR/meta.json                 {"format", "source", "splits": {split: {"sha256", "counts"}}}
 
-`load_steps` checks the format, each file's SHA-256 and every array's shape, dtype and value range, and
-refuses a mismatch with a `HumanDataError` naming the file and the fix; nothing is unpickled.
+`load_steps` checks the format, each file's SHA-256 and every array's shape, dtype and value range (NaN
+and infinity included), in bounded memory (the arrays' declared sizes are checked before any is inflated),
+and refuses a mismatch with a `HumanDataError` naming the file and the fix; nothing is unpickled.
 
 Mapping (the data's layouts are ours, in the frame's top-left corner; `docs/humans.md`):
 - positions `[x, y]` are our `(row, col) = (y, x)`; orientations `[dx, dy]` our facings;
@@ -27,14 +28,16 @@ from __future__ import annotations
 
 import hashlib
 import json
+import zipfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 import numpy as np
 
+from cec.config import ConfigError, open_user_file, read_user_json
 from cec.envs.overcooked.state import MAX_ONIONS, POT_EMPTY, POT_FULL, POT_READY, Action
 from cec.levels import GRID_SIZE, Direction, Item, Tile
 from cec.levels.classic import classic_level
@@ -243,32 +246,129 @@ def save_steps(splits: Mapping[str, Steps], out: str | Path, *, source: Mapping[
 
 
 def load_steps(folder: str | Path, split: str) -> Steps:
-    """One split of an imported folder, verified (format, SHA-256, shapes, dtypes, value ranges)."""
+    """One split of an imported folder, verified (format, SHA-256, shapes, dtypes, value ranges) in bounded
+    memory: `meta.json` of at most `META_MAX_BYTES`, the split's file of at most `SPLIT_MAX_BYTES`, a zip
+    whose arrays' declared sizes (read before any is inflated) add up to at most `SPLIT_MAX_BYTES`."""
     folder = Path(folder)
     meta_path = folder / META_FILE
     fix = "run `cec humans import` (it writes them)"
-    if not meta_path.is_file():
+    if not meta_path.exists():
         raise HumanDataError(f"{meta_path} does not exist; {fix}")
     try:
-        meta = json.loads(meta_path.read_text())
-    except json.JSONDecodeError as err:
-        raise HumanDataError(f"{meta_path} is not valid JSON ({err}); {fix} again") from err
+        meta = read_user_json(meta_path, "human data file", META_MAX_BYTES, _setting("META_MAX_BYTES"))
+    except ConfigError as err:
+        raise HumanDataError(f"{err}; {fix} again") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise HumanDataError(f"{meta_path} is not of format {FORMAT}; {fix} again with this version")
-    if split not in meta.get("splits", {}):
-        raise HumanDataError(f"{folder} has no split {split!r} (it has {sorted(meta.get('splits', {}))})")
+    splits = meta.get("splits")
+    if not isinstance(splits, dict) or not all(isinstance(v, dict) for v in splits.values()):
+        raise HumanDataError(
+            f"{meta_path}: `splits` is not a mapping of split -> {{sha256, counts}}; {fix} again"
+        )
+    if split not in splits:
+        raise HumanDataError(f"{folder} has no split {split!r} (it has {sorted(map(str, splits))})")
+    pinned = splits[split].get("sha256")
+    if not isinstance(pinned, str) or len(pinned) != 64:
+        raise HumanDataError(
+            f"{meta_path}: splits.{split}.sha256 is not a SHA-256 (64 hex digits); {fix} again"
+        )
     path = folder / f"{split}.npz"
-    if not path.is_file() or _sha256(path) != meta["splits"][split]["sha256"]:
+    try:
+        with open_user_file(path, "human data file", error=HumanDataError) as f:
+            digest, size = _sha256_bounded(f, path)
+    except HumanDataError as err:
+        raise HumanDataError(f"{err}; {fix} again") from None
+    if digest != pinned:
         raise HumanDataError(
             f"{path} is missing or not the file {meta_path} describes (SHA-256); {fix} again"
         )
-    with np.load(path, allow_pickle=False) as data:
-        try:
+    _check_members(path, size, fix)
+    try:
+        with np.load(path, allow_pickle=False) as data:
             steps = Steps(**{name: data[name] for name in _SPEC})
-        except KeyError as err:
-            raise HumanDataError(f"{path} lacks array {err}; {fix} again") from err
+    except (ValueError, OSError, zipfile.BadZipFile, EOFError) as err:
+        raise HumanDataError(f"{path} cannot be read as arrays ({str(err)[:200]}); {fix} again") from None
     _check(steps, str(path))
     return steps
+
+
+#: The largest `meta.json` read (it is a few kB).
+META_MAX_BYTES = 1 << 20
+#: The largest split file read, and the most its arrays may take once inflated (the published train split
+#: is ~17 MB of arrays); checked on the zip's declared sizes and the arrays' headers before anything is
+#: inflated, so a small file that would inflate to gigabytes is refused without reading it.
+SPLIT_MAX_BYTES = 256 << 20
+
+
+def _setting(name: str) -> str:
+    return f"{__name__}.{name}"
+
+
+def _sha256_bounded(f: BinaryIO, path: Path) -> tuple[str, int]:
+    """The SHA-256 and size of an open file, read in chunks; `HumanDataError` past `SPLIT_MAX_BYTES`."""
+    digest, size = hashlib.sha256(), 0
+    while chunk := f.read(1 << 20):
+        size += len(chunk)
+        if size > SPLIT_MAX_BYTES:
+            raise HumanDataError(
+                f"human data file {str(path)!r} is larger than {SPLIT_MAX_BYTES:,} bytes, the most read "
+                f"({_setting('SPLIT_MAX_BYTES')})"
+            )
+        digest.update(chunk)
+    return digest.hexdigest(), size
+
+
+def _check_members(path: Path, size: int, fix: str) -> None:
+    """`HumanDataError` unless `path` is a zip of exactly the `_SPEC` arrays (`NAME.npy`, stored or
+    deflated), each declaring in its header the dtype and trailing shape `_SPEC` gives, one row count, and
+    together at most `SPLIT_MAX_BYTES` inflated: all read from the zip's directory and the arrays' headers,
+    before any array is inflated."""
+    if not zipfile.is_zipfile(path):
+        raise HumanDataError(f"{path} is not a .npz archive (a zip of .npy arrays); {fix} again")
+    declared, rows = 0, set()
+    try:
+        with zipfile.ZipFile(path) as archive:
+            infos = {i.filename: i for i in archive.infolist()}
+            want = {f"{name}.npy" for name in _SPEC}
+            if set(infos) != want:
+                extra, lacking = sorted(set(infos) - want)[:5], sorted(want - set(infos))[:5]
+                raise HumanDataError(
+                    f"{path} holds other arrays than a split has (unexpected {extra}, lacking {lacking}); "
+                    f"{fix} again"
+                )
+            for name, (dtype, shape, _lo, _hi) in _SPEC.items():
+                info = infos[f"{name}.npy"]
+                declared += info.file_size
+                if declared > SPLIT_MAX_BYTES:
+                    raise HumanDataError(
+                        f"{path}: its arrays would take more than {SPLIT_MAX_BYTES:,} bytes inflated, the "
+                        f"most read ({_setting('SPLIT_MAX_BYTES')}; the file is {size:,} bytes); {fix} again"
+                    )
+                with archive.open(info) as member:
+                    version = np.lib.format.read_magic(member)
+                    header = (
+                        np.lib.format.read_array_header_1_0(member)
+                        if version == (1, 0)
+                        else np.lib.format.read_array_header_2_0(member)
+                    )
+                got_shape, _fortran, got_dtype = header
+                if got_dtype != np.dtype(dtype) or tuple(got_shape[1:]) != shape or len(got_shape) < 1:
+                    raise HumanDataError(
+                        f"{path}: array {name} is {got_dtype}{list(got_shape)}, expected "
+                        f"{np.dtype(dtype)}[N, {', '.join(map(str, shape))}]; {fix} again"
+                    )
+                if int(np.prod(got_shape)) * got_dtype.itemsize > info.file_size:
+                    raise HumanDataError(
+                        f"{path}: array {name} declares {list(got_shape)} but its member is only "
+                        f"{info.file_size:,} bytes; {fix} again"
+                    )
+                rows.add(int(got_shape[0]))
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError) as err:
+        raise HumanDataError(
+            f"{path} is not a readable .npz archive ({str(err)[:200]}); {fix} again"
+        ) from None
+    if len(rows) != 1:
+        raise HumanDataError(f"{path}: its arrays have different row counts {sorted(rows)}; {fix} again")
 
 
 def _check(steps: Steps, where: str) -> None:
@@ -279,9 +379,13 @@ def _check(steps: Steps, where: str) -> None:
             raise HumanDataError(
                 f"{where}: array {name} is {a.dtype}{list(a.shape)}, expected {np.dtype(dtype)}{[n, *shape]}"
             )
+        if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
+            bad = int(a.size - np.isfinite(a).sum())
+            raise HumanDataError(f"{where}: array {name} has {bad} NaN or infinite value(s)")
         if n and (a.min() < lo or a.max() > hi):
             raise HumanDataError(f"{where}: array {name} has values outside [{lo}, {hi}]")
 
 
 def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+    with open_user_file(path, "human data file", error=HumanDataError) as f:
+        return _sha256_bounded(f, path)[0]

@@ -32,7 +32,7 @@ from cec.levels.level import Level
 from cec.levels.v1 import level_service_pb2 as pb
 from cec.levels.v1 import level_service_pb2_grpc as pb_grpc
 from cec.levels.wire import config_to_proto, decode, encode
-from services.level_server.config import TOKEN_ENV, read_pem
+from services.level_server.config import TOKEN_ENV, is_loopback_address, read_pem
 from services.level_server.source import Validation, concat, take_rows
 
 log = logging.getLogger("cec.level_client")
@@ -77,6 +77,13 @@ class LevelClient:
         token = token if token is not None else os.environ.get(TOKEN_ENV, "")
         self.metadata = (("authorization", f"Bearer {token}"),) if token else ()
         self.channel = _channel(address, root_cert)
+        if token and root_cert is None and not is_loopback_address(address):
+            log.warning(
+                "sending the level server's token to %s in plaintext (no root certificate, so no TLS): "
+                "anyone on the network path can read and reuse it; give the server's CA certificate "
+                "(root_cert=, `--root-cert`) and serve with tls_cert/tls_key",
+                address,
+            )
         self.stub = pb_grpc.LevelServiceStub(self.channel)
 
     def close(self) -> None:

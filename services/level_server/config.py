@@ -8,9 +8,8 @@ import ssl
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cec.config import ConfigError
+from cec.config import ConfigError, read_user_bytes
 from cec.levels.generator import GeneratorConfig
-from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS
 
 TOKEN_ENV = "CEC_LEVEL_SERVER_TOKEN"
 #: the most bytes a request without levels can need (a generator config is under 200): larger `GetLevels`,
@@ -109,8 +108,8 @@ class LevelServerConfig:
     """
 
     host: str = "127.0.0.1"
-    port: int = LEVEL_SERVER_GRPC_PORT
-    metrics_port: int = METRICS_PORTS["level_server"]
+    port: int = 50051
+    metrics_port: int = 9101
     metrics_host: str = "127.0.0.1"
     auth_token: str = ""
     tls_cert: str = ""
@@ -184,21 +183,46 @@ class LevelServerConfig:
 
     @property
     def is_loopback(self) -> bool:
-        if self.host == "localhost":
-            return True
-        try:
-            return ipaddress.ip_address(self.host).is_loopback
-        except ValueError:
-            return False
+        return is_loopback_host(self.host)
+
+
+def is_loopback_host(host: str) -> bool:
+    """Whether `host` (a name or an IP address, IPv6 in brackets or not) is this machine's loopback: only
+    `localhost` and loopback addresses count, never a name that would need resolving."""
+    host = host.strip().strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def is_loopback_address(address: str) -> bool:
+    """Whether a gRPC target (`host:port`, `[v6]:port`, `dns:///host:port`, `ipv4:...`, `unix:path`) reaches
+    only this machine (a Unix socket does)."""
+    target = address.strip()
+    if target.startswith(("unix:", "unix-abstract:")):
+        return True
+    for scheme in ("dns:///", "dns:", "ipv4:", "ipv6:"):
+        if target.startswith(scheme):
+            target = target[len(scheme) :]
+            break
+    if target.startswith("[") and "]" in target:
+        return is_loopback_host(target[1 : target.index("]")])
+    host = target.rpartition(":")[0] if target.count(":") == 1 else target
+    return is_loopback_host(host)
+
+
+#: The largest PEM file read (a certificate chain or key is a few kB, a CA bundle a few hundred).
+PEM_MAX_BYTES = 1 << 20
 
 
 def read_pem(path: str, what: str) -> bytes:
     """The bytes of a PEM file (a certificate or key), or a `ConfigError` naming `what` and the cause:
-    missing, unreadable, or not PEM at all (gRPC would fail later, with a less helpful message)."""
-    try:
-        data = Path(path).read_bytes()
-    except OSError as err:
-        raise ConfigError(f"{what} file {path!r} cannot be read: {err.strerror}") from None
+    missing, not a regular file (a FIFO would hang the start, a device never end), larger than
+    `PEM_MAX_BYTES`, or not PEM at all (gRPC would fail later, with a less helpful message)."""
+    data = read_user_bytes(Path(path), f"{what} file", PEM_MAX_BYTES, f"{__name__}.PEM_MAX_BYTES")
     if b"-----BEGIN " not in data:
         raise ConfigError(
             f"{what} file {path!r} is not PEM (no '-----BEGIN' line); give the PEM file, e.g. as written by "

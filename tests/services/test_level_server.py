@@ -382,13 +382,13 @@ def test_bad_tls_files_and_a_port_in_use_are_clear_errors_before_any_work(tls_fi
     subprocess.run(["openssl", "genrsa", "-out", str(other_key), "2048"], check=True, capture_output=True)
     for bad_cert, bad_key, message in (
         (garbage, key, "is not PEM"),
-        (tmp_path / "missing.pem", key, "cannot be read: No such file"),
+        (tmp_path / "missing.pem", key, "missing.pem. does not exist"),
         (armoured, armoured, "are not a certificate and its unencrypted private key"),
         (cert, other_key, "KEY_VALUES_MISMATCH"),
     ):
         with pytest.raises(ConfigError, match=message):
             LevelServerConfig(tls_cert=str(bad_cert), tls_key=str(bad_key))
-    with pytest.raises(ConfigError, match="root certificate file .* cannot be read"):
+    with pytest.raises(ConfigError, match="root certificate file .* does not exist"):
         LevelClient("127.0.0.1:1", root_cert=str(tmp_path / "missing.pem"))
 
     with socket.socket() as taken:

@@ -135,7 +135,7 @@ def test_staleness_revisits_levels_not_sampled_for_long():
     ("overrides", "words"),
     [
         (["host=0.0.0.0"], "auth_token"),
-        (["tls_cert=/nonexistent.pem", "tls_key=/nonexistent.key"], "cannot be read: No such file"),
+        (["tls_cert=/nonexistent.pem", "tls_key=/nonexistent.key"], "nonexistent.pem. does not exist"),
         (["tls_cert=x.pem"], "both"),
         (["port=70000"], "port"),
         (["max_batch_size=0"], "max_batch_size"),
