@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING
 
 from cec.checkpoints import CheckpointError
 from cec.config import ConfigError
-from cec.levels import Level, LevelError
-from services.entry import configure_logging
+from cec.levels import Level
+from services.entry import configure_logging, override_arguments, run_reporting
 
 if TYPE_CHECKING:
     from cec.envs.overcooked import EnvParams
@@ -55,14 +55,12 @@ def _env_params(args: argparse.Namespace) -> EnvParams:
     from cec.config import load_config
     from cec.envs.overcooked import EnvParams
 
-    return load_config(EnvParams, args.env, args.set)
+    return load_config(EnvParams, args.env, args.overrides)
 
 
 def _add_env_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--env", metavar="YAML", help="EnvParams preset, e.g. configs/env/cec_paper.yaml")
-    p.add_argument(
-        "--set", action="append", default=[], metavar="KEY=VALUE", help="override an EnvParams field"
-    )
+    override_arguments(p, "max_steps=100", "EnvParams")
     p.add_argument("--steps", type=int, default=None, help="episode length (default: the preset's max_steps)")
 
 
@@ -151,7 +149,7 @@ def _cmd_levels_sample(args: argparse.Namespace) -> int:
     from cec.levels import to_ascii, unstack_levels
     from cec.levels.generator import GeneratorConfig, generate_batch
 
-    config = load_config(GeneratorConfig, args.config, args.set)
+    config = load_config(GeneratorConfig, args.config, args.overrides)
     if args.n < 1:
         raise ValueError(f"--n must be at least 1, got {args.n}")
     t0 = time.perf_counter()
@@ -345,9 +343,7 @@ def build_parser() -> argparse.ArgumentParser:
     sample.add_argument("--columns", type=int, default=4)
     sample.add_argument("--tile-size", type=int, default=24)
     sample.add_argument("--config", metavar="YAML", help="GeneratorConfig file")
-    sample.add_argument(
-        "--set", action="append", default=[], metavar="KEY=VALUE", help="override a GeneratorConfig field"
-    )
+    override_arguments(sample, "pots=[1,2]", "GeneratorConfig")
     sample.set_defaults(func=_cmd_levels_sample)
     validate = levels_sub.add_parser(
         "validate", help="check an ASCII kitchen: exit 0 solvable, 1 not, 2 malformed"
@@ -372,7 +368,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument(
         "--config", metavar="YAML", help="training preset, e.g. configs/train/cec_overcooked.yaml"
     )
-    tr.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. num_envs=64")
+    override_arguments(tr, "num_envs=64")
     tr.add_argument(
         "--resume", metavar="RUN_DIR", help="continue an interrupted run from its latest checkpoint"
     )
@@ -469,11 +465,7 @@ def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argpa
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(build_parser(), argv)
     configure_logging(args.verbose)
-    try:
-        return int(args.func(args))
-    except (LevelError, ConfigError, ValueError, CheckpointError) as err:
-        print(f"cec {args.command}: error: {err}", file=sys.stderr)
-        return 2
+    return run_reporting(args.command, lambda: int(args.func(args)), failures=())
 
 
 if __name__ == "__main__":

@@ -34,16 +34,47 @@ def configure_logging(verbose: bool = False) -> None:
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format=LOG_FORMAT)
 
 
+def override_arguments(parser: argparse.ArgumentParser, example: str, what: str = "config") -> None:
+    """Trailing `KEY=VALUE` overrides (`args.overrides`): the one override syntax of every command (also
+    after flags: `apps.cli.parse_args` takes them there too)."""
+    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help=f"{what} overrides, e.g. {example}")
+
+
 def config_arguments(parser: argparse.ArgumentParser, preset: str, example: str) -> None:
-    """`--config YAML` and trailing `key=value` overrides (read by `load_service_config`)."""
+    """`--config YAML` and trailing `KEY=VALUE` overrides (read by `load_service_config`)."""
     parser.add_argument("--config", help=f"YAML preset (e.g. {preset}); defaults if omitted")
-    parser.add_argument("set", nargs="*", metavar="key=value", help=f"config overrides, e.g. {example}")
+    override_arguments(parser, example)
 
 
 def load_service_config(cls: type, args: argparse.Namespace) -> Any:
     """The config of `config_arguments`' flags: the preset (or the defaults) with the overrides applied;
     `ConfigError` naming the field and the fix."""
-    return load_config(cls, args.config, args.set)
+    return load_config(cls, args.config, args.overrides)
+
+
+#: What bad input raises anywhere (a `LevelError` is a `ValueError`): exit status 2.
+INPUT_ERRORS: tuple[type[BaseException], ...] = (ValueError, CheckpointError)
+
+
+def report_error(command: str, err: BaseException) -> None:
+    """The one line an error of `cec <command>` prints: `config error:` for a config, `error:` otherwise."""
+    kind = "config error" if isinstance(err, ConfigError) else "error"
+    print(f"cec {command}: {kind}: {err}", file=sys.stderr)
+
+
+def run_reporting(
+    command: str, fn: Callable[[], int], failures: tuple[type[BaseException], ...] = (OSError,)
+) -> int:
+    """`fn()`'s exit status, or its error as one line (`report_error`) and 2 for bad input, 1 for one of
+    `failures` (the work could not be done here: a port taken, Redis unreachable)."""
+    try:
+        return fn()
+    except INPUT_ERRORS as err:
+        report_error(command, err)
+        return 2
+    except failures as err:
+        report_error(command, err)
+        return 1
 
 
 @dataclass(frozen=True)
@@ -74,15 +105,7 @@ class Service:
 
     def call(self, args: argparse.Namespace) -> int:
         """`run(args)` with its errors as one line on stderr and an exit status (module docstring)."""
-        try:
-            return int(self.run(args))
-        except (ValueError, CheckpointError) as err:
-            kind = "config error" if isinstance(err, ConfigError) else "error"
-            print(f"cec {self.command}: {kind}: {err}", file=sys.stderr)
-            return 2
-        except self.failures as err:
-            print(f"cec {self.command}: error: {err}", file=sys.stderr)
-            return 1
+        return run_reporting(self.command, lambda: int(self.run(args)), self.failures)
 
     def main(self, argv: list[str] | None = None) -> int:
         """`python -m <module> ...`: the same as `cec <command> ...`."""

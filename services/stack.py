@@ -30,6 +30,7 @@ from typing import Any, TextIO
 
 from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
+from services.entry import override_arguments
 from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
 from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS
@@ -428,12 +429,7 @@ def add_subcommands(sub: Any) -> None:
     )
     up.add_argument("--resume", action="store_true", help="continue the run from its latest checkpoint")
     up.add_argument("--max-updates", type=int, help="stop (with a checkpoint) after this many more updates")
-    up.add_argument(
-        "overrides",
-        nargs="*",
-        metavar="KEY=VALUE",
-        help="stack overrides; train.KEY=VALUE overrides the preset",
-    )
+    override_arguments(up, "evaluator=false train.seed=3 (train.KEY=VALUE: the training preset's)", "stack")
     up.set_defaults(func=cmd_up)
 
 

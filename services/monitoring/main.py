@@ -40,14 +40,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--run-dir", default="runs/monitoring", help="where data and logs go")
     parser.add_argument(
-        "set", nargs="*", metavar="key=value", help="MonitoringConfig overrides, e.g. grafana=false"
+        "overrides", nargs="*", metavar="KEY=VALUE", help="MonitoringConfig overrides, e.g. grafana=false"
     )
 
 
 def run(args: argparse.Namespace) -> int:
     if args.target and args.prometheus_config:
         raise ConfigError("give --target or --prometheus-config, not both")
-    config = load_config(MonitoringConfig, None, args.set)
+    config = load_config(MonitoringConfig, None, args.overrides)
     targets: dict[str, list[str]] | None = None
     if args.target:
         targets = {}

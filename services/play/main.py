@@ -20,7 +20,7 @@ from typing import Any
 
 from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
-from services.entry import Service
+from services.entry import Service, override_arguments
 from services.play.config import AGENT_ACTIONS, MODES, StudyConfig, load_study
 from services.store import StoreError  # needs redis: without it `cec X` names the package
 
@@ -35,7 +35,7 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
     serve.add_argument(
         "study", nargs="?", help="study YAML (e.g. configs/study/default.yaml); omit for free play"
     )
-    serve.add_argument("set", nargs="*", metavar="KEY=VALUE", help="study overrides, e.g. mode=real_time")
+    override_arguments(serve, "mode=real_time", "study")
     src = serve.add_argument_group("free play (no study file): one partner, one kitchen, no survey")
     src.add_argument(
         "--partner",
@@ -73,7 +73,7 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
         "export", help="a study's records -> results.csv (cec report) and survey.csv"
     )
     export.add_argument("study", help="the study YAML the records belong to")
-    export.add_argument("set", nargs="*", metavar="KEY=VALUE", help="study overrides (e.g. storage.dir=...)")
+    override_arguments(export, "storage.dir=...", "study")
     export.add_argument("--data", help="records folder (overrides storage.dir)")
     export.add_argument("--redis-url", help="read the records from this Redis instead of files")
     export.add_argument(
@@ -213,9 +213,9 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             "give a study file or a free-play partner (--partner/--checkpoint/--zoo/--random-init), not both"
         )
     if args.study:
-        config, base_dir = load_study(args.study, [*args.set, *_storage_overrides(args)])
+        config, base_dir = load_study(args.study, [*args.overrides, *_storage_overrides(args)])
     elif free:
-        if args.set:
+        if args.overrides:
             raise ConfigError("KEY=VALUE overrides apply to a study file; free play takes flags only")
         config, base_dir = free_play_config(args), Path.cwd()
     else:
@@ -231,7 +231,7 @@ def _cmd_export(args: argparse.Namespace) -> int:
     from services.play.export import export_tables, write_survey_csv
     from services.play.recording import RecordError, open_stores
 
-    config, _ = load_study(args.study, [*args.set, *_storage_overrides(args)])
+    config, _ = load_study(args.study, [*args.overrides, *_storage_overrides(args)])
     directory = "" if args.redis_url is not None else config.storage.dir
     stores = open_stores(
         config.name, directory, config.storage.redis_url, config.storage.key_prefix, create=False

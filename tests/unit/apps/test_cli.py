@@ -58,7 +58,7 @@ def test_levels_sample_writes_a_contact_sheet_and_ascii(
 
 
 def test_levels_sample_rejects_an_impossible_config(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["levels", "sample", "--n", "2", "--set", "pots=[0, 1]"]) == 2
+    assert main(["levels", "sample", "--n", "2", "pots=[0, 1]"]) == 2
     assert "1 <= min <= max" in capsys.readouterr().err
 
 
@@ -124,3 +124,14 @@ def test_the_core_commands_run_without_the_services_packages() -> None:
         assert out.returncode == 2, (command, out.stderr[-2000:])
         assert "needs the package" in out.stderr and "pip install" in out.stderr, out.stderr[-2000:]
         assert "Traceback" not in out.stderr
+
+
+def test_every_command_reports_a_config_error_the_same_way(capsys: pytest.CaptureFixture[str]) -> None:
+    """One override syntax (trailing KEY=VALUE) and one error line for a bad one, in the library's commands
+    and in the services' alike: `cec <command>: config error: ...`, exit status 2."""
+    assert main(["train", "--config", "configs/train/quick_cpu.yaml", "num_envz=8"]) == 2
+    assert capsys.readouterr().err.startswith("cec train: config error: unknown key 'num_envz'")
+    assert main(["level-server", "prot=1"]) == 2
+    assert capsys.readouterr().err.startswith("cec level-server: config error: unknown key 'prot'")
+    assert main(["render", "cramped_room", "max_stepz=3", "--png", "/tmp/unused.png"]) == 2
+    assert capsys.readouterr().err.startswith("cec render: config error: unknown key 'max_stepz'")
