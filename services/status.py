@@ -12,28 +12,43 @@ Everything comes from what the run already writes, so it also works for a finish
   policy version.
 
 Nothing here writes anywhere; a part that cannot be read is shown as such, never an error of the command.
+Everything read is bounded: run files are regular files of at most `RUN_FILE_MAX_BYTES` (the end of
+`metrics.jsonl`: `METRICS_TAIL_BYTES`), values of the wrong type are left out, metrics are fetched only from
+http(s) URLs, at most `SCRAPE_MAX_BYTES` within `HTTP_DEADLINE_S` each, errors are clipped to `ERROR_CHARS`,
+and `--json` prints strict JSON (a NaN is null).
 """
 
 from __future__ import annotations
 
 import argparse
+import http.client
 import json
 import math
 import os
 import sys
 import time
+import urllib.parse
 import urllib.request
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from cec.config import ConfigError
+from cec.config import ConfigError, open_user_file, read_user_json, read_user_yaml
 from services.processes import ChildRecord
 
 STACK_FILE = "logs/stack.json"
 CHILDREN_FILE = "logs/children.json"
+#: The longest one network read may block, and the most one endpoint may take in all (a server sending a
+#: byte a second never holds the command longer).
 HTTP_TIMEOUT_S = 2.0
+HTTP_DEADLINE_S = 5.0
+#: The largest metrics page read from an endpoint (a page is tens of kB).
+SCRAPE_MAX_BYTES = 4 << 20
+#: The largest run file read whole (`config.yaml`, `logs/stack.json`, `logs/children.json`: a few kB each).
+RUN_FILE_MAX_BYTES = 1 << 20
+#: How much of the end of `metrics.jsonl` is read for its last row (a row is about 1 kB).
+METRICS_TAIL_BYTES = 65536
+#: The longest error text shown for a part (a server's reply is never echoed whole).
+ERROR_CHARS = 300
 
 
 def write_stack_file(run_dir: Path, urls: dict[str, str], redis_needs_password: bool) -> Path:
@@ -95,39 +110,70 @@ def collect(run_dir: Path, redis_url: str = "", now: float | None = None) -> dic
 
 
 def _config(run_dir: Path) -> dict[str, Any]:
+    path = run_dir / "config.yaml"
     try:
-        data = yaml.safe_load((run_dir / "config.yaml").read_text()) or {}
-        env = data.get("env", {})
-        return {
-            "algorithm": data.get("algorithm"),
-            "env": env.get("name"),
-            "levels": env.get("levels"),
-            "total_env_steps": data.get("total_env_steps"),
-            "num_seeds": data.get("num_seeds"),
-        }
-    except (OSError, yaml.YAMLError, AttributeError) as err:
-        return {"error": f"no readable config.yaml ({type(err).__name__})"}
+        data = read_user_yaml(path, "run config", RUN_FILE_MAX_BYTES, _setting("RUN_FILE_MAX_BYTES")) or {}
+    except ConfigError as err:
+        return {"error": f"no readable config.yaml: {_clip(str(err))}"}
+    if not isinstance(data, dict):
+        return {"error": f"{path} is not a mapping of fields (a {type(data).__name__})"}
+    env: dict[str, Any] = data["env"] if isinstance(data.get("env"), dict) else {}
+    return {
+        "algorithm": _scalar(data.get("algorithm")),
+        "env": _scalar(env.get("name")),
+        "levels": _scalar(env.get("levels")),
+        "total_env_steps": _count(data.get("total_env_steps")),
+        "num_seeds": _count(data.get("num_seeds")),
+    }
 
 
 def _last_row(path: Path) -> dict[str, Any]:
-    """The last complete line of a JSON-lines file (read from its end, however long the file)."""
+    """The last complete line of a JSON-lines file that is a JSON object (read from its end, however long
+    the file), with its JSON scalars only (a list or object where a number belongs is left out)."""
     try:
-        with path.open("rb") as f:
-            f.seek(0, 2)
-            size = f.tell()
-            f.seek(max(0, size - 65536))
-            lines = f.read().splitlines()
-    except OSError:
+        with open_user_file(path, "metrics file") as f:
+            size = os.fstat(f.fileno()).st_size
+            f.seek(max(0, size - METRICS_TAIL_BYTES))
+            lines = f.read(METRICS_TAIL_BYTES).splitlines()
+            written_at = os.fstat(f.fileno()).st_mtime
+    except (ConfigError, OSError):
         return {}
     for line in reversed(lines):
         try:
             row = json.loads(line)
-        except (json.JSONDecodeError, UnicodeDecodeError):
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError):
             continue  # a line being written
         if isinstance(row, dict):
-            row["written_at"] = path.stat().st_mtime
-            return row
+            clean = {str(k): _scalar(v) for k, v in row.items() if _scalar(v) is not None}
+            clean["written_at"] = written_at
+            return clean
     return {}
+
+
+def _scalar(value: Any) -> Any:
+    """`value` if it is a string, bool or finite number; None otherwise (NaN, lists, objects)."""
+    if isinstance(value, str | bool):
+        return value
+    if isinstance(value, int | float) and math.isfinite(value):
+        return value
+    return None
+
+
+def _count(value: Any) -> int | None:
+    return value if isinstance(value, int) and not isinstance(value, bool) else None
+
+
+def _number(value: Any, default: float = 0.0) -> float:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else default
+
+
+def _setting(name: str) -> str:
+    return f"{__name__}.{name}"
+
+
+def _clip(text: str) -> str:
+    text = " ".join(text.split())
+    return text if len(text) <= ERROR_CHARS else text[: ERROR_CHARS - 3] + "..."
 
 
 def _checkpoint(run_dir: Path, now: float) -> dict[str, Any]:
@@ -141,21 +187,37 @@ def _checkpoint(run_dir: Path, now: float) -> dict[str, Any]:
 
 
 def _stack(run_dir: Path, now: float) -> dict[str, Any]:
-    try:
-        info = json.loads((run_dir / STACK_FILE).read_text())
-    except (OSError, ValueError):
+    path = run_dir / STACK_FILE
+    if not path.exists():
         return {"state": "none"}  # not a `cec up` run, or one that stopped cleanly
-    record = ChildRecord(run_dir / CHILDREN_FILE).recorded()
-    owner = int(info.get("owner", 0))
-    services = {c.get("name", "?"): bool(c["alive"]) for c in record[1]} if record else {}
+    try:
+        info = read_user_json(path, "stack file", RUN_FILE_MAX_BYTES, _setting("RUN_FILE_MAX_BYTES"))
+    except ConfigError as err:
+        return {"state": "none", "error": _clip(str(err))}
+    if not isinstance(info, dict):
+        return {"state": "none", "error": f"{path} is not a JSON object (a {type(info).__name__})"}
+    children = run_dir / CHILDREN_FILE
+    record = ChildRecord(children).recorded() if _small_regular(children) else None
+    owner = _count(info.get("owner")) or 0
+    services = {str(c.get("name", "?")): bool(c["alive"]) for c in record[1]} if record else {}
+    urls: dict[str, Any] = info["urls"] if isinstance(info.get("urls"), dict) else {}
     return {
-        "state": "running" if owner and ChildRecord.running(owner) else "dead",
+        "state": "running" if owner > 0 and ChildRecord.running(owner) else "dead",
         "pid": owner,
-        "up_s": now - float(info.get("started_at", now)),
+        "up_s": now - _number(info.get("started_at"), now),
         "services": services,
-        "urls": info.get("urls", {}),
+        "urls": {str(k): v for k, v in urls.items() if isinstance(v, str)},
         "redis_password": bool(info.get("redis_password")),
     }
+
+
+def _small_regular(path: Path) -> bool:
+    """Whether `path` is a regular file of at most `RUN_FILE_MAX_BYTES` (what `ChildRecord` may read)."""
+    try:
+        with open_user_file(path, "run file") as f:
+            return os.fstat(f.fileno()).st_size <= RUN_FILE_MAX_BYTES
+    except (ConfigError, OSError):
+        return False
 
 
 def _control_plane(run_id: str, url: str, masked: bool, now: float) -> dict[str, Any]:
@@ -169,7 +231,7 @@ def _control_plane(run_id: str, url: str, masked: bool, now: float) -> dict[str,
     try:
         plane = ControlPlane.connect(config)
     except (StoreError, ConfigError) as err:
-        return {"error": f"Redis at {config.display_url} did not answer: {err}"}
+        return {"error": f"Redis at {config.display_url} did not answer: {_clip(str(err))}"}
     try:
         out: dict[str, Any] = {"redis": config.display_url}
         run = plane.get_run(run_id)
@@ -187,7 +249,7 @@ def _control_plane(run_id: str, url: str, masked: bool, now: float) -> dict[str,
             ]
         return out
     except StoreError as err:
-        return {"error": f"Redis at {config.display_url}: {err}"}
+        return {"error": f"Redis at {config.display_url}: {_clip(str(err))}"}
     finally:
         plane.close()
 
@@ -197,23 +259,65 @@ def _score(metrics: dict[str, Any]) -> dict[str, Any]:
 
 
 def _scrape(url: str, names: dict[str, str]) -> dict[str, Any]:
-    """Sums of the named Prometheus series at `url` (`{}` without a URL; `error` when it does not answer)."""
+    """Sums of the named Prometheus series at `url` (`{}` without a URL; `error` when it does not answer,
+    is not an http(s) URL, or sends more than `SCRAPE_MAX_BYTES` or for longer than `HTTP_DEADLINE_S`)."""
     if not url:
         return {}
     from prometheus_client.parser import text_string_to_metric_families
 
+    shown = _clip(url)
     try:
-        with urllib.request.urlopen(url, timeout=HTTP_TIMEOUT_S) as response:
-            text = response.read(8 * 1024 * 1024).decode()
-    except (OSError, ValueError) as err:
-        return {"error": f"{url} did not answer ({type(err).__name__})"}
+        text = _fetch(url).decode()
+    except _FetchError as err:
+        return {"error": f"{shown}: {err}"}
+    except UnicodeDecodeError:
+        return {"error": f"{shown} did not send UTF-8 text"}
     wanted = {v.removesuffix("_total"): k for k, v in names.items()}
     out: dict[str, Any] = {"up": True}
-    for family in text_string_to_metric_families(text):
-        key = wanted.get(family.name)
-        if key is not None:
-            out[key] = sum(s.value for s in family.samples if not s.name.endswith("_created"))
+    try:
+        for family in text_string_to_metric_families(text):
+            key = wanted.get(family.name)
+            if key is not None:
+                out[key] = sum(s.value for s in family.samples if not s.name.endswith("_created"))
+    except (ValueError, TypeError, IndexError) as err:
+        return {"error": f"{shown} did not send Prometheus metrics ({_clip(str(err))})"}
     return out
+
+
+class _FetchError(Exception):
+    """A metrics endpoint that could not be read; the message says why (clipped)."""
+
+
+class _NoRedirect(urllib.request.HTTPRedirectHandler):
+    """Redirects are not followed (one could lead to another scheme or host than `stack.json` names)."""
+
+    def redirect_request(self, *args: Any, **kwargs: Any) -> None:
+        return None
+
+
+def _fetch(url: str) -> bytes:
+    """The body of an http(s) `url`, read in at most `HTTP_DEADLINE_S` and `SCRAPE_MAX_BYTES`."""
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise _FetchError("not an http(s) URL; cec status reads metrics only over http(s)")
+    deadline = time.monotonic() + HTTP_DEADLINE_S
+    opener = urllib.request.build_opener(_NoRedirect)
+    body = bytearray()
+    try:
+        with opener.open(url, timeout=HTTP_TIMEOUT_S) as response:
+            while chunk := response.read1(65536):
+                body += chunk
+                if len(body) > SCRAPE_MAX_BYTES:
+                    raise _FetchError(
+                        f"sent more than {SCRAPE_MAX_BYTES:,} bytes ({_setting('SCRAPE_MAX_BYTES')})"
+                    )
+                if time.monotonic() > deadline:
+                    raise _FetchError(
+                        f"took longer than {HTTP_DEADLINE_S:g} s ({_setting('HTTP_DEADLINE_S')})"
+                    )
+    except (OSError, ValueError, http.client.HTTPException) as err:
+        raise _FetchError(f"did not answer ({type(err).__name__}: {_clip(str(err))})") from None
+    return bytes(body)
 
 
 # ---- the screen -------------------------------------------------------------------------------------------
@@ -236,6 +340,8 @@ def _run_lines(s: dict[str, Any]) -> Lines:
     cfg, stack = s["config"], s["stack"]
     what = cfg.get("error") or f"{cfg.get('algorithm')} on {cfg.get('env')}/{cfg.get('levels')}"
     state = STATES.get(stack["state"]) or f"running (pid {stack.get('pid')}, up {_age(stack.get('up_s'))})"
+    if stack.get("error"):
+        state += f" ({stack['error']})"
     return [("run", f"{s['run']}  {what}  [{s['run_dir']}]"), ("stack", state)]
 
 
@@ -246,7 +352,7 @@ def _training_lines(s: dict[str, Any]) -> Lines:
     )
     if not row:
         return [("progress", "no metrics rows yet"), ("checkpoint", ckpt_text)]
-    steps, sps = int(row.get("env_steps", 0)), float(row.get("env_steps_per_s") or 0)
+    steps, sps = int(_number(row.get("env_steps"))), _number(row.get("env_steps_per_s"))
     progress = f"update {row.get('update')}  env steps {steps:,}"
     if total:
         progress += f" / {total:,} ({100 * steps / total:.1f}%)"
@@ -313,6 +419,21 @@ def _age(seconds: Any) -> str:
     return f"{s // 3600} h {s % 3600 // 60:02d} min"
 
 
+def to_json(status: dict[str, Any]) -> str:
+    """The status as strict JSON: a NaN or infinite number is null (JSON has no such numbers)."""
+    return json.dumps(_finite(status), indent=1, default=str, allow_nan=False)
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(v) for v in value]
+    return value
+
+
 # ---- command line -----------------------------------------------------------------------------------------
 
 
@@ -320,7 +441,7 @@ def _cmd_status(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir) if args.run_dir else find_run(Path(args.runs))
     while True:
         status = collect(run_dir, args.redis)
-        text = json.dumps(status, indent=1, default=str) if args.json else render(status)
+        text = to_json(status) if args.json else render(status)
         if args.watch is None:
             print(text, flush=True)
             return 0
