@@ -46,7 +46,8 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 import yaml
 
-from cec.config import ConfigError
+from cec.agents.zoo import ZOO_MAX_BYTES
+from cec.config import CONFIG_MAX_BYTES, ConfigError, read_user_yaml
 
 if TYPE_CHECKING:
     from cec.training.config import TrainConfig
@@ -104,12 +105,7 @@ class BuildResult:
 def load_spec(path: str | Path) -> list[dict[str, Any]]:
     """The spec's entries as plain mappings (keys and value types checked); `ConfigError` otherwise."""
     p = Path(path)
-    if not p.is_file():
-        raise ConfigError(f"zoo spec {str(p)!r} does not exist")
-    try:
-        data = yaml.safe_load(p.read_text())
-    except yaml.YAMLError as err:
-        raise ConfigError(f"zoo spec {str(p)!r} is not valid YAML: {err}") from err
+    data = read_user_yaml(p, "zoo spec", CONFIG_MAX_BYTES, "cec.config.CONFIG_MAX_BYTES")
     if not isinstance(data, Mapping) or set(data) != {"entries"}:
         got = sorted(data) if isinstance(data, Mapping) else type(data).__name__
         raise ConfigError(
@@ -427,7 +423,12 @@ def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
 def merge_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> Path:
     """Adds `policies` to the manifest at `path` (replacing entries of the same names; others are kept)."""
     names = {p["name"] for p in policies}
-    old = yaml.safe_load(path.read_text())["policies"] if path.is_file() else []
+    old = []
+    if path.exists():  # the manifest a crashed build left (bounded; refused with the file named if damaged)
+        data = read_user_yaml(path, "zoo manifest", ZOO_MAX_BYTES, "cec.agents.zoo.ZOO_MAX_BYTES")
+        if not (isinstance(data, Mapping) and isinstance(data.get("policies"), list)):
+            raise ConfigError(f"zoo manifest {str(path)!r} has no `policies` list; remove it to rebuild it")
+        old = [dict(e) for e in data["policies"] if isinstance(e, Mapping) and "name" in e]
     return _write_manifest(path, header, [e for e in old if e["name"] not in names] + policies)
 
 

@@ -31,7 +31,10 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import NamedTuple
 
-from cec.config import ConfigError
+from cec.config import ConfigError, read_user_json
+
+#: The most of a run's child record (`logs/children.json`) read; a larger one is no record of ours.
+RECORD_MAX_BYTES = 1 << 20
 
 
 def free_port(host: str = "127.0.0.1") -> int:
@@ -239,7 +242,9 @@ class ChildRecord:
         line; an owner recorded without its command line: the pid alone), or None when there is no
         readable record."""
         try:
-            old = json.loads(self.path.read_text())
+            old = read_user_json(
+                self.path, "child record", RECORD_MAX_BYTES, "services.processes.RECORD_MAX_BYTES"
+            )
             owner = int(old["owner"])
             children = [
                 {**c, "alive": bool(c.get("cmd")) and _cmdline(int(c["pid"])) == c["cmd"]}

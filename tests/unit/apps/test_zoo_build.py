@@ -261,4 +261,4 @@ def test_cli_reports_a_bad_spec_with_exit_status_2(tmp_path, capsys):
     spec = _spec(tmp_path, [{"preset": str(PRESETS / "dd_ippo_quick.yaml"), "overrides": ["run_dir=x"]}])
     assert main(["zoo", "build", str(spec), "--out", str(tmp_path / "zoo")]) == 2
     err = capsys.readouterr().err
-    assert "cec zoo: error:" in err and "entries[0]" in err and "use --out" in err
+    assert "cec zoo: config error:" in err and "entries[0]" in err and "use --out" in err
