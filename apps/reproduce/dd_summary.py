@@ -96,34 +96,34 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
 
 def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
     """{algorithm: Score} of one kind (`xp`, `sp`, `oracle`) on the levels `names`."""
-    from cec.evaluation import analysis as an
-    from cec.evaluation.stats import crossplay_estimate, seed_means, sem
+    from cec.evaluation.seeds import seed_matrix
+    from cec.evaluation.stats import sem
 
-    pl = an.pair_level_scores(table, names)
-    m = an.pair_scores(pl)
-    seeds = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in (*ROWS, ORACLE)}
+    sm = seed_matrix(table, names)
+    seeds = {a: sm.indices(a) for a in (*ROWS, ORACLE)}
     out = {}
     for algo, idx in seeds.items():
         if not idx or (kind == "oracle" and algo == ORACLE):
             continue
-        matrix = None
+        summary = None
         if kind in ("xp", "xp_learned"):  # seeds: the units; their pairs shared
-            kept = [i for i in idx if m[i, i] >= LEARNED] if kind == "xp_learned" else idx
-            matrix = m[np.ix_(kept, kept)]
-            pairs = list(zip(kept, seed_means(matrix), strict=True)) if len(kept) > 1 else []
+            kept = [i for i in idx if sm.scores[i, i] >= LEARNED] if kind == "xp_learned" else idx
+            summary = sm.summary(kept)
+            pairs = list(zip(summary.seeds, summary.xp, strict=True))
         elif kind == "sp":
-            pairs = [(i, m[i, i]) for i in idx]
+            own = sm.summary(idx)
+            pairs = list(zip(own.seeds, own.sp, strict=True))
         else:
-            pairs = [(i, m[i, o]) for i in idx for o in seeds[ORACLE]]
-        pairs = [(i, v) for i, v in pairs if not math.isnan(v)]
+            pairs = [(sm.policies[i].seed, sm.scores[i, o]) for i in idx for o in seeds[ORACLE]]
+        pairs = [(seed, v) for seed, v in pairs if not math.isnan(v)]
         if pairs:
             arr = np.asarray([v for _, v in pairs], np.float64)
-            ids = tuple(int(pl.policies[i].seed) for i, _ in pairs)
+            ids = tuple(int(seed) for seed, _ in pairs)
             mean, err = float(arr.mean()), sem(arr)
             cells: tuple[tuple[float, ...], ...] = ()
-            if matrix is not None:
-                mean, err = crossplay_estimate(matrix)[:2]
-                cells = tuple(tuple(float(x) for x in row) for row in matrix)
+            if summary is not None:
+                mean, err = summary.crossplay()[:2]
+                cells = summary.matrix
             out[algo] = Score(mean, err, len(idx), arr.size, tuple(arr.tolist()), ids, cells)
     return out
 

@@ -36,13 +36,11 @@ import math
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-import yaml
-
-from apps.machine import duration, log_line, machine_info
+from apps.machine import duration, machine_info
+from apps.reproduce import pipeline
 from apps.reproduce.common import play_seconds
 from apps.reproduce.dd_modes import FULL as FULL
 from apps.reproduce.dd_modes import MODES as MODES
@@ -119,50 +117,25 @@ def _run_config(mode: Mode, variant: str, row: str, extra: Sequence[str] = ()) -
     return str(ROOT / mode.presets[algorithm_of(row)]), overrides
 
 
-@dataclass(frozen=True)
-class PlanLine:
-    """One row's training in one variant: its size, estimated time and how much of it is checkpointed."""
-
-    variant: str
-    algorithm: str
-    seeds: int
-    env_steps: int
-    updates: int
-    estimate_s: float
-    done: float  # share of its seed-updates checkpointed under the work directory
-
-    @property
-    def left_s(self) -> float:
-        return self.estimate_s * (1.0 - self.done)
+def zoo(mode: Mode, variant: str, work: Path) -> pipeline.Zoo:
+    """The variant's zoo: its spec in `work/<variant>/spec.yaml`, built into `work/<variant>/zoo`."""
+    return pipeline.Zoo(
+        work / variant, zoo_spec(mode, variant), f"`cec reproduce dual-destination` ({mode.name}, {variant})"
+    )
 
 
-def plan_lines(mode: Mode, work: Path, variants: Sequence[str] = VARIANTS) -> list[PlanLine]:
-    """Every training run of `variants`, with the estimate from `mode.seconds_per_update` (NaN where not
-    measured) and the share already trained under `work`. Writes each variant's zoo spec there, as
-    training does, and so refuses (`ConfigError`) a finished run trained with another config."""
-    from apps.zoo_build import done_fraction, plan_zoo
-
+def plan_lines(mode: Mode, work: Path, variants: Sequence[str] = VARIANTS) -> list[pipeline.PlanLine]:
+    """Every training run of `variants` (one line per row, `zoo` its variant), with the estimate from
+    `mode.seconds_per_update` (NaN where not measured) and the share already trained under `work`. Writes
+    each variant's zoo spec there, as training does, and so refuses (`ConfigError`) a finished run trained
+    with another config."""
     lines = []
     for variant in variants:
-        plan = plan_zoo(_write_spec(mode, variant, work), work / variant / "zoo")
+        plan = zoo(mode, variant, work).plan()
         for i, row in enumerate(mode.rows):
             runs = [r for r in plan if r.entry == i]
-            cfg, n = runs[0].config, sum(len(r.seeds) for r in runs)
-            per = mode.seconds_per_update.get(row, math.nan)
-            estimate = per * cfg.num_updates * n
-            lines.append(
-                PlanLine(variant, row, n, cfg.total_env_steps, cfg.num_updates, estimate, done_fraction(runs))
-            )
+            lines.append(pipeline.plan_line(row, runs, mode.seconds_per_update.get(row, math.nan), variant))
     return lines
-
-
-def _write_spec(mode: Mode, variant: str, work: Path) -> Path:
-    vdir = work / variant
-    vdir.mkdir(parents=True, exist_ok=True)
-    spec = vdir / "spec.yaml"
-    text = yaml.safe_dump(zoo_spec(mode, variant), sort_keys=False)
-    spec.write_text(f"# Written by `cec reproduce dual-destination` ({mode.name}, {variant}).\n" + text)
-    return spec
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -170,19 +143,12 @@ def _write_spec(mode: Mode, variant: str, work: Path) -> Path:
 # ---------------------------------------------------------------------------------------------------------
 
 
-def _log(log: TextIO, msg: str) -> None:
-    log_line(log, "reproduce", msg)
-
-
 def _build_variant(
     mode: Mode, variant: str, work: Path, *, progress: bool, log: TextIO, wait: bool
 ) -> BuildResult:
     """Writes the variant's zoo spec and builds the zoo (resuming, skipping finished runs); returns
     `build_zoo`'s result. Raises `ConfigError` when the build was interrupted (run the command again)."""
-    from apps.zoo_build import build_zoo
-
-    zoo = work / variant / "zoo"
-    result = build_zoo(_write_spec(mode, variant, work), zoo, progress=progress, log=log, wait=wait)
+    result = zoo(mode, variant, work).build(progress=progress, log=log, wait=wait)
     if result.interrupted:
         raise ConfigError(f"training of {variant} was interrupted; run the same command again to continue")
     return result
@@ -210,7 +176,9 @@ def train_only(
         if result.manifest is not None:
             manifests[v] = result.manifest
         else:
-            _log(log, f"{v}: {', '.join(result.left)} trained by other processes; back to it at the end")
+            pipeline.note(
+                log, f"{v}: {', '.join(result.left)} trained by other processes; back to it at the end"
+            )
     for v in variants:
         if v not in manifests:  # the rest is done: wait for the others' runs (and train any left over)
             manifests[v] = train_variant(mode, v, work, progress=progress, log=log)[0]
@@ -220,7 +188,7 @@ def train_only(
 def _generated_spec(mode: Mode) -> str:
     if mode.generated_levels >= 100:
         return "generated"
-    return ",".join(f"generated_{i:03d}" for i in range(mode.generated_levels))
+    return pipeline.generated_levels(mode.generated_levels)
 
 
 def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
@@ -231,15 +199,11 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
     apart (their networks may differ, and cross-algorithm pairs are not in the paper's figures); the
     oracle's self-play is kept once.
     """
-    from cec.agents.policy import load_policies, scripted_policy
-    from cec.agents.zoo import load_zoo
+    from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
 
-    policies, skipped = load_policies(load_zoo(manifest))
-    if skipped:
-        reasons = "; ".join(f"{s.name}: {s.reason}" for s in skipped)
-        raise ConfigError(f"{variant}: zoo entries could not be loaded: {reasons}")
+    policies = pipeline.load_zoo_policies(manifest, variant)
     oracle = scripted_policy("dd_oracle", ORACLE, algorithm=ORACLE)
     tables = []
     for level_set in LEVEL_SETS:
@@ -258,7 +222,7 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
                     table = table.select((table.policy_a != ORACLE) | (table.policy_b != ORACLE))
                 tables.append(table)
                 actions = "greedy" if greedy else "sampled"
-                _log(
+                pipeline.note(
                     log,
                     f"{variant}: {len(group)} {algo} seeds{'' if greedy else ' + oracle partner'}, every "
                     f"pair, {actions} actions, on the {LEVEL_SET_TITLES[level_set]}: {len(table)} episodes "
@@ -270,9 +234,7 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
 def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
     """What a variant's results depend on: the evaluation settings, every zoo entry (its checkpoint and
     the state's SHA-256 that `cec zoo build` pinned) and the oracle partner's code."""
-    from cec.agents.zoo import load_zoo
-
-    entries = [[e.name, e.seed, str(e.checkpoint), e.sha256] for e in load_zoo(manifest)]
+    entries = pipeline.zoo_entries(manifest)
     return {
         "variant": variant,
         "episodes": mode.episodes,
@@ -331,7 +293,7 @@ def reproduce_dual_destination(
     train_s = eval_s = 0.0
     for variant in variants:
         t0 = time.perf_counter()
-        _log(log, f"{variant}: training (cec zoo build into {work / variant / 'zoo'})")
+        pipeline.note(log, f"{variant}: training (cec zoo build into {work / variant / 'zoo'})")
         manifest, finished = train_variant(mode, variant, work, progress=progress, log=log)
         skipped_runs += [f"{variant}/{name}" for name in finished]
         stages[f"{variant}: train"] = time.perf_counter() - t0
@@ -365,7 +327,7 @@ def reproduce_dual_destination(
         "work": str(work),
     }
     path = write_report(out, mode, summaries, meta)
-    _log(log, f"wrote {path}")
+    pipeline.note(log, f"wrote {path}")
     return path
 
 
@@ -402,7 +364,7 @@ def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file
 
     for ln in lines:
         print(
-            f"{ln.variant:12s} {ln.algorithm:10s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
+            f"{ln.zoo:12s} {ln.run:10s} {ln.seeds:5d} {ln.env_steps:12,d} {ln.updates:8d} "
             f"{duration(ln.estimate_s):>10s} {ln.done:6.0%} {duration(ln.left_s):>10s}",
             file=file,
         )

@@ -46,7 +46,8 @@ from typing import Any, TextIO
 import numpy as np
 import yaml
 
-from apps.machine import duration, log_line, machine_info
+from apps.machine import duration, machine_info
+from apps.reproduce import pipeline
 from apps.reproduce.common import play_seconds, read_metrics, train_seconds
 from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
@@ -201,43 +202,17 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
     return {"entries": entries}
 
 
-@dataclass(frozen=True)
-class PlanLine:
-    """One training run with its size, estimated time and how much of it is checkpointed."""
-
-    run: str
-    seeds: int
-    env_steps: int
-    updates: int
-    estimate_s: float
-    done: float  # share of its updates checkpointed under the work directory
-
-    @property
-    def left_s(self) -> float:
-        return self.estimate_s * (1.0 - self.done)
+def zoo(mode: Mode, work: Path) -> pipeline.Zoo:
+    """The mode's zoo: its spec in `work/spec.yaml`, built into `work/zoo`."""
+    return pipeline.Zoo(work, zoo_spec(mode), f"`cec reproduce overcooked` ({mode.name})")
 
 
-def plan_lines(mode: Mode, work: Path) -> list[PlanLine]:
+def plan_lines(mode: Mode, work: Path) -> list[pipeline.PlanLine]:
     """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds) and the
     share of it already trained under `work`."""
-    from apps.zoo_build import done_fraction, plan_zoo
-
-    spec = _write_spec(mode, work)
     return [
-        PlanLine(
-            r.config.run_name, len(r.seeds), r.config.total_env_steps, r.config.num_updates,
-            mode.seconds_per_update * r.config.num_updates * len(r.seeds), done_fraction([r]),
-        )
-        for r in plan_zoo(spec, work / "zoo")
-    ]  # fmt: skip
-
-
-def _write_spec(mode: Mode, work: Path) -> Path:
-    work.mkdir(parents=True, exist_ok=True)
-    spec = work / "spec.yaml"
-    text = yaml.safe_dump(zoo_spec(mode), sort_keys=False)
-    spec.write_text(f"# Written by `cec reproduce overcooked` ({mode.name}).\n" + text)
-    return spec
+        pipeline.plan_line(r.config.run_name, [r], mode.seconds_per_update) for r in zoo(mode, work).plan()
+    ]
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -245,28 +220,10 @@ def _write_spec(mode: Mode, work: Path) -> Path:
 # ---------------------------------------------------------------------------------------------------------
 
 
-def _log(log: TextIO, msg: str) -> None:
-    log_line(log, "reproduce", msg)
-
-
 def level_spec(mode: Mode, level_set: str) -> str:
     if level_set == "classic":
         return ",".join(mode.kitchens)
-    return ",".join(f"generated_{i:03d}" for i in range(mode.generated_levels))
-
-
-def _load(manifest: str | Path) -> list[Any]:
-    """Every policy of a zoo manifest; a `ConfigError` naming each entry that cannot be loaded."""
-    from cec.agents.policy import load_policies
-    from cec.agents.zoo import load_zoo
-
-    policies, skipped = load_policies(load_zoo(manifest))
-    if skipped:
-        raise ConfigError(
-            f"{manifest}: zoo entries could not be loaded: "
-            + "; ".join(f"{s.name}: {s.reason}" for s in skipped)
-        )
-    return policies
+    return pipeline.generated_levels(mode.generated_levels)
 
 
 def human_proxies(mode: Mode) -> list[Any]:
@@ -275,7 +232,9 @@ def human_proxies(mode: Mode) -> list[Any]:
     proxies of a kitchen the same training seed."""
     if not mode.proxies:
         return []
-    proxies = [p for p in _load(mode.proxies) if p.algorithm == HUMAN_PROXY]
+    proxies = [
+        p for p in pipeline.load_zoo_policies(mode.proxies, mode.proxies) if p.algorithm == HUMAN_PROXY
+    ]
     return [dataclasses.replace(p, seed=i) for i, p in enumerate(proxies)]
 
 
@@ -289,7 +248,7 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
 
-    policies = _load(manifest)
+    policies = pipeline.load_zoo_policies(manifest, str(manifest))
     proxies = human_proxies(mode)
     cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
     tables = []
@@ -311,8 +270,10 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
                 table = table.select((table.algorithm_a == algo) | (table.algorithm_b == algo))
             tables.append(table)
             with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
-            _log(log, f"{algo}: {len(group)} entries + {with_whom} on {len(levels.names)} {level_set} "
-                      f"kitchens: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")  # fmt: skip
+            where = f"{len(levels.names)} {level_set} kitchens"
+            seconds = time.perf_counter() - t0
+            played = f"{len(table)} episodes in {seconds:.0f}s"
+            pipeline.note(log, f"{algo}: {len(group)} entries + {with_whom} on {where}: {played}")
     return EpisodeTable.concat(tables)
 
 
@@ -322,10 +283,10 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
     from apps.reproduce.common import cached_table
     from cec.agents.zoo import load_zoo
 
-    zoo = sorted([e.name, e.seed, e.checkpoint, e.sha256] for e in load_zoo(manifest))
+    entries = sorted(pipeline.zoo_entries(manifest))
     proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
-    key = {**settings, "steps": EVAL_STEPS, "zoo": zoo, "proxies": proxies}
+    key = {**settings, "steps": EVAL_STEPS, "zoo": entries, "proxies": proxies}
     return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
 
 
@@ -338,7 +299,8 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
 class SeedScores:
     """One algorithm on one level set: per seed, its mean team return per episode with the other seeds of
     its algorithm (`xp`), with itself (`sp`), with the scripted cook (`cook`) and with the human proxies
-    (`human`: the mean over the proxies, each on its kitchen; NaN where none played)."""
+    (`human`: the mean over the proxies, each on its kitchen; NaN where none played); `xp`, `sp` and
+    `xp_matrix` are its `cec.evaluation.seeds.SeedSummary`."""
 
     seeds: tuple[int, ...]
     xp: tuple[float, ...]
@@ -350,37 +312,24 @@ class SeedScores:
     def crossplay(self) -> Any:
         """The algorithm's cross-play with its jackknife standard error over seeds
         (`cec.evaluation.stats.CrossPlay`; a seed's pairs are shared with the other seeds)."""
-        from cec.evaluation.stats import crossplay_estimate
+        from cec.evaluation.seeds import SeedSummary
 
-        return crossplay_estimate(np.asarray(self.xp_matrix, np.float64).reshape(len(self.seeds), -1))
+        return SeedSummary(self.seeds, self.xp, self.sp, self.xp_matrix).crossplay()
 
 
 def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]:
     """{algorithm: SeedScores} on `level_names` (the cook's own self-play under `cook`; the proxies are
     partners, not an algorithm of the summary)."""
-    from cec.evaluation import analysis as an
-    from cec.evaluation.stats import seed_means
+    from cec.evaluation.seeds import seed_matrix
 
-    pl = an.pair_level_scores(table, level_names)
-    m = an.pair_scores(pl)
-    cook = [i for i, p in enumerate(pl.policies) if p.algorithm == COOK]
-    humans = [i for i, p in enumerate(pl.policies) if p.algorithm == HUMAN_PROXY]
+    sm = seed_matrix(table, level_names)
+    cook, humans = sm.indices(COOK), sm.indices(HUMAN_PROXY)
     out = {}
-    for algo in sorted({p.algorithm for p in pl.policies} - {HUMAN_PROXY}):
-        idx = [i for i, p in enumerate(pl.policies) if p.algorithm == algo]
-
-        def mean(values: list[float]) -> float:
-            vals = [v for v in values if not math.isnan(v)]
-            return float(np.mean(vals)) if vals else math.nan
-
-        out[algo] = SeedScores(
-            tuple(pl.policies[i].seed for i in idx),
-            tuple(float(x) for x in seed_means(m[np.ix_(idx, idx)])),
-            tuple(float(m[i, i]) for i in idx),
-            tuple(mean([m[i, c] for c in cook]) for i in idx),
-            tuple(mean([m[i, h] for h in humans]) for i in idx),
-            tuple(tuple(float(x) for x in row) for row in m[np.ix_(idx, idx)]),
-        )
+    for algo in sorted({p.algorithm for p in sm.policies} - {HUMAN_PROXY}):
+        idx = sm.indices(algo)
+        s = sm.summary(idx)
+        with_cook, with_humans = (tuple(float(x) for x in sm.partner_means(idx, p)) for p in (cook, humans))
+        out[algo] = SeedScores(s.seeds, s.xp, s.sp, with_cook, with_humans, s.matrix)
     return out
 
 
@@ -455,8 +404,8 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
 
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
-    plan: list[PlanLine], command: str, ran_on: dict[str, Any], commit: str, skipped: Sequence[Any] = (),
-    train_s: dict[str, float] | None = None, played_s: float = math.nan,
+    plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
+    skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
@@ -592,7 +541,7 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, poli
         plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
     figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
-    _log(log, f"figures: {', '.join(figures.values())}")
+    pipeline.note(log, f"figures: {', '.join(figures.values())}")
     return figures
 
 
@@ -611,17 +560,14 @@ def reproduce_overcooked(
     `machine.json` as the machine that trained and played wrote them (a work folder brought back from a
     GPU machine without its checkpoints). `policies`: a manifest whose CEC entries draw the GIF instead of
     the zoo's (the exported CEC seeds)."""
-    from apps.zoo_build import build_zoo
-
     commit = code_version(short=True)  # before this command writes anything into the checkout
-    spec = _write_spec(mode, work)
     plan = plan_lines(mode, work)
     if report_only:
         table, ran_on = _played_table(work)
     else:
-        result = build_zoo(spec, work / "zoo", progress=progress, log=log)
+        result = zoo(mode, work).build(progress=progress, log=log)
         if result.interrupted or result.manifest is None:
-            _log(log, "training interrupted; run the same command again to continue")
+            pipeline.note(log, "training interrupted; run the same command again to continue")
             return None
         table = cached_evaluation(mode, result.manifest, work, log=log)
         ran_on = {"machine": machine_info(), "commit": commit}
@@ -633,7 +579,7 @@ def reproduce_overcooked(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
     )  # fmt: skip
-    _log(log, f"report: {report}")
+    pipeline.note(log, f"report: {report}")
     return report
 
 

@@ -84,14 +84,14 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
 def test_the_plan_says_how_much_of_each_row_is_trained_and_what_is_left(tmp_path: Path) -> None:
     """A reproduction spans sessions: `--plan` reads the checkpoints under the work directory."""
     work = tmp_path / "work"
-    plan = plan_zoo(rp._write_spec(rp.FULL, "partial_obs", work), work / "partial_obs" / "zoo")
+    plan = rp.zoo(rp.FULL, "partial_obs", work).plan()
     ippo = next(r for r in plan if r.algorithm == "ippo")  # 6 seeds in one run
     fcp = [r for r in plan if r.algorithm == "fcp"]  # 4 runs of one seed each
     state = {"w": np.zeros(2, np.float32)}
     for run, update in ((ippo, ippo.config.num_updates // 2), (fcp[0], fcp[0].config.num_updates)):
         path = checkpoints.CheckpointStore(run.run_dir, keep_last=1).path(update)
         checkpoints.save(path, state, update=update, env_steps=0, config=config_dict(run.config), metadata={})
-    lines = {ln.algorithm: ln for ln in rp.plan_lines(rp.FULL, work, ["partial_obs"])}
+    lines = {ln.run: ln for ln in rp.plan_lines(rp.FULL, work, ["partial_obs"])}
     assert lines["ippo"].done == pytest.approx(ippo.config.num_updates // 2 / ippo.config.num_updates)
     assert lines["fcp"].done == 0.25 and lines["fcp"].left_s == pytest.approx(0.75 * lines["fcp"].estimate_s)
     assert lines["cec"].done == 0.0
