@@ -50,7 +50,12 @@ def from_dict(cls: type[T], data: Mapping[str, Any], *, where: str = "") -> T:
             hint = f"; did you mean {close[0]!r}?" if close else ""
             raise ConfigError(f"unknown key {path!r} for {cls.__name__}{hint} Valid keys: {', '.join(names)}")
         kwargs[key] = _check_value(hints[key], value, path)
-    return cls(**kwargs)
+    if not where:
+        return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ConfigError as err:  # a nested config's own check: say where it is nested
+        raise ConfigError(f"{where}: {err}") from None
 
 
 def _check_value(kind: Any, value: Any, path: str) -> Any:

@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass, field
 
 from cec.config import ConfigError
+from cec.evaluation.crossplay import EvalConfig
 from services.ports import METRICS_PORTS
 from services.store import StoreConfig
 
@@ -105,13 +106,12 @@ class EvaluatorConfig:
         groups: explicit partner groups (entry names); they take precedence over `group_by`.
         self_play: score each seed of the checkpoint with itself (partner group `self_play`).
         level_sets: the named level sets; a checkpoint plays those of its own game.
-        episodes: episodes per pairing, seat order and level.
-        max_steps: episode length (0: the checkpoint's training episode length).
-        greedy: argmax actions instead of sampling (the paper samples).
-        seed: seed of the common random numbers (the same for every checkpoint, so scores of different
-            checkpoints differ by the policies only).
-        games_per_call: games per compiled cross-play call (0: all games of a level set in one call).
-            Fixed sizes compile once whatever the zoo size; 1 is fastest on a CPU, raise it on a GPU.
+        play: how each game is played, as `cec eval` plays it (`cec.evaluation.crossplay.EvalConfig`):
+            `episodes` per pairing, seat order and level; `max_steps` (0: the checkpoint's training
+            episode length); `greedy` (argmax actions; the paper samples); `seed` of the common random
+            numbers (the same for every checkpoint, so scores of checkpoints differ by the policies only);
+            `games_per_call` (0: all games of a level set in one compiled call; 1 is fastest on a CPU).
+            Its `levels` and `pairs` are the evaluator's own: each level set's, each seed with its partners.
         results_dir: result tables go to `<results_dir>/<run_id>/eval/update_<N>.csv` (with the runs'
             directory here, next to the run's checkpoints); '' = Redis only.
         consumer_group: Redis consumer group on the checkpoint stream; evaluators of one group share
@@ -133,11 +133,7 @@ class EvaluatorConfig:
     groups: tuple[PartnerGroupConfig, ...] = ()
     self_play: bool = True
     level_sets: tuple[LevelSetConfig, ...] = field(default_factory=_default_level_sets)
-    episodes: int = 2
-    max_steps: int = 0
-    greedy: bool = False
-    seed: int = 0
-    games_per_call: int = 1
+    play: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=2, games_per_call=1))
     results_dir: str = "runs"
     consumer_group: str = "evaluator"
     consumer_name: str = "evaluator-0"
@@ -166,10 +162,6 @@ class EvaluatorConfig:
             raise ConfigError(f"zoo entries {twice} are in more than one partner group; put each in one")
         if not (self.self_play or self.zoo or self.redis_zoo):
             raise ConfigError("nothing to score: set self_play, a zoo manifest or redis_zoo")
-        if self.episodes < 1:
-            raise ConfigError(f"episodes must be >= 1, got {self.episodes}")
-        if self.max_steps < 0 or self.games_per_call < 0:
-            raise ConfigError("max_steps and games_per_call must be >= 0 (0: the default)")
         if self.poll_s <= 0:
             raise ConfigError(f"poll_s must be > 0, got {self.poll_s}")
         if not -1 <= self.metrics_port <= 65535:

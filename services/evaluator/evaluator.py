@@ -50,7 +50,7 @@ from cec.agents.policy import Policy, load_policy, resolve_checkpoint
 from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError, from_dict
 from cec.evaluation.analysis import pair_level_scores, pair_scores
-from cec.evaluation.crossplay import EvalConfig, EvalLevels, crossplay, eval_levels
+from cec.evaluation.crossplay import EvalLevels, crossplay, eval_levels
 from cec.evaluation.results import (
     EpisodeTable,
     ResultsError,
@@ -509,15 +509,7 @@ class Evaluator:
 
         tables = []
         for policy in seeds:
-            eval_config = EvalConfig(
-                levels=spec.levels,
-                episodes=cfg.episodes,
-                greedy=cfg.greedy,
-                seed=cfg.seed,
-                max_steps=cfg.max_steps,
-                pairs=f"with:{policy.name}",
-                games_per_call=cfg.games_per_call,
-            )
+            eval_config = dataclasses.replace(cfg.play, levels=spec.levels, pairs=f"with:{policy.name}")
             table = crossplay([policy, *partners], self.levels[spec.name], eval_config, progress=progress)
             EVALUATOR_EPISODES.inc(len(table))
             tables.append(table)
@@ -630,7 +622,7 @@ def _event_info(event: CheckpointEvent, config: EvaluatorConfig) -> dict[str, An
         "env_steps": event.env_steps,
         "algorithm": event.algorithm,
         "path": event.path,
-        "crn_seed": config.seed,
+        "crn_seed": config.play.seed,
     }
 
 

@@ -31,6 +31,7 @@ from apps.cli import main as cec_main
 from cec import checkpoints
 from cec.config import ConfigError, from_dict, load_config
 from cec.evaluation.analysis import policies_of
+from cec.evaluation.crossplay import EvalConfig
 from cec.evaluation.results import make_table, read_csv
 from cec.training.config import TrainConfig
 from cec.training.run import config_dict
@@ -111,8 +112,9 @@ def plane(redis_config):
 
 def _config(plane: ControlPlane, zoo: Path, results: Path, **kw) -> EvaluatorConfig:
     base = dict(
-        store=plane.config, zoo=str(zoo), redis_zoo=False, episodes=1, max_steps=STEPS,
-        level_sets=(CLASSIC, HELDOUT), results_dir=str(results), metrics_port=-1, poll_s=0.2,
+        store=plane.config, zoo=str(zoo), redis_zoo=False, level_sets=(CLASSIC, HELDOUT),
+        play=EvalConfig(episodes=1, max_steps=STEPS, games_per_call=1), results_dir=str(results),
+        metrics_port=-1, poll_s=0.2,
     )  # fmt: skip
     return EvaluatorConfig(**{**base, **kw})
 
@@ -160,7 +162,7 @@ def test_config_is_strict_and_the_shipped_preset_is_the_default():
         (["level_sets=[{name: x}, {name: x}]"], "unique"),
         (["groups=[{name: self_play, partners: [a]}]"], "reserved"),
         (["groups=[{name: g, partners: [a]}, {name: h, partners: [a]}]"], "more than one partner group"),
-        (["episodes=0"], "episodes"),
+        (["play.episodes=0"], "episodes"),
         (["metrics_port=70000"], "metrics_port"),
     ]:
         with pytest.raises(ConfigError, match=message):
@@ -383,8 +385,8 @@ def test_scores_go_into_the_runs_tensorboard_events_at_the_checkpoints_env_steps
 def test_cli_errors_are_one_line(tmp_path, capsys):
     assert cec_main(["evaluator", "--config", str(tmp_path / "none.yaml")]) == 2
     assert "does not exist" in capsys.readouterr().err
-    assert cec_main(["evaluator", "episodes=0"]) == 2
-    assert "episodes must be >= 1" in capsys.readouterr().err
+    assert cec_main(["evaluator", "play.episodes=0"]) == 2
+    assert "play: episodes must be at least 1" in capsys.readouterr().err
     with LocalRedis() as s:
         port = s.port
     code = cec_main(["evaluator", f"store.url=redis://127.0.0.1:{port}/0", "store.retries=0",
@@ -475,7 +477,8 @@ def test_service_scores_each_checkpoint_exactly_once_across_a_sigkill(redis_serv
     # first checkpoint's classic parts are stored and its held-out parts are not: there the kill lands.
     args = [
         f"store.url={redis_server.url}", f"store.key_prefix={prefix}", f"zoo={zoo}", "redis_zoo=false",
-        f"results_dir={results_dir}", "metrics_port=0", "episodes=1", f"max_steps={STEPS}", "poll_s=0.2",
+        f"results_dir={results_dir}", "metrics_port=0", "play.episodes=1", f"play.max_steps={STEPS}",
+        "poll_s=0.2",
         "level_sets=[{name: classic, levels: 'cramped_room,coord_ring'}, "
         "{name: heldout, levels: generated, max_levels: 3}]",
     ]  # fmt: skip
