@@ -19,6 +19,9 @@ Train the runs first, one core each, the same budget, e.g. (the two probes of do
         checkpoint.every_updates=5 "$M" run_dir=runs/probes name=tts-e1024
     python benchmarks/time_to_skill.py runs/probes/tts-e128 runs/probes/tts-e1024 \\
         --out docs/reproduce_overcooked/tts
+
+`--with OUT.json` adds the rows of earlier evaluations (each row keeps its machine-time cost) without
+playing them again.
 """
 
 from __future__ import annotations
@@ -127,11 +130,18 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("runs", nargs="+", type=Path, help="run directories with milestone checkpoints")
+    ap.add_argument("runs", nargs="*", type=Path, help="run directories with milestone checkpoints")
     ap.add_argument("--episodes", type=int, default=1, help="episodes per pairing, seat order and kitchen")
+    ap.add_argument(
+        "--with", dest="earlier", nargs="+", type=Path, default=[], metavar="JSON",
+        help="rows of earlier outputs (OUT.json) to show beside the new ones, not evaluated again",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
     args = ap.parse_args(argv)
-    rows = [r for run in args.runs for r in evaluate(run, args.episodes)]
+    if not (args.runs or args.earlier):
+        ap.error("give run directories and/or --with OUT.json of earlier evaluations")
+    rows = [r for path in args.earlier for r in json.loads(path.read_text())["rows"]]
+    rows += [r for run in args.runs for r in evaluate(run, args.episodes)]
     from apps.machine import machine_info
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
