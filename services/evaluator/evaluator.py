@@ -49,7 +49,6 @@ from cec import checkpoints
 from cec.agents.policy import Policy, load_policy, resolve_checkpoint
 from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError, from_dict
-from cec.evaluation.analysis import pair_level_scores, pair_scores
 from cec.evaluation.crossplay import EvalLevels, crossplay, eval_levels
 from cec.evaluation.results import (
     EpisodeTable,
@@ -59,6 +58,7 @@ from cec.evaluation.results import (
     read_csv,
     write_csv,
 )
+from cec.evaluation.seeds import partner_means, seed_matrix
 from cec.evaluation.stats import sem
 from cec.training.tracking import Tracker, TrackingConfig
 from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
@@ -165,26 +165,25 @@ def summarize(part: EpisodeTable, checkpoint_label: str, *, self_play: bool) -> 
         return out
     out.update(env=str(part.env[0]), episode_steps=int(part.episode_steps[0]), actions=str(part.actions[0]))
     for metric in SUMMARY_METRICS:
-        pl = pair_level_scores(part, metric=metric)
-        matrix = pair_scores(pl)
-        mine = [i for i, p in enumerate(pl.policies) if p.algorithm == checkpoint_label]
-        others = [j for j in range(len(pl.policies)) if j not in mine]
-        block = matrix[np.ix_(mine, mine)].diagonal() if self_play else matrix[np.ix_(mine, others)]
+        m = seed_matrix(part, metric=metric)
+        mine = m.indices(checkpoint_label)
+        others = [j for j in range(len(m.policies)) if j not in mine]
+        block = (
+            m.scores[np.ix_(mine, mine)].diagonal()[:, None] if self_play else m.scores[np.ix_(mine, others)]
+        )
         values = block[~np.isnan(block)]
         out[f"{metric}_mean"] = _number(values.mean())
         if metric == "return":
             out["pairs"] = int(values.size)
-            rows = block.reshape(len(mine), -1)
-            seed_means = [float(np.nanmean(r)) for r in rows if np.isfinite(r).any()]
-            # seeds are the units: pairs share a seed (and partner), so an error over pairs understates it
-            out["return_sem"] = _number(sem(np.asarray(seed_means)))
+            per_seed = partner_means(block)  # seeds are the units: pairs share a seed and a partner
+            out["return_sem"] = _number(sem(per_seed[np.isfinite(per_seed)]))
             out["per_seed"] = {
-                str(pl.policies[i].seed): _number(np.nanmean(rows[k])) for k, i in enumerate(mine)
+                str(m.policies[i].seed): _number(v) for i, v in zip(mine, per_seed, strict=True)
             }
             out["per_partner"] = (
                 {}
                 if self_play
-                else {pl.policies[j].label(): _number(np.nanmean(block[:, k])) for k, j in enumerate(others)}
+                else {m.policies[j].label(): _number(np.nanmean(block[:, k])) for k, j in enumerate(others)}
             )
     return out
 
