@@ -10,6 +10,7 @@ from pathlib import Path
 
 from cec.config import ConfigError, read_user_bytes
 from cec.levels.generator import GeneratorConfig
+from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS
 
 TOKEN_ENV = "CEC_LEVEL_SERVER_TOKEN"
 #: the most bytes a request without levels can need (a generator config is under 200): larger `GetLevels`,
@@ -108,8 +109,8 @@ class LevelServerConfig:
     """
 
     host: str = "127.0.0.1"
-    port: int = 50051
-    metrics_port: int = 9101
+    port: int = LEVEL_SERVER_GRPC_PORT
+    metrics_port: int = METRICS_PORTS["level_server"]
     metrics_host: str = "127.0.0.1"
     auth_token: str = ""
     tls_cert: str = ""
