@@ -81,7 +81,7 @@ class ActorPool(Protocol):
     def close(self) -> None: ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared and hashed by identity: one handle per call
 class _Done:
     """A finished in-process call."""
 
