@@ -19,7 +19,7 @@ from collections.abc import Iterator, Mapping
 from dataclasses import asdict
 from functools import partial
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 from services.store.client import RedisClient
 from services.store.config import (
@@ -38,8 +38,6 @@ from services.store.records import (
     RunRecord,
     _check_name,
 )
-
-T = TypeVar("T")
 
 DEFAULT_GROUP = "evaluator"
 OUTBOX_FILE = "checkpoint_outbox.jsonl"
