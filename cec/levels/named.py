@@ -174,32 +174,39 @@ def generated_level(seed: int) -> Level:
     return level
 
 
-def check_level(token: str, base_dir: Path | None = None) -> None:
-    """`ConfigError` naming the problem if `token` names no single kitchen (nothing is generated; a kitchen
-    file is read and checked for solvability)."""
+def _kitchen_file(token: str, base_dir: Path | None) -> Path | None:
+    """The ASCII kitchen file a one-kitchen token names (None for a classic or held-out name);
+    `ConfigError` if it names neither (a set, a folder, nothing)."""
     from cec.levels.heldout import heldout_levels
 
     if token in CLASSIC_ASCII or token in dict(heldout_levels()):
-        return
-    if token.startswith(GENERATED_PREFIX):
-        _generated_seed(token, allow_random=True)
-        return
+        return None
     path = (base_dir or Path()) / Path(token).expanduser()
     if not path.is_file():
         raise _unknown(token)
-    load_kitchens(path)
+    return path
+
+
+def check_level(token: str, base_dir: Path | None = None) -> None:
+    """`ConfigError` naming the problem if `token` names no single kitchen (nothing is generated; a kitchen
+    file is read and checked for solvability)."""
+    if token.startswith(GENERATED_PREFIX):
+        _generated_seed(token, allow_random=True)
+    elif (path := _kitchen_file(token, base_dir)) is not None:
+        load_kitchens(path)
 
 
 def resolve_level(
     token: str, base_dir: Path | None = None, rng: np.random.Generator | None = None
 ) -> tuple[str, Level]:
     """(name, level) of one kitchen: a classic or held-out name, `generated:SEED` (`generated:random` draws
-    the seed from `rng`, and the name records it), or an ASCII kitchen file (named by its stem)."""
-    check_level(token, base_dir)
+    the seed from `rng`, and the name records it), or an ASCII kitchen file (named by its stem, read and
+    checked once)."""
     if token.startswith(GENERATED_PREFIX):
         seed = _generated_seed(token, allow_random=True)
         if seed is None:
             seed = int((rng or np.random.default_rng()).integers(0, 2**31 - 1))
         return f"{GENERATED_PREFIX}{seed}", generated_level(seed)
+    _kitchen_file(token, base_dir)  # refuses a set or a folder before resolve_levels would take it
     ((name, level),) = resolve_levels(token, base_dir).items()
     return name, level
