@@ -17,7 +17,7 @@ module of the learner that imports Ray) runs each actor as a Ray actor Ray resta
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Protocol
 
 from cec.training.config import TrainConfig
@@ -42,17 +42,12 @@ class ActorSpec:
     level_seed: int = 0
     level_buffer_rollouts: int = 8
 
+    def args(self) -> tuple[Any, ...]:
+        """`RolloutActor`'s constructor arguments, in its order (the fields' order)."""
+        return tuple(getattr(self, f.name) for f in fields(self))
+
     def build(self) -> RolloutActor:
-        return RolloutActor(
-            self.config,
-            self.index,
-            self.env_start,
-            self.env_stop,
-            self.level_server,
-            self.level_token,
-            self.level_seed,
-            self.level_buffer_rollouts,
-        )
+        return RolloutActor(*self.args())
 
 
 class ActorPool(Protocol):

@@ -40,13 +40,7 @@ class RayPool:
             max_task_retries=0,
             runtime_env={"env_vars": env_vars},
         )
-        self.handles = [
-            remote.remote(
-                s.config, s.index, s.env_start, s.env_stop, s.level_server, s.level_token, s.level_seed,
-                s.level_buffer_rollouts,
-            )
-            for s in specs
-        ]  # fmt: skip
+        self.handles = [remote.remote(*s.args()) for s in specs]
 
     def call(self, i: int, method: str, *args: Any) -> Any:
         return getattr(self.handles[i], method).remote(*args)
