@@ -278,8 +278,13 @@ def reproduce_dual_destination(
     progress: bool = True,
     log: TextIO = sys.stderr,
     command: str = "",
+    report_only: bool = False,
 ) -> Path:
-    """Trains, evaluates and reports (see the module docstring); returns the report's path."""
+    """Trains, evaluates and reports (see the module docstring); returns the report's path.
+
+    `report_only`: neither train nor play; the report from each variant's cross-play table, exported
+    policies (`pipeline.export_policies`, for the conventions) and training metrics in `work` (a work folder
+    kept without its training states)."""
     t_start = time.perf_counter()
     commit = code_version(short=True)  # before this command writes anything (a work folder may be tracked)
     load_start = machine_info(load_average=True)["load_average_1_5_15min"]
@@ -293,19 +298,25 @@ def reproduce_dual_destination(
     train_s = eval_s = 0.0
     for variant in variants:
         t0 = time.perf_counter()
-        pipeline.note(log, f"{variant}: training (cec zoo build into {work / variant / 'zoo'})")
-        manifest, finished = train_variant(mode, variant, work, progress=progress, log=log)
-        skipped_runs += [f"{variant}/{name}" for name in finished]
+        if not report_only:
+            pipeline.note(log, f"{variant}: training (cec zoo build into {work / variant / 'zoo'})")
+            zoo_manifest, finished = train_variant(mode, variant, work, progress=progress, log=log)
+            skipped_runs += [f"{variant}/{name}" for name in finished]
         stages[f"{variant}: train"] = time.perf_counter() - t0
         train_s += stages[f"{variant}: train"]
         t0 = time.perf_counter()
-        table = cached_evaluation(mode, variant, manifest, work / variant, log=log)
+        if report_only:  # the conventions from the exported policies
+            table = pipeline.played_table(work / variant, "dual-destination", pipeline.POLICIES_SOURCE)
+            manifest = work / variant / pipeline.POLICIES / "zoo.yaml"
+        else:
+            table = cached_evaluation(mode, variant, zoo_manifest, work / variant, log=log)
+            manifest = pipeline.export_policies(zoo_manifest, work / variant / pipeline.POLICIES, log=log)
         seconds = play_seconds(work / variant)
         played[variant] = None if math.isnan(seconds) else seconds
         summaries[variant] = summarise(table, variant)
         seat0[variant] = conventions(variant, manifest)
-        trained[variant] = {a: t.__dict__ for a, t in training_stats(manifest.parent).items()}
-        curves[variant] = plot_curves(mode, manifest.parent, variant, out).name
+        trained[variant] = {a: t.__dict__ for a, t in training_stats(work / variant / "zoo").items()}
+        curves[variant] = plot_curves(mode, work / variant / "zoo", variant, out).name
         stages[f"{variant}: evaluate"] = time.perf_counter() - t0
         eval_s += stages[f"{variant}: evaluate"]
     machine = machine_info(load_average=True)
@@ -382,6 +393,11 @@ def _print_plan(mode: Mode, variants: Sequence[str], work: Path, out: Path, file
 def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     if args.quick and args.paper:
         raise ConfigError("--quick and --paper are two versions: give one of them, or neither (the full one)")
+    if args.train_only and args.report_only:
+        raise ConfigError(
+            "--train-only trains without a report and --report-only reports without training: "
+            "give one of them"
+        )
     mode = QUICK if args.quick else PAPER_SCALE if args.paper else FULL
     work = Path(args.work or ROOT / "runs" / "reproduce" / f"dual_destination-{mode.name}")
     out = Path(args.out or ROOT / "benchmarks" / "results" / "dual_destination" / mode.name)
@@ -405,9 +421,11 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     command = command_of(mode)
     command += f" --variants {','.join(variants)}" if args.variants else ""
     command += "".join(f" --{k} {getattr(args, k)}" for k in ("work", "out") if getattr(args, k))
+    command += " --report-only" if args.report_only else ""
     path = reproduce_dual_destination(
-        mode, out, work, variants=variants, progress=not args.quiet, command=command
-    )
+        mode, out, work, variants=variants, progress=not args.quiet, command=command,
+        report_only=args.report_only,
+    )  # fmt: skip
     print(f"wrote {path}")
     return 0
 
@@ -447,6 +465,12 @@ def add_subcommand(rep_sub: Any) -> None:
         action="store_true",
         help="train (resuming) and stop before cross-play and the report: for several processes or "
         "sessions sharing the training; the run without it reuses what they trained",
+    )
+    dd.add_argument(
+        "--report-only",
+        action="store_true",
+        help="neither train nor play: the report from the work folder's cross-play tables, exported "
+        "policies and training metrics (a work folder kept without its training states)",
     )
     dd.add_argument("--quiet", action="store_true", help="no per-update progress lines")
     dd.set_defaults(func=_cmd_reproduce_dd)

@@ -58,7 +58,11 @@ ROOT = Path(__file__).resolve().parents[2]
 PAPER_FILE = Path(__file__).with_name("paper_overcooked.yaml")
 KITCHENS = tuple(CLASSIC_ASCII)
 ALGORITHMS = ("cec", "cec_finetune", "e3t", "fcp", "ippo")
-TITLES = {"cec": "CEC", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP", "ippo": "IPPO"}
+UNTRAINED, NOOP = "untrained", "noop"  # the controls: partners that learned nothing (`control_policies`)
+TITLES = {
+    "cec": "CEC", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP", "ippo": "IPPO",
+    UNTRAINED: "control: untrained CEC network", NOOP: "control: no-op agent",
+}  # fmt: skip
 COOK = "cook"
 LEVEL_SETS = ("classic", "heldout")
 EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
@@ -277,6 +281,61 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     return EpisodeTable.concat(tables)
 
 
+def control_policies(mode: Mode) -> list[Any]:
+    """The controls beside every score with the cook (and a chance level for XP and SP): the CEC network
+    at its random initialisation, one per CEC seed (`untrained`), and the agent that always stays
+    (`noop`): what the cook delivers with a partner that learned nothing, so that an agent's own
+    contribution reads as the difference."""
+    import jax
+
+    from cec.agents.policy import random_policy, scripted_policy
+    from cec.config import load_config
+    from cec.training.config import TrainConfig
+
+    cfg = load_config(TrainConfig, str(ROOT / mode.preset), list(mode.overrides))
+    untrained = [
+        random_policy(f"{UNTRAINED}-s{s}", jax.random.PRNGKey(s), env=cfg.env, network=cfg.network_config,
+                      algorithm=UNTRAINED, seed=s)
+        for s in mode.seeds["cec"]
+    ]  # fmt: skip
+    return [*untrained, scripted_policy(NOOP, NOOP, env=cfg.env, algorithm=NOOP)]
+
+
+def evaluate_controls(mode: Mode, *, log: TextIO, seed: int = 0) -> Any:
+    """The controls (`control_policies`) with each other and the cook on both level sets, as `evaluate`
+    plays the algorithms (the cook's own games left out: `evaluate` has them)."""
+    from cec.agents.policy import scripted_policy
+    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.results import EpisodeTable
+
+    controls = control_policies(mode)
+    cook = scripted_policy(COOK, COOK, env=controls[0].env, algorithm=COOK)
+    tables = []
+    for level_set in LEVEL_SETS:
+        spec = level_spec(mode, level_set)
+        config = EvalConfig(
+            levels=spec, episodes=mode.episodes[level_set], seed=seed, max_steps=EVAL_STEPS, games_per_call=8
+        )
+        t0 = time.perf_counter()
+        table = crossplay([*controls, cook], eval_levels("overcooked", spec), config)
+        tables.append(table.select((table.algorithm_a != COOK) | (table.algorithm_b != COOK)))
+        pipeline.note(log, f"controls on the {level_set} kitchens: {len(table)} episodes in "
+                      f"{time.perf_counter() - t0:.0f}s")  # fmt: skip
+    return EpisodeTable.concat(tables)
+
+
+def cached_controls(mode: Mode, work: Path, *, log: TextIO) -> Any:
+    """`evaluate_controls`, or the table an earlier invocation wrote in `work/controls` while the settings
+    are unchanged. They need no trained agent, so `--report-only` plays them when a work folder lacks them."""
+    from apps.reproduce.common import cached_table
+
+    settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
+    key = {**settings, "steps": EVAL_STEPS, "preset": mode.preset, "overrides": list(mode.overrides)}
+    folder = work / "controls"
+    folder.mkdir(parents=True, exist_ok=True)
+    return cached_table(folder, key, lambda: evaluate_controls(mode, log=log), label="controls: ", log=log)
+
+
 def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) -> Any:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
     SHA-256) nor the settings changed (`apps.reproduce.common.cached_table`)."""
@@ -406,11 +465,13 @@ def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
     skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
+    episodes: Sequence[str] = (),
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
     (proxies that could not play with the agents); `train_s`: the recorded seconds of each training run (by
-    run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them."""
+    run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
+    `episodes`: the per-kitchen section (`episode_lines`)."""
 
     paper = paper_values()
     tests = comparisons(summary)
@@ -429,8 +490,10 @@ def write_report(
         "cook: with the scripted cook), ± the standard error over seeds, n = seeds. XP: the mean over every "
         "pair of two different seeds of the algorithm ± its leave-one-seed-out jackknife standard error (a "
         "seed's pairs are shared with the other seeds, so a standard error over per-seed means would "
-        "understate it about 3x for 4 seeds). The paper's values are read off its figures (approximate; "
-        "`apps/reproduce/paper_overcooked.yaml`).",
+        "understate it about 3x for 4 seeds). The controls are partners that learned nothing: the CEC "
+        "network at its random initialisation (one per CEC seed) and an agent that always stays; what an "
+        "algorithm adds with the cook is its score there minus theirs. The paper's values are read off its "
+        "figures (approximate; `apps/reproduce/paper_overcooked.yaml`).",
         "",
         *_human_lines(mode, summary, skipped),
     ]
@@ -439,7 +502,7 @@ def write_report(
             f"{len(mode.kitchens)} classic" if level_set == "classic" else f"{mode.generated_levels} held-out"
         )
         lines += [f"## The {title} kitchens", "", TABLE_HEAD, "|---|---|---|---|---|---|---|"]
-        for algo in [*ALGORITHMS, COOK]:
+        for algo in [*ALGORITHMS, UNTRAINED, NOOP, COOK]:
             if algo not in scores:
                 continue
             s = scores[algo]
@@ -470,6 +533,7 @@ def write_report(
                 f"{'yes' if t['significant'] else 'no'} |"
             )
         lines.append("")
+    lines += episodes
     lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
               "|---|---|---|---|---|"]  # fmt: skip
     recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
@@ -488,6 +552,55 @@ def write_report(
     }  # fmt: skip
     (out / "summary.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
     return report
+
+
+def episode_lines(mode: Mode, table: Any) -> list[str]:
+    """The per-kitchen view the seed-level tables average over: per algorithm, cross-play (two different
+    seeds) and self-play in each classic kitchen and over the held-out ones, then per level set the
+    collisions per episode and the share of cross-play episodes without a soup. Means over episodes
+    (descriptive; the seed-level tests are above)."""
+    xp = (table.algorithm_a == table.algorithm_b) & (table.seed_a != table.seed_b)
+    sp = (table.algorithm_a == table.algorithm_b) & (table.seed_a == table.seed_b)
+    held = np.isin(table.level, level_spec(mode, "heldout").split(","))
+    columns = [(k, table.level == k) for k in mode.kitchens] + [("held-out", held)]
+    algos = [a for a in ALGORITHMS if np.any(table.algorithm_a == a)]
+
+    def mean(values: np.ndarray, mask: np.ndarray, fmt: str = "{:.1f}") -> str:
+        return fmt.format(float(values[mask].mean())) if mask.any() else "—"
+
+    lines = [
+        "## Per kitchen, collisions and episodes without a soup",
+        "",
+        f"Team return per {EVAL_STEPS}-step episode, the mean over episodes: cross-play (two different seeds "
+        "of the algorithm) and, in brackets, self-play, in each classic kitchen and over the held-out ones. "
+        "The baselines of a classic kitchen are that kitchen's agents; on the held-out kitchens the "
+        f"{TITLES['ippo']}, {TITLES['fcp']}, {TITLES['e3t']} and {TITLES['cec_finetune']} agents that play "
+        "are those of the first classic kitchen listed (as in the tables above).",
+        "",
+        "| algorithm | " + " | ".join(k for k, _ in columns) + " |",
+        "|---" * (len(columns) + 1) + "|",
+    ]
+    for algo in algos:
+        mine = table.algorithm_a == algo
+        cells = [
+            f"{mean(table.returns, mine & xp & m)} ({mean(table.returns, mine & sp & m)})" for _, m in columns
+        ]
+        lines.append(f"| {TITLES[algo]} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Collisions per cross-play episode (steps where the two cooks move to the same cell or try to swap "
+        "cells) and the share of cross-play episodes that deliver no soup:",
+        "",
+        "| algorithm | collisions, classic | collisions, held-out | no soup, classic | no soup, held-out |",
+        "|---|---|---|---|---|",
+    ]
+    for algo in algos:
+        mine = table.algorithm_a == algo
+        sets = (mine & xp & ~held, mine & xp & held)
+        coll = [mean(table.collisions, m) for m in sets]
+        none = [mean((table.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
+        lines.append(f"| {TITLES[algo]} | {' | '.join(coll)} | {' | '.join(none)} |")
+    return [*lines, ""]
 
 
 def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped: Sequence[Any]) -> list[str]:
@@ -556,14 +669,16 @@ def reproduce_overcooked(
 ) -> Path | None:  # fmt: skip
     """Train (resumable), evaluate (cached), report. Returns the report, or None when interrupted.
 
-    `report_only`: neither train nor play; the report from the work folder's cross-play table, curves and
-    `machine.json` as the machine that trained and played wrote them (a work folder brought back from a
-    GPU machine without its checkpoints). `policies`: a manifest whose CEC entries draw the GIF instead of
-    the zoo's (the exported CEC seeds)."""
+    `report_only`: neither train nor play the zoo; the report from the work folder's cross-play table,
+    curves and `machine.json` as the machine that trained and played wrote them (a work folder brought back
+    from a GPU machine without its checkpoints); the controls, which need no trained agent, are played if
+    the folder lacks them (`cached_controls`). `policies`: a manifest whose CEC entries draw the GIF
+    instead of the zoo's (the exported CEC seeds)."""
     commit = code_version(short=True)  # before this command writes anything into the checkout
     plan = plan_lines(mode, work)
     if report_only:
-        table, ran_on = _played_table(work)
+        table = pipeline.played_table(work, "overcooked", MACHINE_FILE)
+        ran_on = json.loads((work / MACHINE_FILE).read_text())
     else:
         result = zoo(mode, work).build(progress=progress, log=log)
         if result.interrupted or result.manifest is None:
@@ -572,30 +687,19 @@ def reproduce_overcooked(
         table = cached_evaluation(mode, result.manifest, work, log=log)
         ran_on = {"machine": machine_info(), "commit": commit}
         (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
-    summary = {ls: seed_scores(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
+    from cec.evaluation.results import EpisodeTable
+
+    with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log)])
+    summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
+        episodes=episode_lines(mode, table),
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report
-
-
-def _played_table(work: Path) -> tuple[Any, dict[str, Any]]:
-    """The cross-play table and the `machine.json` that an earlier, complete invocation left in `work`."""
-    from cec.evaluation.results import read_csv
-
-    # the key is written after the table (`cached_table`): its presence says the playing finished
-    need = [work / "results.csv", work / "results.key.json", work / MACHINE_FILE]
-    missing = [str(p) for p in need if not p.is_file()]
-    if missing:
-        raise ConfigError(
-            f"--report-only needs a work folder that a complete `cec reproduce overcooked` left behind; "
-            f"missing: {', '.join(missing)} (run the command without --report-only, or pass --work)"
-        )
-    return read_csv(need[0]), json.loads(need[2].read_text())
 
 
 def _cmd(args: argparse.Namespace) -> int:

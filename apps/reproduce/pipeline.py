@@ -7,7 +7,9 @@
     train      `Zoo.build`: finished runs skipped, interrupted ones resumed
     evaluate   `load_zoo_policies` (every entry, or an error naming those that cannot load), cross-play on
                `generated_levels` and the game's own, cached while the zoo is unchanged
-               (`common.cached_table`, keyed by `zoo_entries`)
+               (`common.cached_table`, keyed by `zoo_entries`); the zoo exported as parameter files
+               (`export_policies`), so that a work folder kept without its training states still
+               reports (`played_table`, `--report-only`)
     summarise  seeds as units: `cec.evaluation.seeds` (per seed XP and SP, the jackknife over seeds)
     report     each reproduction's own (`overcooked.write_report`, `dd_report.write_report`), with the
                recorded times of `common`
@@ -123,3 +125,44 @@ def zoo_entries(manifest: str | Path) -> list[list[Any]]:
     from cec.agents.zoo import load_zoo
 
     return [[e.name, e.seed, str(e.checkpoint), e.sha256] for e in load_zoo(manifest)]
+
+
+POLICIES = "policies"  # beside a result table: the zoo's policies as parameter files (what a report needs)
+POLICIES_SOURCE = f"{POLICIES}/source.json"
+
+
+def export_policies(zoo_manifest: Path, folder: Path, *, log: TextIO) -> Path:
+    """The zoo as one-seed parameter files (`cec zoo export`: no Adam state, no rollout carry) in `folder`,
+    with their manifest, which it returns. Exported again only when the zoo changed (the entries they came
+    from, with their states' SHA-256, are kept in `folder/source.json`, written last)."""
+    import json
+    import shutil
+
+    from apps.zoo_build import MANIFEST, export_zoo
+
+    source, manifest = folder / "source.json", folder / MANIFEST
+    entries = json.loads(json.dumps(zoo_entries(zoo_manifest)))  # as stored: tuples as lists
+    if manifest.is_file() and source.is_file() and json.loads(source.read_text()) == entries:
+        return manifest
+    if folder.exists():
+        shutil.rmtree(folder)  # an older zoo's: none may linger under a name this one dropped
+    export_zoo(zoo_manifest, folder)
+    source.write_text(json.dumps(entries, indent=1) + "\n")
+    note(log, f"{len(entries)} policies exported to {folder}")
+    return manifest
+
+
+def played_table(work: Path, command: str, *needs: str) -> Any:
+    """The cross-play table that a complete `cec reproduce <command>` left in `work` (for `--report-only`),
+    checking that it and `needs` (paths under `work`) are there; a `ConfigError` naming what is missing."""
+    from cec.evaluation.results import read_csv
+
+    # the key is written after the table (`common.cached_table`): its presence says the playing finished
+    paths = [work / "results.csv", work / "results.key.json", *(work / n for n in needs)]
+    missing = [str(p) for p in paths if not p.is_file()]
+    if missing:
+        raise ConfigError(
+            f"--report-only needs a work folder that a complete `cec reproduce {command}` left behind; "
+            f"missing: {', '.join(missing)} (run the command without --report-only, or pass --work)"
+        )
+    return read_csv(paths[0])

@@ -8,6 +8,7 @@ import io
 import json
 import math
 import re
+import shutil
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -261,13 +262,39 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     sp = (table.policy_a == rp.ORACLE) & (table.policy_b == rp.ORACLE)
     assert len(table.returns[sp]) == 3 * 1 + 1 * 2  # now 3 episodes on the fixed task
 
-    # so is it once the oracle partner's code changed
-    log4 = io.StringIO()
+    # so is it once the oracle partner's code changed: what the table depends on includes its source
+    manifest = tmp_path / "work" / "full_obs" / "zoo" / "zoo.yaml"
+    key = rp.evaluation_key(more, "full_obs", manifest)
     monkeypatch.setattr(rp, "oracle_partner_digest", lambda: "another oracle")
+    assert rp.evaluation_key(more, "full_obs", manifest) != key
+
+    # the work folder kept without its training states (as the committed full reproduction is): the report
+    # from the tables, the exported policies and the metrics, the same numbers and conventions
+    policies = tmp_path / "work" / "full_obs" / "policies"
+    assert {e["name"] for e in yaml.safe_load((policies / "zoo.yaml").read_text())["policies"]} == {
+        f"{a}-s{n}" for a, seeds in (("ippo", (0, 1, 2)), ("fcp", (100, 101, 102)), ("cec", (200, 201, 202)))
+        for n in seeds
+    }  # fmt: skip
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    from_states = rp.conventions("full_obs", manifest)  # the exported policies play as their checkpoints
+    played = summary["meta"]["conventions"]["full_obs"]
+    assert {a: {str(n): g for n, g in v.items()} for a, v in from_states.items()} == played
+    for states in (tmp_path / "work" / "full_obs" / "zoo" / "runs").glob("*/checkpoints"):
+        shutil.rmtree(states)
+    (tmp_path / "out" / "summary.json").unlink()
     rp.reproduce_dual_destination(
-        more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log4
-    )
-    assert "cross-play results found" not in log4.getvalue()
+        more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=io.StringIO(),
+        report_only=True,
+    )  # fmt: skip
+    summary3 = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary3["summaries"] == summary["summaries"]
+    assert summary3["meta"]["conventions"] == summary["meta"]["conventions"]
+    assert summary3["meta"]["training"] == summary["meta"]["training"]
+    with pytest.raises(ConfigError, match="results.csv"):
+        rp.reproduce_dual_destination(
+            TINY, tmp_path / "out", tmp_path / "empty", variants=("full_obs",), log=io.StringIO(),
+            report_only=True,
+        )  # fmt: skip
 
 
 def _score(mean: float, n_seeds: int = 4, spread: float = 0.01, seeds: tuple[int, ...] = ()) -> rp.Score:

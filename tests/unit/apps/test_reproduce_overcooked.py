@@ -110,7 +110,9 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     text = report.read_text()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
                    "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "(seeds as units)",
-                   "| with human proxies |", "The paper's human study"):  # fmt: skip
+                   "| with human proxies |", "The paper's human study", "| control: untrained CEC network |",
+                   "| control: no-op agent |", "## Per kitchen, collisions",
+                   "| cramped_room | held-out |"):  # fmt: skip
         assert needle in text, needle
     # the recorded time of each training run and of the cross-play, kept for a report that reuses them
     assert "Recorded times of the work behind these numbers" in text and "not recorded" not in text
@@ -124,12 +126,17 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         human = summary["summary"]["classic"][algo]["human"]
         assert len(human) == len(TINY.seeds[algo]) and np.all(np.isfinite(human)), algo
     assert "human_proxy" not in summary["summary"]["classic"]  # partners, not an algorithm of the summary
+    for control, seeds in ((ro.UNTRAINED, [200, 201]), (ro.NOOP, [0])):  # beside every score with the cook
+        for level_set in ro.LEVEL_SETS:
+            scores = summary["summary"][level_set][control]
+            assert scores["seeds"] == seeds and np.all(np.isfinite(scores["cook"])), (control, level_set)
+    assert summary["summary"]["classic"][ro.NOOP]["sp"] == [0.0]  # two agents that stay deliver nothing
     assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
     assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
     ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
-    assert "not played again" in log.getvalue() and "finished, skipping" in log.getvalue()
+    assert log.getvalue().count("not played again") == 2 and "finished, skipping" in log.getvalue()
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
     # the GIF from the exported CEC seeds, the machine that trained and played named
     export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
@@ -141,7 +148,9 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         mode, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
         policies=tmp_path / "shipped" / "zoo.yaml",
     )  # fmt: skip
-    assert again is not None and again.read_text().count("| CEC |") == 2
+    assert (
+        again is not None and again.read_text().count("| CEC |") == 4
+    )  # 2 level sets, per kitchen, collisions
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
