@@ -333,7 +333,14 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO) -> Any:
     key = {**settings, "steps": EVAL_STEPS, "preset": mode.preset, "overrides": list(mode.overrides)}
     folder = work / "controls"
     folder.mkdir(parents=True, exist_ok=True)
-    return cached_table(folder, key, lambda: evaluate_controls(mode, log=log), label="controls: ", log=log)
+
+    def play() -> Any:  # they may be played by another machine than the zoo: it is named in the report
+        table = evaluate_controls(mode, log=log)
+        ran_on = {"machine": machine_info(), "commit": code_version(short=True)}
+        (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
+        return table
+
+    return cached_table(folder, key, play, label="controls: ", log=log)
 
 
 def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) -> Any:
@@ -416,9 +423,20 @@ def _pm(mean: float, err: float, n: int) -> str:
     return f"{mean:.1f}" + ("" if math.isnan(err) else f" ± {err:.1f}") + f" (n={n})"
 
 
-def paper_values() -> dict[str, dict[str, float]]:
+def paper_values(source: str = "figures") -> dict[str, dict[str, float]]:
+    """{level set: {algorithm: the paper's XP}} as read off its figures (approximate), or `source="text"`:
+    the few values its text prints (exact; CEC-E3T among them, which is not trained here)."""
     data = yaml.safe_load(PAPER_FILE.read_text())
+    data = data.get("text", {}) if source == "text" else data
     return {s: dict(data.get(s, {})) for s in LEVEL_SETS}
+
+
+def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]]) -> str:
+    text = paper_values("text")[level_set].get(algo)
+    if text is not None:
+        return f"{text} (text)"
+    ref = figures.get(level_set, {}).get(algo)
+    return "—" if ref is None else f"≈{ref} (figure)"
 
 
 MEASURES = {"xp": "cross-play", "human": "with human proxies"}
@@ -482,6 +500,7 @@ def write_report(
         "",
         f"Trained and played on: {_machine_text(ran)}; commit {ran_on['commit']}.",
         "",
+        *_controls_machine_lines(ran_on),
         f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
         "",
         *_time_lines(train_s or {}, played_s),
@@ -493,7 +512,8 @@ def write_report(
         "understate it about 3x for 4 seeds). The controls are partners that learned nothing: the CEC "
         "network at its random initialisation (one per CEC seed) and an agent that always stays; what an "
         "algorithm adds with the cook is its score there minus theirs. The paper's values are read off its "
-        "figures (approximate; `apps/reproduce/paper_overcooked.yaml`).",
+        "figures (approximate, marked 'figure') or, where its text prints one, that value ('text'; "
+        "`apps/reproduce/paper_overcooked.yaml`).",
         "",
         *_human_lines(mode, summary, skipped),
     ]
@@ -508,12 +528,15 @@ def write_report(
             s = scores[algo]
             sp, xp = _finite(s.sp), _finite(s.xp)
             ratio = f"{xp.mean() / sp.mean():.2f}" if xp.size and sp.size and sp.mean() > 0 else "—"
-            ref = paper.get(level_set, {}).get(algo)
             lines.append(
                 f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_xp_cell(s)} | {ratio} | "
                 f"{_cell(s.cook) if algo != COOK else '—'} | {_cell(s.human)} | "
-                f"{'≈' + str(ref) if ref is not None else '—'} |"
+                f"{_paper_cell(level_set, algo, paper)} |"
             )
+        absent = {a: v for a, v in paper_values("text")[level_set].items() if a not in scores}
+        if absent:
+            named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
+            lines.append(f"Not trained here; the paper's text gives: {named}.")
         lines.append("")
     lines += ["## CEC against the baselines (seeds as units)", "",
               "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
@@ -635,6 +658,14 @@ def _time_lines(train_s: dict[str, float], played_s: float) -> list[str]:
     ]
 
 
+def _controls_machine_lines(ran_on: dict[str, Any]) -> list[str]:
+    """Where the controls were played, when not where the zoo was (`--report-only` plays them)."""
+    controls = ran_on.get("controls")
+    if not controls or controls["machine"]["host"] == ran_on["machine"]["host"]:
+        return []
+    return [f"Controls played on: {_machine_text(controls['machine'])}; commit {controls['commit']}.", ""]
+
+
 def _machine_text(m: dict[str, Any]) -> str:
     return f"{m['device']} (JAX {m['jax']}), {m['cpu']} ({m['cpu_count']} cores), host {m['host']}"
 
@@ -690,6 +721,8 @@ def reproduce_overcooked(
     from cec.evaluation.results import EpisodeTable
 
     with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log)])
+    if (work / "controls" / MACHINE_FILE).is_file():
+        ran_on = {**ran_on, "controls": json.loads((work / "controls" / MACHINE_FILE).read_text())}
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")

@@ -109,7 +109,8 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert report is not None and report.exists()
     text = report.read_text()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
-                   "| FCP |", "| E3T |", "| CEC-Finetune |", "≈130", "≈70", "(seeds as units)",
+                   "| FCP |", "| E3T |", "| CEC-Finetune |", "130.51 (text)", "≈70 (figure)",
+                   "the paper's text gives: CEC-E3T 28.21", "(seeds as units)",
                    "| with human proxies |", "The paper's human study", "| control: untrained CEC network |",
                    "| control: no-op agent |", "## Per kitchen, collisions",
                    "| cramped_room | held-out |"):  # fmt: skip
@@ -131,6 +132,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
             scores = summary["summary"][level_set][control]
             assert scores["seeds"] == seeds and np.all(np.isfinite(scores["cook"])), (control, level_set)
     assert summary["summary"]["classic"][ro.NOOP]["sp"] == [0.0]  # two agents that stay deliver nothing
+    assert (work / "controls" / ro.MACHINE_FILE).is_file()  # where they were played, for a later report
     assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
     assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
     # a second invocation trains nothing and plays nothing again
