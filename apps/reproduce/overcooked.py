@@ -536,7 +536,7 @@ def write_report(
         absent = {a: v for a, v in paper_values("text")[level_set].items() if a not in scores}
         if absent:
             named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
-            lines.append(f"Not trained here; the paper's text gives: {named}.")
+            lines += ["", f"Not trained here; the paper's text gives: {named}."]
         lines.append("")
     lines += ["## CEC against the baselines (seeds as units)", "",
               "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
