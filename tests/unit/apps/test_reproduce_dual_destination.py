@@ -9,6 +9,8 @@ import json
 import math
 import re
 import shutil
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -144,6 +146,32 @@ def test_the_plan_command_prints_every_run_and_the_expected_time(
     assert "(paper)" in capsys.readouterr().out
     assert main(["reproduce", "dual-destination", "--variants", "nope", "--plan"]) == 2
     assert "unknown variant" in capsys.readouterr().err
+
+
+def test_the_committed_report_comes_back_from_its_work_folder_without_training_states(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """`cec reproduce dual-destination --report-only` on the committed full version's work folder (tables,
+    metrics, exported policies; no training state): the committed numbers and conventions."""
+    full = rp.ROOT / "benchmarks" / "results" / "dual_destination" / "full"
+    cmd = [sys.executable, "-m", "apps.cli", "reproduce", "dual-destination", "--report-only",
+           "--allow-dirty", "--variants", "full_obs", "--work", str(full / "work"),
+           "--out", str(tmp_path)]  # fmt: skip
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=rp.ROOT, timeout=300)
+    assert done.returncode == 0, done.stderr
+    got, want = (json.loads((d / "summary.json").read_text()) for d in (tmp_path, full))
+    assert got["summaries"]["full_obs"] == want["summaries"]["full_obs"]
+    assert got["meta"]["conventions"]["full_obs"] == want["meta"]["conventions"]["full_obs"]
+    assert main(["reproduce", "dual-destination", "--report-only", "--train-only"]) == 2
+    empty = [
+        "reproduce",
+        "dual-destination",
+        "--report-only",
+        "--allow-dirty",
+        "--work",
+        str(tmp_path / "no"),
+    ]
+    assert main(empty) == 2
 
 
 def test_train_only_goes_on_with_the_next_variant_while_others_train_the_rest(
