@@ -42,22 +42,29 @@ from cec.evaluation import analysis as an
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from cec.evaluation.stats import crossplay_estimate, sem
 
+STALL = 5.0  # an update at under 1/STALL of the run's median env-steps/s was stalled, not slow
 
-def training_seconds(run: Path) -> dict[int, float]:
-    """{update: seconds of training up to and including it} from the run's metrics (one row per seed and
-    update; the env-steps/s of a row counts every seed's steps)."""
+
+def training_seconds(run: Path) -> tuple[dict[int, float], int]:
+    """({update: seconds of training up to and including it}, stalled updates) from the run's metrics (one
+    row per seed and update; the env-steps/s of a row counts every seed's steps). An update whose rate is
+    under 1/STALL of the run's median (the process was stopped, e.g. SIGSTOP while the machine measured
+    something else, or the laptop slept) counts at the median rate: the recipe's cost, not the pause's."""
     per_update: dict[int, tuple[float, float]] = {}
     with (run / "metrics.csv").open() as f:
         for row in csv.DictReader(f):
             u = int(row["update"])
             steps, sps = float(row["env_steps"]), float(row["env_steps_per_s"])
             per_update.setdefault(u, (steps, sps))
-    out, total, last_steps, seeds = {}, 0.0, 0.0, _seeds(run)
+    median = float(np.median([sps for _, sps in per_update.values()]))
+    out, total, last_steps, seeds, stalled = {}, 0.0, 0.0, _seeds(run), 0
     for u in sorted(per_update):
         steps, sps = per_update[u]
+        if sps < median / STALL:
+            sps, stalled = median, stalled + 1
         total += (steps - last_steps) * seeds / max(sps, 1e-9)  # one seed's steps, every seed's rate
         out[u], last_steps = total, steps
-    return out
+    return out, stalled
 
 
 def _seeds(run: Path) -> int:
@@ -69,7 +76,9 @@ def _seeds(run: Path) -> int:
 def evaluate(run: Path, episodes: int) -> list[dict[str, Any]]:
     """One row per milestone checkpoint: env steps per seed, core-hours per seed, XP and SP on the
     held-out kitchens."""
-    seconds = training_seconds(run)
+    seconds, stalled = training_seconds(run)
+    if stalled:
+        print(f"{run.name}: {stalled} stalled update(s) counted at the run's median env-steps/s", flush=True)
     levels = eval_levels("overcooked", "generated")
     rows = []
     for ckpt in sorted(p for p in (run / "checkpoints").iterdir() if (p / "meta.json").is_file()):
@@ -97,6 +106,7 @@ def evaluate(run: Path, episodes: int) -> list[dict[str, Any]]:
                 "sp": float(sp.mean()),
                 "sp_se": sem(sp),
                 "seeds": seeds,
+                "stalled_updates_at_median_rate": stalled,
             }  # fmt: skip
         )
         print(

@@ -1,0 +1,38 @@
+"""`benchmarks/time_to_skill.py`: a recipe costs its training time, not the time its process was stopped."""
+
+from __future__ import annotations
+
+import importlib.util
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _module() -> Any:
+    spec = importlib.util.spec_from_file_location("time_to_skill", ROOT / "benchmarks" / "time_to_skill.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_a_stopped_update_counts_at_the_runs_median_rate_and_a_slow_one_as_measured(
+    saved_run: tuple[Path, Path, Any], tmp_path: Path
+) -> None:
+    tts = _module()
+    run = tmp_path / "r"
+    shutil.copytree(saved_run[0], run)  # two seeds
+    rates = [1000.0, 1000.0, 400.0, 1000.0, 10.0]  # update 3 shared the core; update 5 was stopped
+    lines = ["update,seed,env_steps,env_steps_per_s"]
+    for u, rate in enumerate(rates, start=1):
+        lines += [f"{u},{seed},{u * 500},{rate}" for seed in (4, 5)]
+    (run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    seconds, stalled = tts.training_seconds(run)
+    assert stalled == 1
+    # each update: 500 steps per seed x 2 seeds at the rate of all seeds; the stopped one at the median
+    assert seconds[3] == pytest.approx(1.0 + 1.0 + 2.5)
+    assert seconds[5] == pytest.approx(seconds[4] + 1.0)
