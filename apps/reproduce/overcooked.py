@@ -242,6 +242,23 @@ def human_proxies(mode: Mode) -> list[Any]:
     return [dataclasses.replace(p, seed=i) for i, p in enumerate(proxies)]
 
 
+def eval_config(mode: Mode, level_set: str, seed: int = 0) -> Any:
+    """How every policy plays on a level set: the mode's episodes per pair, seat order and kitchen, the
+    paper's episode length, common random numbers from `seed`."""
+    from cec.evaluation.crossplay import EvalConfig
+
+    return EvalConfig(
+        levels=level_spec(mode, level_set), episodes=mode.episodes[level_set], seed=seed,
+        max_steps=EVAL_STEPS, games_per_call=8,
+    )  # fmt: skip
+
+
+def _eval_key(mode: Mode) -> dict[str, Any]:
+    """What a table of `evaluate` or `evaluate_controls` depends on besides its policies."""
+    settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
+    return {**settings, "steps": EVAL_STEPS}
+
+
 def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     """Per level set and algorithm: its seeds and the scripted cook, every pair (XP, SP, with the cook),
     and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable` (the proxies'
@@ -249,7 +266,7 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     paper's baselines there). Proxies that cannot play with the agents (another network) are the table's
     skipped entries, with the reason."""
     from cec.agents.policy import scripted_policy
-    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.crossplay import crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
 
     policies = pipeline.load_zoo_policies(manifest, str(manifest))
@@ -257,11 +274,8 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
     tables = []
     for level_set in LEVEL_SETS:
-        spec = level_spec(mode, level_set)
-        levels = eval_levels("overcooked", spec)
-        config = EvalConfig(
-            levels=spec, episodes=mode.episodes[level_set], seed=seed, max_steps=EVAL_STEPS, games_per_call=8
-        )
+        config = eval_config(mode, level_set, seed)
+        levels = eval_levels("overcooked", config.levels)
         for k, algo in enumerate(a for a in ALGORITHMS if any(p.algorithm == a for p in policies)):
             group = [p for p in policies if p.algorithm == algo]
             if level_set == "heldout":  # one entry per seed, free of its kitchen
@@ -305,19 +319,16 @@ def evaluate_controls(mode: Mode, *, log: TextIO, seed: int = 0) -> Any:
     """The controls (`control_policies`) with each other and the cook on both level sets, as `evaluate`
     plays the algorithms (the cook's own games left out: `evaluate` has them)."""
     from cec.agents.policy import scripted_policy
-    from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
+    from cec.evaluation.crossplay import crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
 
     controls = control_policies(mode)
     cook = scripted_policy(COOK, COOK, env=controls[0].env, algorithm=COOK)
     tables = []
     for level_set in LEVEL_SETS:
-        spec = level_spec(mode, level_set)
-        config = EvalConfig(
-            levels=spec, episodes=mode.episodes[level_set], seed=seed, max_steps=EVAL_STEPS, games_per_call=8
-        )
+        config = eval_config(mode, level_set, seed)
         t0 = time.perf_counter()
-        table = crossplay([*controls, cook], eval_levels("overcooked", spec), config)
+        table = crossplay([*controls, cook], eval_levels("overcooked", config.levels), config)
         tables.append(table.select((table.algorithm_a != COOK) | (table.algorithm_b != COOK)))
         pipeline.note(log, f"controls on the {level_set} kitchens: {len(table)} episodes in "
                       f"{time.perf_counter() - t0:.0f}s")  # fmt: skip
@@ -329,8 +340,7 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO) -> Any:
     are unchanged. They need no trained agent, so `--report-only` plays them when a work folder lacks them."""
     from apps.reproduce.common import cached_table
 
-    settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
-    key = {**settings, "steps": EVAL_STEPS, "preset": mode.preset, "overrides": list(mode.overrides)}
+    key = {**_eval_key(mode), "preset": mode.preset, "overrides": list(mode.overrides)}
     folder = work / "controls"
     folder.mkdir(parents=True, exist_ok=True)
 
@@ -351,8 +361,7 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
 
     entries = sorted(pipeline.zoo_entries(manifest))
     proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
-    settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
-    key = {**settings, "steps": EVAL_STEPS, "zoo": entries, "proxies": proxies}
+    key = {**_eval_key(mode), "zoo": entries, "proxies": proxies}
     return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
 
 
