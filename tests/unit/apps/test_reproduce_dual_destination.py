@@ -15,6 +15,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import jax
 import numpy as np
 import pytest
 import yaml
@@ -304,9 +305,11 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
         for n in seeds
     }  # fmt: skip
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
-    from_states = rp.conventions("full_obs", manifest)  # the exported policies play as their checkpoints
-    played = summary["meta"]["conventions"]["full_obs"]
-    assert {a: {str(n): g for n, g in v.items()} for a, v in from_states.items()} == played
+    # the exported policies are their checkpoints' parameters, exactly
+    exported = {p.name: p for p in rp.pipeline.load_zoo_policies(policies / "zoo.yaml", "exported")}
+    for state in rp.pipeline.load_zoo_policies(manifest, "zoo"):
+        same = jax.tree.map(np.array_equal, state.params, exported[state.name].params)
+        assert all(jax.tree.leaves(same)) and exported[state.name].network == state.network, state.name
     for states in (tmp_path / "work" / "full_obs" / "zoo" / "runs").glob("*/checkpoints"):
         shutil.rmtree(states)
     (tmp_path / "out" / "summary.json").unlink()
