@@ -26,12 +26,13 @@ DD_QUICK = str(REPO / "configs/train/dd_ippo_quick.yaml")
 
 
 def test_the_learners_events_hold_its_rows_with_policy_lag_and_the_level_feed(tmp_path: Path) -> None:
-    # 4 updates of 25-step rollouts; 50-step episodes end twice inside the run, so that its rows hold episode
-    # returns (with the game's 100 steps the only end fell on the last step the run plays, and one run of the
-    # suite here, 2026-11-27, logged none)
+    # 4 updates of 25-step rollouts. The async learner drops stale batches and replaces held ones, so it need
+    # not train on the rollout that holds an episode's end (with the game's 100 steps only every 4th rollout
+    # did, and one run of the suite here, 2026-11-27, logged no episode return): 20-step episodes put an end
+    # in every rollout
     cfg = load_config(TrainConfig, DD_QUICK, [
         "num_envs=16", "num_steps=25", "total_env_steps=1600", "updates_per_call=1",
-        "env.dual_destination.max_steps=50", f"run_dir={tmp_path}", "name=dist",
+        "env.dual_destination.max_steps=20", f"run_dir={tmp_path}", "name=dist",
     ])  # fmt: skip
     dist = DistributedConfig(mode="async", num_actors=2, actor_cpus=0.5, metrics_port=-1)
     out = io.StringIO()
