@@ -306,8 +306,10 @@ def reproduce_dual_destination(
         train_s += stages[f"{variant}: train"]
         t0 = time.perf_counter()
         if report_only:  # the conventions from the exported policies
+            from apps.zoo_build import MANIFEST
+
             table = pipeline.played_table(work / variant, "dual-destination", pipeline.POLICIES_SOURCE)
-            manifest = work / variant / pipeline.POLICIES / "zoo.yaml"
+            manifest = work / variant / pipeline.POLICIES / MANIFEST
         else:
             table = cached_evaluation(mode, variant, zoo_manifest, work / variant, log=log)
             manifest = pipeline.export_policies(zoo_manifest, work / variant / pipeline.POLICIES, log=log)

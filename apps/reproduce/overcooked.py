@@ -440,10 +440,10 @@ def paper_values(source: str = "figures") -> dict[str, dict[str, float]]:
     return {s: dict(data.get(s, {})) for s in LEVEL_SETS}
 
 
-def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]]) -> str:
-    text = paper_values("text")[level_set].get(algo)
-    if text is not None:
-        return f"{text} (text)"
+def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]], text: dict) -> str:
+    exact = text.get(level_set, {}).get(algo)
+    if exact is not None:
+        return f"{exact} (text)"
     ref = figures.get(level_set, {}).get(algo)
     return "—" if ref is None else f"≈{ref} (figure)"
 
@@ -500,7 +500,7 @@ def write_report(
     run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
     `episodes`: the per-kitchen section (`episode_lines`)."""
 
-    paper = paper_values()
+    paper, paper_text = paper_values(), paper_values("text")
     tests = comparisons(summary)
     out.mkdir(parents=True, exist_ok=True)
     machine, ran = machine_info(), ran_on["machine"]
@@ -540,9 +540,9 @@ def write_report(
             lines.append(
                 f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_xp_cell(s)} | {ratio} | "
                 f"{_cell(s.cook) if algo != COOK else '—'} | {_cell(s.human)} | "
-                f"{_paper_cell(level_set, algo, paper)} |"
+                f"{_paper_cell(level_set, algo, paper, paper_text)} |"
             )
-        absent = {a: v for a, v in paper_values("text")[level_set].items() if a not in scores}
+        absent = {a: v for a, v in paper_text[level_set].items() if a not in scores}
         if absent:
             named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
             lines += ["", f"Not trained here; the paper's text gives: {named}."]

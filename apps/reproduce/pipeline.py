@@ -128,7 +128,8 @@ def zoo_entries(manifest: str | Path) -> list[list[Any]]:
 
 
 POLICIES = "policies"  # beside a result table: the zoo's policies as parameter files (what a report needs)
-POLICIES_SOURCE = f"{POLICIES}/source.json"
+SOURCE = "source.json"  # in POLICIES: the zoo entries they were exported from
+POLICIES_SOURCE = f"{POLICIES}/{SOURCE}"
 
 
 def export_policies(zoo_manifest: Path, folder: Path, *, log: TextIO) -> Path:
@@ -140,7 +141,7 @@ def export_policies(zoo_manifest: Path, folder: Path, *, log: TextIO) -> Path:
 
     from apps.zoo_build import MANIFEST, export_zoo
 
-    source, manifest = folder / "source.json", folder / MANIFEST
+    source, manifest = folder / SOURCE, folder / MANIFEST
     entries = json.loads(json.dumps(zoo_entries(zoo_manifest)))  # as stored: tuples as lists
     if manifest.is_file() and source.is_file() and json.loads(source.read_text()) == entries:
         return manifest
