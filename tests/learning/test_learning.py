@@ -9,11 +9,11 @@ update 21 and reached the oracle's 191 (0.955). The test asks for > 0.9 averaged
 
 IPPO on Cramped Room (configs/train/cramped_room_ci.yaml: 64 envs x 128-step episodes, an MLP on the
 flattened observation (FC 64, FC 64, no CNN, no LSTM), LR 1e-2, no value clipping, Overcooked-AI's shaped
-rewards at full weight), 120 updates (983k env steps): the agents deliver soups. The random policy's team
+rewards at full weight), 80 updates (655k env steps): the agents deliver soups. The random policy's team
 return is 0 (0.00-0.06 over the first five updates in every measured run); measured runs reached a mean team
-return over the last 5 updates of 23.7, 9.7, 13.5, 21.9, 10.9 and 14.2 for seeds 0-5 (20 per soup), in
-76-83 s on one core. The test asks for >= 4 (a soup every five episodes), and for the unscaled shaped return
-(~4 at first, 15-28 at the end) to double.
+return over the last 5 updates of 10.3, 19.1, 16.5, 15.8, 16.4, 8.2, 16.9 and 16.8 for seeds 0-7 (20 per
+soup), in 43-46 s on one core. The test asks for >= 4 (a soup every five episodes), and for the unscaled
+shaped return (~4 at first, 16-23 at the end) to double.
 """
 
 import json
@@ -38,7 +38,7 @@ def test_dual_destination_fixed_task_self_play_reaches_090(tmp_path):
 
 
 def test_ippo_cramped_room_delivers_soups(tmp_path):
-    # configs/train/cramped_room_ci.yaml as shipped: 120 updates, about 80 s on one core.
+    # configs/train/cramped_room_ci.yaml as shipped: 80 updates, about 45 s on one core.
     cfg = load_config(TrainConfig, ROOT / "configs/train/cramped_room_ci.yaml", [f"run_dir={tmp_path}"])
     rows = _rows(train(cfg, progress=False))
     first, last = rows[:5], rows[-5:]
