@@ -21,7 +21,8 @@ Train the runs first, one core each, the same budget, e.g. (the two probes of do
         --out docs/reproduce_overcooked/tts
 
 `--with OUT.json` adds the rows of earlier evaluations (each row keeps its machine-time cost) without
-playing them again.
+playing them again, also for a run named again: evaluate a run while it trains, then again with `--with`
+the first output, and only the checkpoints saved since are played.
 """
 
 from __future__ import annotations
@@ -73,9 +74,11 @@ def _seeds(run: Path) -> int:
     return len(read_meta(latest.path)["metadata"]["seeds"])
 
 
-def evaluate(run: Path, episodes: int) -> list[dict[str, Any]]:
-    """One row per milestone checkpoint: env steps per seed, core-hours per seed, XP and SP on the
-    held-out kitchens."""
+def evaluate(
+    run: Path, episodes: int, done: frozenset[tuple[str, int]] = frozenset()
+) -> list[dict[str, Any]]:
+    """One row per checkpoint of the run (its milestones and its latest) not in `done` ((run name, update)
+    pairs already evaluated): env steps per seed, core-hours per seed, XP and SP on the held-out kitchens."""
     seconds, stalled = training_seconds(run)
     if stalled:
         print(f"{run.name}: {stalled} stalled update(s) counted at the run's median env-steps/s", flush=True)
@@ -85,6 +88,8 @@ def evaluate(run: Path, episodes: int) -> list[dict[str, Any]]:
         meta = read_meta(ckpt)
         seeds = [int(s) for s in meta["metadata"]["seeds"]]
         update = int(meta["update"])
+        if (run.name, update) in done:
+            continue
         entries = [ZooEntry(f"s{s}", str(ckpt), algorithm="cec", seed=s) for s in seeds]
         policies, skipped = load_policies(entries)
         if skipped:
@@ -151,7 +156,8 @@ def main(argv: list[str] | None = None) -> int:
     if not (args.runs or args.earlier):
         ap.error("give run directories and/or --with OUT.json of earlier evaluations")
     rows = [r for path in args.earlier for r in json.loads(path.read_text())["rows"]]
-    rows += [r for run in args.runs for r in evaluate(run, args.episodes)]
+    done = frozenset((r["run"], r["update"]) for r in rows)  # a run still training: only what is new
+    rows += [r for run in args.runs for r in evaluate(run, args.episodes, done)]
     from apps.machine import machine_info
 
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -36,3 +36,13 @@ def test_a_stopped_update_counts_at_the_runs_median_rate_and_a_slow_one_as_measu
     # each update: 500 steps per seed x 2 seeds at the rate of all seeds; the stopped one at the median
     assert seconds[3] == pytest.approx(1.0 + 1.0 + 2.5)
     assert seconds[5] == pytest.approx(seconds[4] + 1.0)
+
+
+def test_checkpoints_already_evaluated_are_not_played_again(
+    saved_run: tuple[Path, Path, Any], tmp_path: Path
+) -> None:
+    tts = _module()
+    run = tmp_path / "r"
+    shutil.copytree(saved_run[0], run)  # one checkpoint, update 0
+    (run / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n1,4,16,100.0\n1,5,16,100.0\n")
+    assert tts.evaluate(run, 1, done=frozenset({("r", 0)})) == []  # no cross-play compiled, none played
