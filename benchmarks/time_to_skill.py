@@ -20,6 +20,9 @@ Train the runs first, one core each, the same budget, e.g. (the two probes of do
     python benchmarks/time_to_skill.py runs/probes/tts-e128 runs/probes/tts-e1024 \\
         --out docs/reproduce_overcooked/tts
 
+Seeds of one recipe trained in separate processes (one per core, e.g. seeds 300-301 and 302-303) are one
+population with `--join NAME RUN RUN`: at each update both saved, all their seeds play each other.
+
 `--with OUT.json` adds the rows of earlier evaluations (each row keeps its machine-time cost) without
 playing them again, also for a run named again: evaluate a run while it trains, then again with `--with`
 the first output, and only the checkpoints saved since are played.
@@ -35,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from cec.agents.policy import load_policies
 from cec.agents.zoo import ZooEntry
@@ -74,37 +78,66 @@ def _seeds(run: Path) -> int:
     return len(read_meta(latest.path)["metadata"]["seeds"])
 
 
+def _checkpoints(run: Path) -> dict[int, Path]:
+    """{update: checkpoint directory} of the run's loadable checkpoints (its milestones and its latest)."""
+    found = (p for p in (run / "checkpoints").iterdir() if (p / "meta.json").is_file())
+    return {int(read_meta(p)["update"]): p for p in found}
+
+
+def _recipe(run: Path) -> dict[str, Any]:
+    """The run's training config without what tells its processes apart (seed, name)."""
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    return {k: v for k, v in config.items() if k not in ("seed", "name")}
+
+
 def evaluate(
-    run: Path, episodes: int, done: frozenset[tuple[str, int]] = frozenset()
+    runs: list[Path], episodes: int, done: frozenset[tuple[str, int]] = frozenset(), name: str = ""
 ) -> list[dict[str, Any]]:
-    """One row per checkpoint of the run (its milestones and its latest) not in `done` ((run name, update)
-    pairs already evaluated): env steps per seed, core-hours per seed, XP and SP on the held-out kitchens."""
-    seconds, stalled = training_seconds(run)
-    if stalled:
-        print(f"{run.name}: {stalled} stalled update(s) counted at the run's median env-steps/s", flush=True)
+    """One row per checkpoint update (milestones and latest) that every run saved and `done` ((name,
+    update) pairs already evaluated) does not hold: env steps per seed, core-hours per seed, XP and SP on
+    the held-out kitchens. Several runs are one recipe's seeds trained in separate processes (`--join`):
+    their seeds play each other as one population, and a seed's cost is their training time over all their
+    seeds."""
+    name = name or runs[0].name
+    if any(_recipe(run) != _recipe(runs[0]) for run in runs[1:]):
+        raise SystemExit(f"{name}: the runs joined differ in more than seed and name: {runs}")
+    seconds, stalled = [], 0
+    for run in runs:
+        run_seconds, run_stalled = training_seconds(run)
+        seconds.append(run_seconds)
+        stalled += run_stalled
+        if run_stalled:
+            print(
+                f"{run.name}: {run_stalled} stalled update(s) counted at its median env-steps/s", flush=True
+            )
+    saved = [_checkpoints(run) for run in runs]
     levels = eval_levels("overcooked", "generated")
     rows = []
-    for ckpt in sorted(p for p in (run / "checkpoints").iterdir() if (p / "meta.json").is_file()):
-        meta = read_meta(ckpt)
-        seeds = [int(s) for s in meta["metadata"]["seeds"]]
-        update = int(meta["update"])
-        if (run.name, update) in done:
+    for update in sorted(set.intersection(*(set(s) for s in saved))):
+        if (name, update) in done:
             continue
-        entries = [ZooEntry(f"s{s}", str(ckpt), algorithm="cec", seed=s) for s in seeds]
+        metas = [read_meta(s[update]) for s in saved]
+        entries = [
+            ZooEntry(f"s{seed}", str(s[update]), algorithm="cec", seed=int(seed))
+            for s, meta in zip(saved, metas, strict=True)
+            for seed in meta["metadata"]["seeds"]
+        ]
+        seeds = [e.seed for e in entries]
         policies, skipped = load_policies(entries)
         if skipped:
-            raise SystemExit(f"{ckpt}: {skipped}")
+            raise SystemExit(f"{name} update {update}: {skipped}")
         table = crossplay(policies, levels, EvalConfig(episodes=episodes, max_steps=400, pairs="all"))
-        pl = an.pair_level_scores(table)
-        m = an.pair_scores(pl)
+        m = an.pair_scores(an.pair_level_scores(table))
         est = crossplay_estimate(m)
         sp = np.diag(m)
-        cost = seconds.get(update, float("nan")) / len(seeds) / 3600
+        cost = sum(s.get(update, float("nan")) for s in seconds) / len(seeds) / 3600
+        steps = int(metas[0]["env_steps"])
         rows.append(
             {
-                "run": run.name,
+                "run": name,
+                "runs": [run.name for run in runs],
                 "update": update,
-                "env_steps_per_seed": int(meta["env_steps"]),
+                "env_steps_per_seed": steps,
                 "core_hours_per_seed": cost,
                 "xp": est.mean,
                 "xp_se": est.se,
@@ -114,9 +147,10 @@ def evaluate(
                 "stalled_updates_at_median_rate": stalled,
             }  # fmt: skip
         )
+        se = "" if np.isnan(est.se) else f" +- {est.se:.1f}"
         print(
-            f"{run.name} update {update}: {int(meta['env_steps']):,} steps/seed, {cost:.3f} core-h/seed | "
-            f"XP {est.mean:.1f} | SP {sp.mean():.1f}",
+            f"{name} update {update}: {steps:,} steps/seed, {cost:.3f} core-h/seed | XP {est.mean:.1f}{se} | "
+            f"SP {sp.mean():.1f} ({len(seeds)} seeds)",
             flush=True,
         )
     return rows
@@ -151,13 +185,18 @@ def main(argv: list[str] | None = None) -> int:
         "--with", dest="earlier", nargs="+", type=Path, default=[], metavar="JSON",
         help="rows of earlier outputs (OUT.json) to show beside the new ones, not evaluated again",
     )  # fmt: skip
+    ap.add_argument(
+        "--join", metavar="NAME",
+        help="the runs are one recipe's seeds trained in separate processes: evaluate them together as NAME",
+    )  # fmt: skip
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
     args = ap.parse_args(argv)
     if not (args.runs or args.earlier):
         ap.error("give run directories and/or --with OUT.json of earlier evaluations")
     rows = [r for path in args.earlier for r in json.loads(path.read_text())["rows"]]
     done = frozenset((r["run"], r["update"]) for r in rows)  # a run still training: only what is new
-    rows += [r for run in args.runs for r in evaluate(run, args.episodes, done)]
+    groups = [(args.runs, args.join)] if args.join else [([run], run.name) for run in args.runs]
+    rows += [r for runs, name in groups for r in evaluate(runs, args.episodes, done, name)]
     from apps.machine import machine_info
 
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -45,4 +45,20 @@ def test_checkpoints_already_evaluated_are_not_played_again(
     run = tmp_path / "r"
     shutil.copytree(saved_run[0], run)  # one checkpoint, update 0
     (run / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n1,4,16,100.0\n1,5,16,100.0\n")
-    assert tts.evaluate(run, 1, done=frozenset({("r", 0)})) == []  # no cross-play compiled, none played
+    assert tts.evaluate([run], 1, done=frozenset({("r", 0)})) == []  # no cross-play compiled, none played
+
+
+def test_joined_runs_must_be_one_recipe_and_are_evaluated_as_one(
+    saved_run: tuple[Path, Path, Any], tmp_path: Path
+) -> None:
+    """`--join`: seeds trained in separate processes are one population only if their recipes agree."""
+    tts = _module()
+    runs = [tmp_path / "a", tmp_path / "b"]
+    for run, (seed, envs) in zip(runs, ((4, 64), (6, 32)), strict=True):
+        shutil.copytree(saved_run[0], run)
+        (run / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n1,4,16,100.0\n")
+        (run / "config.yaml").write_text(f"seed: {seed}\nname: {run.name}\nnum_envs: {envs}\n")
+    with pytest.raises(SystemExit, match="differ in more than seed and name"):
+        tts.evaluate(runs, 1, name="ab")
+    (runs[1] / "config.yaml").write_text("seed: 6\nname: b\nnum_envs: 64\n")
+    assert tts.evaluate(runs, 1, done=frozenset({("ab", 0)}), name="ab") == []  # joined under its name
