@@ -1,4 +1,5 @@
-"""What every test layer shares: one JAX compilation cache per session, a local Redis, a saved run.
+"""What every test layer shares: one JAX compilation cache per session, XLA:CPU at optimisation level 1
+(`_lighter_xla_optimisation`), a local Redis, a saved run.
 
 The suite compiles the same training and evaluation calls many times over: in process (each test builds
 its own `Trainer`, whose jitted functions are new objects) and in the `cec` commands the CLI and e2e tests
@@ -26,6 +27,7 @@ _CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 
 
 def pytest_configure(config: pytest.Config) -> None:
+    _lighter_xla_optimisation()
     chosen = os.environ.get("CEC_TEST_JAX_CACHE", "")
     if chosen == "off" or _CACHE_ENV in os.environ:
         return
@@ -49,6 +51,18 @@ def pytest_configure(config: pytest.Config) -> None:
 
 
 _own_cache = pytest.StashKey[str]()
+_OPT_FLAG = "--xla_backend_optimization_level"
+
+
+def _lighter_xla_optimisation() -> None:
+    """XLA:CPU's backend at optimisation level 1 for the session (exported: the `cec` children inherit it),
+    unless `XLA_FLAGS` already names a level. Most of the suite's time is compiling small programs: level 1
+    compiles a test-sized `Trainer` about 20% faster, and on the CPU recipe it trains about 3% slower with
+    the same losses to the last bit (measured on the 2-vCPU Intel Xeon; level 0 halves compile time but runs
+    1.5x slower and changes results). A test that needs the default sets `XLA_FLAGS` for its child."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if _OPT_FLAG not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {_OPT_FLAG}=1".strip()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

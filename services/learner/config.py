@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 from cec.config import ConfigError
@@ -114,3 +115,9 @@ class DistributedConfig:
             raise ConfigError(
                 f"num_envs={train.num_envs} must split evenly over distributed.num_actors={self.num_actors}"
             )
+
+
+def xla_flags(*own: str) -> str:
+    """`XLA_FLAGS` for a process Ray starts: this process's own flags (a user's `--xla_dump_to`, a lighter
+    optimisation level) kept, then `own`, which XLA reads last and so wins where both name a flag."""
+    return " ".join(f for f in (os.environ.get("XLA_FLAGS", ""), *own) if f).strip()

@@ -25,7 +25,7 @@ from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
 from cec.training.run import RunFiles, trains_as
 from cec.training.tracking import describe
-from services.learner.config import DistributedConfig
+from services.learner.config import DistributedConfig, xla_flags
 from services.store import StoreConfig
 
 log = logging.getLogger("cec.driver")
@@ -117,7 +117,7 @@ def learner_options(dist: DistributedConfig, devices: int = 1) -> dict[str, Any]
     platforms = os.environ.get("JAX_PLATFORMS", "" if dist.learner_gpus else "cpu")
     env_vars = {"JAX_PLATFORMS": platforms}
     if not dist.learner_gpus and devices > 1:
-        env_vars["XLA_FLAGS"] = f"--xla_force_host_platform_device_count={devices}"
+        env_vars["XLA_FLAGS"] = xla_flags(f"--xla_force_host_platform_device_count={devices}")
     return {
         "num_cpus": 0,
         "num_gpus": dist.learner_gpus,

@@ -14,7 +14,7 @@ from typing import Any
 import ray
 
 from services.actors.actor import ActorNotReadyError, RolloutActor
-from services.learner.config import DistributedConfig
+from services.learner.config import DistributedConfig, xla_flags
 from services.learner.pool import ActorLostError, ActorSpec
 
 
@@ -29,7 +29,7 @@ class RayPool:
         d = self.dist
         env_vars = {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
         if d.actor_threads > 0:
-            env_vars["XLA_FLAGS"] = (
+            env_vars["XLA_FLAGS"] = xla_flags(
                 f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={d.actor_threads}"
             )
         remote = ray.remote(RolloutActor).options(

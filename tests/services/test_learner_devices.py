@@ -90,3 +90,15 @@ def test_learner_devices_are_checked_against_its_gpus_before_any_process_starts(
     DistributedConfig(learner_gpus=4).check(train)
     gpu = learner_options(DistributedConfig(learner_gpus=4), devices=4)["runtime_env"]["env_vars"]
     assert "XLA_FLAGS" not in gpu, "a GPU learner sees the GPUs Ray gives it, no fake devices"
+
+
+def test_the_drivers_own_xla_flags_reach_the_learner_and_the_actors(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A user's `XLA_FLAGS` (a dump folder, an optimisation level) are kept in the processes Ray starts,
+    before the flags the learner and the actors need, which XLA reads last."""
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/dump")
+    flags = learner_options(DistributedConfig(), devices=2)["runtime_env"]["env_vars"]["XLA_FLAGS"]
+    assert flags == "--xla_dump_to=/tmp/dump --xla_force_host_platform_device_count=2"
+    monkeypatch.delenv("XLA_FLAGS")
+    assert learner_options(DistributedConfig(), devices=2)["runtime_env"]["env_vars"]["XLA_FLAGS"] == (
+        "--xla_force_host_platform_device_count=2"
+    )

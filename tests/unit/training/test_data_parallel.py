@@ -65,7 +65,8 @@ def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devic
     """Two seeds, an LSTM, 3 updates of 8 envs x 16 steps: the parameters after N = 4 devices, and after a
     run that did one update on 4 devices and was resumed on one, equal one device's to float rounding; the
     rows of the metrics agree too (the resumed run's programs come from the session's compilation cache)."""
-    env = {**os.environ, "XLA_FLAGS": "--xla_force_host_platform_device_count=4", "JAX_PLATFORMS": "cpu"}
+    flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4".strip()
+    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
     proc = subprocess.run(
         [sys.executable, "-c", CHILD, json.dumps(BASE), str(tmp_path)],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=540,
