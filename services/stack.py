@@ -40,6 +40,7 @@ from services.store import StoreConfig
 
 log = logging.getLogger("cec.up")
 DEFAULT_CONFIG = "configs/up/default.yaml"
+CACHE_DIR = "JAX_COMPILATION_CACHE_DIR"  # the evaluator's compilation cache (`Stack.start`)
 
 
 @dataclass(frozen=True)
@@ -274,7 +275,8 @@ class Stack:
                 logs / "evaluator.log",
                 "evaluator ready",
                 cfg.start_timeout_s,
-                env={"JAX_COMPILATION_CACHE_DIR": str(self.run_dir / "jax_cache")},  # fast restarts
+                # fast restarts: JAX's compilation cache, the user's own if set, else one in the run
+                env={CACHE_DIR: os.environ.get(CACHE_DIR) or str(self.run_dir / "jax_cache")},
             )
             self._started(evaluator)
             self.say(f"evaluator              consuming checkpoint events  (log: {evaluator.log_path})")
