@@ -80,8 +80,7 @@ def _seeds(run: Path) -> int:
 
 def _checkpoints(run: Path) -> dict[int, Path]:
     """{update: checkpoint directory} of the run's loadable checkpoints (its milestones and its latest)."""
-    found = (p for p in (run / "checkpoints").iterdir() if (p / "meta.json").is_file())
-    return {int(read_meta(p)["update"]): p for p in found}
+    return {c.update: c.path for c in CheckpointStore(run, keep_last=1).list()}
 
 
 def _recipe(run: Path) -> dict[str, Any]:
