@@ -15,10 +15,10 @@
 #                                          # preset's throughput, the new policies exported
 #
 # `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
-# end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (330) seconds of CEC training, stopped by SIGTERM (the trainer
-# checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset; WINDOW_PROFILE_S (90) for the profile;
-# WINDOW_STEPS per seed the LR anneals over (80M); WINDOW_SET extra overrides for every run (tiny sizes);
-# WINDOW_PROFILE_SET the profile's batch (4096 envs x 16 minibatches: the recipe at a GPU's batch).
+# end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (340) seconds of CEC training, stopped by
+# SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (75)
+# for the profile; WINDOW_STEPS per seed the LR anneals over (150M); WINDOW_BATCH the continued seeds' and
+# the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run.
 #
 # Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
 # checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
@@ -109,43 +109,56 @@ pack)
     ls -la "$OUT"
     ;;
 window)
-    T_TRAIN=${WINDOW_TRAIN_S:-330} T_PAPER=${WINDOW_PAPER_S:-60} T_PROFILE=${WINDOW_PROFILE_S:-90}
-    STEPS=${WINDOW_STEPS:-80000000}
+    T_TRAIN=${WINDOW_TRAIN_S:-340} T_PAPER=${WINDOW_PAPER_S:-75} T_PROFILE=${WINDOW_PROFILE_S:-75}
+    STEPS=${WINDOW_STEPS:-150000000}
     read -r -a EXTRA <<< "${WINDOW_SET:-}"
+    # The batch of the continued seeds and of the profile: 1024 envs per seed (on the H200, 1.39M env-steps/s
+    # for 4 seeds against 1.0M at the CPU recipe's 128, and more return per step: ../shared/gpu-runs), with
+    # the time-to-skill recipe's 2 epochs (half the update's arithmetic; the same Adam steps per sample with
+    # twice the minibatches: 16 of 8,192 samples).
+    read -r -a BATCH <<< "${WINDOW_BATCH-num_envs=1024 ppo.update_epochs=2 ppo.num_minibatches=16}"
     RUN=runs/window
     log="$OUT/window.log"
     {
         date -u +%FT%TZ; nvidia-smi --query-gpu=name,memory.total --format=csv 2>/dev/null
-        "$PY" -c "import jax; print('jax', jax.__version__, jax.devices())"
-        echo "== 1. training profile (the CPU recipe's step on this device)"
-        read -r -a PSET <<< "${WINDOW_PROFILE_SET-num_envs=4096 ppo.num_minibatches=16}"
-        timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --set "${PSET[@]}" "${EXTRA[@]}" \
+        "$PY" -c "import jax, flax, optax; print('jax', jax.__version__, 'flax', flax.__version__, \
+'optax', optax.__version__, jax.devices())"
+        echo "== 1. training profile (the continued seeds' step on this device, ${T_PROFILE}s at most)"
+        timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --repeats 2 --set "${BATCH[@]}" "${EXTRA[@]}" \
             --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
         echo "== 2. the shipped CEC seeds trained further (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
-        seeds=$(ls -d cec/shipped/cec-s20? | sort | paste -sd, -)
+        seeds=$(ls -d cec/shipped/cec64m-s20? | sort | paste -sd, -)
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config configs/train/cec_overcooked_cpu.yaml \
-            seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr=0.002 \
-            checkpoint.every_updates=50 'checkpoint.milestones=[0.25,0.5,0.75,1.0]' \
+            seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr=0.002 "${BATCH[@]}" \
+            checkpoint.every_updates=50 'checkpoint.milestones=[0.125,0.25,0.5,0.75,1.0]' \
             run_dir=$RUN name=cec-continued "${EXTRA[@]}"
         echo "training: exit $? (124: stopped by the window's SIGTERM, after its checkpoint)"
-        echo "== 3. the paper preset's training throughput (${T_PAPER}s)"
-        XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli train \
-            --config configs/train/cec_overcooked.yaml run_dir=/tmp/window-paper "${EXTRA[@]}"
-        echo "paper preset: exit $?"
-        echo "== 4. export"
+        echo "== 3. export: every seed at each milestone and at the last checkpoint"
         "$PY" - "$RUN/cec-continued" <<'PYEOF'
 import sys, yaml
 from pathlib import Path
-run = Path(sys.argv[1])
-entries = [{"name": f"cec-gpu-s{200 + i}", "algorithm": "cec", "seed": 200 + i, "checkpoint": str(run.resolve())}
-           for i in range(4)]
+from cec.checkpoints import CheckpointStore
+run = Path(sys.argv[1]).resolve()
+entries = [
+    {"name": f"cec-gpu-s{200 + i}-u{c.update}", "algorithm": "cec", "seed": 200 + i, "checkpoint": str(c.path)}
+    for c in CheckpointStore(run, keep_last=1).list()
+    for i in range(4)
+]
 (run.parent / "zoo.yaml").write_text(yaml.safe_dump({"policies": entries}))
+print(len(entries), "policies:", ", ".join(e["name"] for e in entries))
 PYEOF
         cec zoo export $RUN/zoo.yaml --out $RUN/exported
+        tar czf - $RUN/exported $RUN/zoo.yaml $RUN/cec-continued/metrics.csv $RUN/cec-continued/config.yaml \
+            | split -b 15M - "$OUT/cec-window.tgz.part-"
+        ls -la "$OUT"
+        echo "== 4. the paper preset's training throughput (${T_PAPER}s)"
+        XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli train \
+            --config configs/train/cec_overcooked.yaml run_dir=/tmp/window-paper "${EXTRA[@]}"
+        echo "paper preset: exit $?"
+        cp /tmp/window-paper/*/metrics.csv "$OUT/paper_metrics.csv"
+        date -u +%FT%TZ
     } > "$log" 2>&1
-    cp /tmp/window-paper/*/metrics.csv "$OUT/paper_metrics.csv" 2>/dev/null
-    tar czf "$OUT/cec-window.tgz" $RUN/exported $RUN/cec-continued/metrics.csv $RUN/cec-continued/config.yaml
-    ls -la "$OUT"; tail -n 30 "$log"
+    ls -la "$OUT"; tail -n 40 "$log"
     ;;
 crossplay)
     python3 benchmarks/crossplay_throughput.py --preset paper --out "$OUT/crossplay_throughput_gpu.json"
