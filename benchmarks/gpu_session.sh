@@ -18,7 +18,9 @@
 # end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (340) seconds of CEC training, stopped by
 # SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (75)
 # for the profile; WINDOW_STEPS per seed the LR anneals over (150M); WINDOW_BATCH the continued seeds' and
-# the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run.
+# the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
+# WINDOW_INIT the four checkpoints continued (comma-separated; default: the shipped seeds). A time of 0 skips
+# the profile or the paper preset (a second window continuing the first's seeds).
 #
 # Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
 # checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
@@ -123,11 +125,13 @@ window)
         date -u +%FT%TZ; nvidia-smi --query-gpu=name,memory.total --format=csv 2>/dev/null
         "$PY" -c "import jax, flax, optax; print('jax', jax.__version__, 'flax', flax.__version__, \
 'optax', optax.__version__, jax.devices())"
-        echo "== 1. training profile (the continued seeds' step on this device, ${T_PROFILE}s at most)"
-        timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --repeats 2 --set "${BATCH[@]}" "${EXTRA[@]}" \
-            --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
-        echo "== 2. the shipped CEC seeds trained further (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
-        seeds=$(ls -d cec/shipped/cec64m-s20? | sort | paste -sd, -)
+        if [ "$T_PROFILE" -gt 0 ]; then
+            echo "== 1. training profile (the continued seeds' step on this device, ${T_PROFILE}s at most)"
+            timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --repeats 2 --set "${BATCH[@]}" "${EXTRA[@]}" \
+                --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
+        fi
+        seeds=${WINDOW_INIT:-$(ls -d cec/shipped/cec64m-s20? | sort | paste -sd, -)}
+        echo "== 2. CEC seeds trained further from $seeds (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config configs/train/cec_overcooked_cpu.yaml \
             seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr=0.002 "${BATCH[@]}" \
             checkpoint.every_updates=50 'checkpoint.milestones=[0.125,0.25,0.5,0.75,1.0]' \
@@ -151,11 +155,13 @@ PYEOF
         tar czf - $RUN/exported $RUN/zoo.yaml $RUN/cec-continued/metrics.csv $RUN/cec-continued/config.yaml \
             | split -b 15M - "$OUT/cec-window.tgz.part-"
         ls -la "$OUT"
-        echo "== 4. the paper preset's training throughput (${T_PAPER}s)"
-        XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli train \
-            --config configs/train/cec_overcooked.yaml run_dir=/tmp/window-paper "${EXTRA[@]}"
-        echo "paper preset: exit $?"
-        cp /tmp/window-paper/*/metrics.csv "$OUT/paper_metrics.csv"
+        if [ "$T_PAPER" -gt 0 ]; then
+            echo "== 4. the paper preset's training throughput (${T_PAPER}s)"
+            XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli train \
+                --config configs/train/cec_overcooked.yaml run_dir=/tmp/window-paper "${EXTRA[@]}"
+            echo "paper preset: exit $?"
+            cp /tmp/window-paper/*/metrics.csv "$OUT/paper_metrics.csv"
+        fi
         date -u +%FT%TZ
     } > "$log" 2>&1
     ls -la "$OUT"; tail -n 40 "$log"
