@@ -11,7 +11,9 @@ mean with the other seeds), for display. Those numbers are not independent eithe
 k's both contain the pair (i, k), so a standard error or a t-test over them understates the uncertainty
 (about 3x for 4 seeds). `crossplay_estimate` gives an algorithm's cross-play with a leave-one-seed-out
 jackknife standard error, which counts the shared pairs, and `compare_crossplay` tests two algorithms
-with it; every report's cross-play uncertainty and test comes from these two.
+with it; every report's cross-play uncertainty and test comes from these two. `compare_crossplay_paired`
+compares the same seeds at two points of their training (seed i of A is seed i of B trained on): the
+jackknife of the difference matrix, so that what the seeds share at both points cancels.
 """
 
 from __future__ import annotations
@@ -183,3 +185,21 @@ def compare_crossplay(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95)
     p = float(2 * sps.t.sf(abs(t), df))
     half = float(sps.t.ppf(0.5 + confidence / 2, df)) * math.sqrt(var)
     return Comparison(ea.mean, eb.mean, ea.seeds, eb.seeds, diff, diff - half, diff + half, t, df, p)
+
+
+def compare_crossplay_paired(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95) -> Comparison:
+    """The same seeds' cross-play at two points (`a[i, j]` and `b[i, j]`: seed i with seed j, rows in the
+    same seed order, e.g. after and before more training): the mean of the difference matrix `a - b` with
+    its leave-one-seed-out jackknife standard error (`crossplay_estimate`), a t-test with seeds - 1 degrees
+    of freedom and the matching t interval. Pairing removes what a seed brings to both points, so this is
+    tighter than `compare_crossplay`, which treats A's and B's seeds as independent."""
+    ma, mb = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    if ma.shape != mb.shape:
+        raise ValueError(f"the two seed x seed matrices differ in shape: {ma.shape} and {mb.shape}")
+    ea, eb, d = crossplay_estimate(ma), crossplay_estimate(mb), crossplay_estimate(ma - mb)
+    if not np.isfinite(d.se) or d.se == 0:
+        return Comparison(ea.mean, eb.mean, d.seeds, d.seeds, d.mean, *[math.nan] * 5)
+    t = d.mean / d.se
+    p = float(2 * sps.t.sf(abs(t), d.df))
+    half = float(sps.t.ppf(0.5 + confidence / 2, d.df)) * d.se
+    return Comparison(ea.mean, eb.mean, d.seeds, d.seeds, d.mean, d.mean - half, d.mean + half, t, d.df, p)

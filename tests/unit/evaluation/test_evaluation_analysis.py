@@ -16,6 +16,7 @@ from cec.evaluation.stats import (
     bootstrap_diff_ci,
     compare,
     compare_crossplay,
+    compare_crossplay_paired,
     crossplay_estimate,
     iqm,
     seed_means,
@@ -335,3 +336,21 @@ def test_the_report_tests_cross_play_with_the_jackknife_over_seeds(tmp_path: Pat
     assert f"| {est.mean:.1f} ± {est.se:.1f} |" in text
     row = next(line for line in text.splitlines() if line.startswith("| cec vs ippo |"))
     assert row.endswith(f"| {jack.p:.2g} |") and f"{naive.p:.2g} |" not in row
+
+
+def test_the_same_seeds_trained_on_are_compared_paired_so_what_each_seed_brings_cancels():
+    """Seeds of very different skill, each improved by about 6 with more training: the unpaired test
+    (seeds of A and B independent) cannot see it through the spread between seeds; the paired one, the
+    jackknife of the difference matrix, does; a real difference of 0 is not called one."""
+    rng = np.random.default_rng(0)
+    skill = np.array([10.0, 30.0, 50.0, 70.0, 20.0])
+    before = (skill[:, None] + skill[None, :]) / 2
+    noise = rng.normal(0, 0.5, before.shape)
+    after = before + 6 + (noise + noise.T) / 2
+    paired, unpaired = compare_crossplay_paired(after, before), compare_crossplay(after, before)
+    assert paired.diff == pytest.approx(unpaired.diff) and paired.n_a == 5
+    assert paired.p < 0.001 and unpaired.p > 0.05
+    assert paired.ci_low < 6 < paired.ci_high
+    assert compare_crossplay_paired(before + (noise + noise.T) / 2, before).p > 0.05
+    with pytest.raises(ValueError, match="differ in shape"):
+        compare_crossplay_paired(after, before[:4, :4])

@@ -2,22 +2,56 @@
 # The shipped CEC seeds (cec/shipped/zoo.yaml) evaluated on this machine: cross-play and self-play on the
 # 100 held-out kitchens (1 episode per pairing, seat order and kitchen) and the 5 classic ones (4 episodes),
 # with the human proxies on their kitchens, and with the scripted cook beside two controls (an untrained
-# network one update old, and a partner that always stays put). 400-step episodes, sampled actions.
+# network one update old, and a partner that always stays put). 400-step episodes, sampled actions, common
+# random numbers (the same seed as every earlier evaluation here, so the seeds shipped before, in cec64m/,
+# played the same episodes). Then the paired comparison with those seeds (the same seeds 64M steps in:
+# `compare_crossplay_paired`, the jackknife of the difference matrix over seeds) into paired.json, and the
+# README's GIF (the median cross-play episode).
 set -euo pipefail
 cd "$(dirname "$0")/../../../.."
 S=benchmarks/results/overcooked/shipped
 W=${WORK:-/tmp/shipped-eval}
 mkdir -p "$W"
+PY=.venv/bin/python
 cec() { .venv/bin/cec "$@"; }
 [ -d "$W/random_init" ] || cec train --config configs/train/cec_overcooked_cpu.yaml --max-updates 1 --quiet \
     checkpoint.every_updates=1 run_dir="$W" name=random_init
 cec eval --zoo cec/shipped/zoo.yaml --levels generated --episodes 1 --max-steps 400 --out $S/heldout.csv
 cec eval --zoo cec/shipped/zoo.yaml --levels classic --episodes 4 --max-steps 400 --out $S/classic.csv
-{ grep -v '^#' cec/shipped/zoo.yaml | sed "s|checkpoint: \(cec64m-s20.\)|checkpoint: $PWD/cec/shipped/\1|" \
-    | awk '/^- name: hp_/{exit} {print}'
-  echo "- {name: random_init, algorithm: random_init, seed: 0, checkpoint: $W/random_init}"
-  echo "- {name: noop, scripted: noop}"
-  echo "- {name: cook, scripted: cook}"; } > "$W/controls.yaml"
+"$PY" - "$W/controls.yaml" "$W/random_init" <<'EOF'
+import sys, yaml
+from cec.agents.zoo import SHIPPED_ZOO
+shipped = [e for e in yaml.safe_load(SHIPPED_ZOO.read_text())["policies"] if e["algorithm"] == "cec"]
+cec = [{**e, "checkpoint": str(SHIPPED_ZOO.parent / e["checkpoint"])} for e in shipped]
+controls = [{"name": "random_init", "algorithm": "random_init", "seed": 0, "checkpoint": sys.argv[2]},
+            {"name": "noop", "scripted": "noop"}, {"name": "cook", "scripted": "cook"}]
+open(sys.argv[1], "w").write(yaml.safe_dump({"policies": cec + controls}, sort_keys=False))
+EOF
 cec eval --zoo "$W/controls.yaml" --levels heldout --episodes 1 --max-steps 400 --pairs with:cook --out $S/with_cook.csv
 cec report $S/heldout.csv --out $S/heldout
 cec report $S/classic.csv --out $S/classic
+"$PY" - $S <<'EOF'
+import json, sys
+from pathlib import Path
+from cec.evaluation.results import read_csv
+from cec.evaluation.seeds import seed_matrix
+from cec.evaluation.stats import compare_crossplay_paired
+S = Path(sys.argv[1])
+out = {}
+for name in ("heldout", "classic"):
+    now, before = (seed_matrix(read_csv(p)) for p in (S / f"{name}.csv", S / "cec64m" / f"{name}.csv"))
+    a, b = now.summary(now.indices("cec")), before.summary(before.indices("cec"))
+    assert a.seeds == b.seeds, (a.seeds, b.seeds)
+    c = compare_crossplay_paired(a.matrix, b.matrix)
+    out[name] = {"seeds": a.seeds, **c._asdict()}
+    print(f"{name}: cross-play {c.mean_a:.1f} now vs {c.mean_b:.1f} at 64M steps: {c.diff:+.1f} "
+          f"[{c.ci_low:+.1f}, {c.ci_high:+.1f}] (95%, paired jackknife over {c.n_a} seeds, p = {c.p:.2g})")
+(S / "paired.json").write_text(json.dumps(out, indent=1) + "\n")
+EOF
+"$PY" -c "
+from pathlib import Path
+from apps.reproduce.overcooked import crossplay_gif
+from cec.evaluation.results import read_csv
+S = Path('$S')
+print(crossplay_gif(read_csv(S / 'heldout.csv'), Path('cec/shipped/zoo.yaml'), S / 'cec_xp_heldout.gif'))
+"
