@@ -15,9 +15,10 @@
 #                                          # preset's throughput, the new policies exported
 #
 # `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
-# end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (340) seconds of CEC training, stopped by
-# SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (75)
-# for the profile; WINDOW_STEPS per seed the LR anneals over (150M); WINDOW_BATCH the continued seeds' and
+# end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (300) seconds of CEC training, stopped by
+# SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (120)
+# for the profile; WINDOW_STEPS per seed the LR anneals over (270M: what 4 seeds at 4M env-steps/s on an H200
+# train in the time left after the compile); WINDOW_BATCH the continued seeds' and
 # the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
 # WINDOW_INIT the four checkpoints continued (comma-separated; default: the shipped seeds). A time of 0 skips
 # the profile or the paper preset (a second window continuing the first's seeds).
@@ -111,8 +112,8 @@ pack)
     ls -la "$OUT"
     ;;
 window)
-    T_TRAIN=${WINDOW_TRAIN_S:-340} T_PAPER=${WINDOW_PAPER_S:-75} T_PROFILE=${WINDOW_PROFILE_S:-75}
-    STEPS=${WINDOW_STEPS:-150000000}
+    T_TRAIN=${WINDOW_TRAIN_S:-300} T_PAPER=${WINDOW_PAPER_S:-75} T_PROFILE=${WINDOW_PROFILE_S:-120}
+    STEPS=${WINDOW_STEPS:-270000000}
     read -r -a EXTRA <<< "${WINDOW_SET:-}"
     # The batch of the continued seeds and of the profile: 1024 envs per seed (on the H200, 1.39M env-steps/s
     # for 4 seeds against 1.0M at the CPU recipe's 128, and more return per step: ../shared/gpu-runs), with
@@ -130,7 +131,7 @@ window)
             timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --repeats 2 --set "${BATCH[@]}" "${EXTRA[@]}" \
                 --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
         fi
-        seeds=${WINDOW_INIT:-$(ls -d cec/shipped/cec64m-s20? | sort | paste -sd, -)}
+        seeds=${WINDOW_INIT:-$(ls -d cec/shipped/cec*-s20? | sort | paste -sd, -)}
         echo "== 2. CEC seeds trained further from $seeds (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config configs/train/cec_overcooked_cpu.yaml \
             seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr=0.002 "${BATCH[@]}" \
