@@ -1,0 +1,60 @@
+"""Rounds of `cec play serve --partner cec`'s default free play (Cramped Room, 200 turn-based steps, the
+agent's actions sampled) played through the play server's own `Round` by a scripted "person": the scripted
+cook, greedy, with a share `--epsilon` of uniformly random actions (0: a perfectly stubborn person; the
+evaluations' cook has 0.05). The browser test `tests/e2e/test_play_browser.py` plays one such round.
+
+    .venv/bin/python benchmarks/results/overcooked/shipped/play_rounds.py --epsilon 0 --rounds 12 \\
+        cec/shipped/cec451m-s20? benchmarks/results/overcooked/shipped/cec64m/cec64m-s20?
+
+Per policy: the team return per round (20 per soup) over `--rounds` round seeds x both seats.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from apps.cli import build_parser, parse_args
+from cec.agents.policy import load_policy
+from cec.agents.zoo import ZooEntry
+from cec.envs.overcooked.scripted import scripted_actions
+from cec.levels.named import resolve_level
+from services.play.game import Round, RoundSetup, expand_state
+from services.play.main import free_play_config
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("policies", nargs="+", help="exported CEC policy folders")
+    ap.add_argument("--epsilon", type=float, default=0.0, help="the person's share of random actions")
+    ap.add_argument("--rounds", type=int, default=12, help="round seeds per seat")
+    args = ap.parse_args()
+    study = free_play_config(parse_args(build_parser(), ["play", "serve", "--partner", "cec"]))
+    _, level = resolve_level("cramped_room", Path.cwd(), np.random.default_rng(0))
+    key = jax.random.PRNGKey(0)
+    person = jax.jit(lambda s, t: scripted_actions(jax.random.fold_in(key, t), s, epsilon=args.epsilon))
+    for path in args.policies:
+        policy = load_policy(ZooEntry(Path(path).name, path, algorithm="cec"))
+        returns, collisions = [], []
+        for seat in (0, 1):
+            for seed in range(args.rounds):
+                r = Round(RoundSetup(policy, "cramped_room", level, seat, 200, study.mode, seed), study)
+                state, _ = r.start()
+                while not r.done:
+                    action = int(person(expand_state(state, level), r.t)[seat])
+                    state = r.step(action, with_branches=False).state
+                returns.append(r.team_return)
+                collisions.append(r.collisions)
+        ret = np.array(returns)
+        print(
+            f"{policy.name}: {ret.mean():.1f} per round, {int(np.sum(ret == 0))} of {ret.size} rounds "
+            f"without a soup, {np.mean(collisions):.0f} collisions per round",
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()
