@@ -16,6 +16,9 @@ calls after a compiling one):
 * `train_call`: the fused call `cec train` runs (rollout + update, `--updates` per call, every seed), per
   update; `host`: the per-call work of the training loop beyond it (fetching metrics to the host).
 
+The JSON is written after each stage (the train call, the parts, the rest) with `"complete": false` until
+the end, so a run stopped by a time limit (a lent GPU's window) still leaves what it measured.
+
 Cost analysis: XLA's FLOPs and bytes accessed of the compiled train call, per env step. Peak: a large
 jitted float32 matmul measured in the same run. With `--baseline-tree DIR` (a worktree of another commit)
 the train call's env-steps/s of that tree's code is measured in a subprocess of the same run, on the same
@@ -296,12 +299,34 @@ def main(argv: list[str] | None = None) -> int:
         f"{cfg.ppo.num_minibatches} minibatches; peak float32 matmul {peak / 1e9:.1f} GFLOP/s",
         flush=True,
     )
-    call = train_call_speed(trainer, args.updates, args.repeats)
-    parts = profile_parts(trainer, args.repeats)
+    device = jax.devices()[0].platform
+    out = args.out or RESULTS / f"train_profile_{device}.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    result: dict[str, Any] = {
+        "benchmark": "train_profile",
+        "complete": False,  # written after each stage: a run cut short still leaves what it measured
+        "date": datetime.date.today().isoformat(),
+        "git": code_version(short=True),
+        "machine": machine_info(),
+        "config": str(config.relative_to(Path.cwd()) if config.is_relative_to(Path.cwd()) else config),
+        "overrides": args.set,
+        "num_envs": cfg.num_envs,
+        "num_steps": cfg.num_steps,
+        "update_epochs": cfg.ppo.update_epochs,
+        "num_minibatches": cfg.ppo.num_minibatches,
+        "peak_matmul_flops_per_s": peak,
+    }
+    call = result["train_call"] = train_call_speed(trainer, args.updates, args.repeats)
+    print(
+        f"train call: {call['env_steps_per_s']:,.0f} env-steps/s ({call['compile_s']:.1f} s to compile)",
+        flush=True,
+    )
+    out.write_text(json.dumps(result, indent=2) + "\n")
+    parts = result["parts_s_per_update"] = profile_parts(trainer, args.repeats)
+    out.write_text(json.dumps(result, indent=2) + "\n")
     xla = flops_and_bytes(trainer)
     call["flops_per_env_step"], call["bytes_per_env_step"] = xla["flops"], xla["bytes"]
-    steps = cfg.steps_per_update
-    env_sps = steps / parts["env_only"]
+    env_sps = cfg.steps_per_update / parts["env_only"]
     achieved = call["env_steps_per_s"] * call["flops_per_env_step"]
     for name, s in parts.items():
         print(
@@ -319,20 +344,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{achieved / 1e9:.1f} GFLOP/s = {100 * achieved / peak:.1f}% of peak",
         flush=True,
     )
-    result: dict[str, Any] = {
-        "benchmark": "train_profile",
-        "date": datetime.date.today().isoformat(),
-        "git": code_version(short=True),
-        "machine": machine_info(),
-        "config": str(config.relative_to(Path.cwd()) if config.is_relative_to(Path.cwd()) else config),
-        "overrides": args.set,
-        "num_envs": cfg.num_envs,
-        "num_steps": cfg.num_steps,
-        "update_epochs": cfg.ppo.update_epochs,
-        "num_minibatches": cfg.ppo.num_minibatches,
-        "peak_matmul_flops_per_s": peak,
-        "train_call": call,
-        "parts_s_per_update": parts,
+    result |= {
+        "complete": True,
         "env_only_steps_per_s": env_sps,
         "train_to_env_only": call["env_steps_per_s"] / env_sps,
         "achieved_flops_per_s": achieved,
@@ -347,9 +360,6 @@ def main(argv: list[str] | None = None) -> int:
             f"{call['env_steps_per_s']:,.0f} | ratio {result['speedup_vs_baseline']:.2f}x",
             flush=True,
         )
-    device = jax.devices()[0].platform
-    out = args.out or RESULTS / f"train_profile_{device}.json"
-    out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=2) + "\n")
     print(f"wrote {out}")
     return 0
