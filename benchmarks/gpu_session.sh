@@ -18,8 +18,8 @@
 # end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (300) seconds of CEC training, stopped by
 # SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (120)
 # for the profile; WINDOW_STEPS per seed the LR anneals over (270M: what 4 seeds at 4M env-steps/s on an H200
-# train in the time left after the compile); WINDOW_BATCH the continued seeds' and
-# the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
+# train in the time left after the compile); WINDOW_BATCH the continued seeds' and the profile's batch (1024
+# envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
 # WINDOW_INIT the four checkpoints continued (comma-separated; default: the shipped seeds). A time of 0 skips
 # the profile or the paper preset (a second window continuing the first's seeds).
 #
@@ -115,10 +115,10 @@ window)
     T_TRAIN=${WINDOW_TRAIN_S:-300} T_PAPER=${WINDOW_PAPER_S:-75} T_PROFILE=${WINDOW_PROFILE_S:-120}
     STEPS=${WINDOW_STEPS:-270000000}
     read -r -a EXTRA <<< "${WINDOW_SET:-}"
-    # The batch of the continued seeds and of the profile: 1024 envs per seed (on the H200, 1.39M env-steps/s
-    # for 4 seeds against 1.0M at the CPU recipe's 128, and more return per step: ../shared/gpu-runs), with
-    # the time-to-skill recipe's 2 epochs (half the update's arithmetic; the same Adam steps per sample with
-    # twice the minibatches: 16 of 8,192 samples).
+    # The batch of the continued seeds and of the profile: 1024 envs per seed with the time-to-skill recipe's
+    # 2 epochs (half the update's arithmetic; the same Adam steps per sample with twice the minibatches: 16 of
+    # 8,192 samples): 4.04M env-steps/s for 4 seeds on an H200, against 1.0M at the CPU recipe's 128 envs x 4
+    # epochs (benchmarks/results/README.md).
     read -r -a BATCH <<< "${WINDOW_BATCH-num_envs=1024 ppo.update_epochs=2 ppo.num_minibatches=16}"
     RUN=runs/window
     log="$OUT/window.log"

@@ -192,7 +192,7 @@ def compare_crossplay_paired(a: np.ndarray, b: np.ndarray, *, confidence: float 
     same seed order, e.g. after and before more training): the mean of the difference matrix `a - b` with
     its leave-one-seed-out jackknife standard error (`crossplay_estimate`), a t-test with seeds - 1 degrees
     of freedom and the matching t interval. Pairing removes what a seed brings to both points, so this is
-    tighter than `compare_crossplay`, which treats A's and B's seeds as independent."""
+    usually tighter than `compare_crossplay`, which treats A's and B's seeds as independent."""
     ma, mb = np.asarray(a, np.float64), np.asarray(b, np.float64)
     if ma.shape != mb.shape:
         raise ValueError(f"the two seed x seed matrices differ in shape: {ma.shape} and {mb.shape}")
