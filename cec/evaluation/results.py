@@ -17,11 +17,13 @@ Every analysis (`cec report`) is derived from this table. Columns, in file order
 
 A pairing of two different policies is played in both seat orders (`seat` 0 and 1); self-play (A = B) is
 one game, recorded with `seat` 0 (with common random numbers the swapped order is the same game).
+A table committed gzipped (`results.csv.gz`) is read as it is.
 """
 
 from __future__ import annotations
 
 import csv
+import gzip
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -165,10 +167,10 @@ def _fmt(x: object) -> object:
 
 
 def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
-    """Reads one or more results files (as written by `write_csv`) into one table.
+    """Reads one or more results files (as written by `write_csv`, or gzipped: `.gz`) into one table.
 
-    Raises `ResultsError` naming the file and the problem when a file is missing, lacks a column or holds
-    a value of the wrong type.
+    Raises `ResultsError` naming the file and the problem when a file is missing, is not valid gzip, lacks
+    a column or holds a value of the wrong type.
     """
     if isinstance(paths, str | Path):
         paths = [paths]
@@ -179,36 +181,43 @@ def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
 def _read_one(path: Path) -> EpisodeTable:
     if not path.is_file():
         raise ResultsError(f"results file {str(path)!r} does not exist; write one with `cec eval`")
+    opener = gzip.open if path.suffix == ".gz" else open
+    try:
+        with opener(path, "rt", newline="") as f:
+            return _parse(path, csv.DictReader(f))
+    except (OSError, EOFError) as err:  # gzip.BadGzipFile is an OSError; a cut-off stream an EOFError
+        raise ResultsError(f"{path} cannot be read as a results file: {err}") from err
+
+
+def _parse(path: Path, reader: csv.DictReader) -> EpisodeTable:
     cols: dict[str, list] = {f: [] for f in ARRAY_FIELDS}
     skipped: list[SkippedEntry] = []
-    with open(path, newline="") as f:
-        reader = csv.DictReader(f)
-        missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
-        if missing:
-            raise ResultsError(
-                f"{path} is not a cross-play results file: missing column(s) {missing} "
-                f"(expected the columns of `cec eval`: {', '.join(COLUMNS)})"
-            )
-        for line, row in enumerate(reader, start=2):
-            try:
-                if row["status"] == "skipped":
-                    seed = int(row["seed_a"]) if row["seed_a"] else -1
-                    skipped.append(SkippedEntry(row["policy_a"], row["algorithm_a"], seed, row["reason"]))
-                    continue
-                if row["status"] != "ok":
-                    raise ValueError(f"status must be ok or skipped, got {row['status']!r}")
-                for field in ARRAY_FIELDS:
-                    col = _column_of(field)
-                    raw = row[col]
-                    if col in _STR:
-                        cols[field].append(raw)
-                    elif col in _INT:
-                        cols[field].append(int(raw))
-                    else:
-                        v = float(raw)
-                        if math.isnan(v) and col == "return":
-                            raise ValueError("return is NaN")
-                        cols[field].append(v)
-            except (ValueError, TypeError) as err:
-                raise ResultsError(f"{path}, line {line}: {err}") from err
+    missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
+    if missing:
+        raise ResultsError(
+            f"{path} is not a cross-play results file: missing column(s) {missing} "
+            f"(expected the columns of `cec eval`: {', '.join(COLUMNS)})"
+        )
+    for line, row in enumerate(reader, start=2):
+        try:
+            if row["status"] == "skipped":
+                seed = int(row["seed_a"]) if row["seed_a"] else -1
+                skipped.append(SkippedEntry(row["policy_a"], row["algorithm_a"], seed, row["reason"]))
+                continue
+            if row["status"] != "ok":
+                raise ValueError(f"status must be ok or skipped, got {row['status']!r}")
+            for field in ARRAY_FIELDS:
+                col = _column_of(field)
+                raw = row[col]
+                if col in _STR:
+                    cols[field].append(raw)
+                elif col in _INT:
+                    cols[field].append(int(raw))
+                else:
+                    v = float(raw)
+                    if math.isnan(v) and col == "return":
+                        raise ValueError("return is NaN")
+                    cols[field].append(v)
+        except (ValueError, TypeError) as err:
+            raise ResultsError(f"{path}, line {line}: {err}") from err
     return make_table(cols, skipped)

@@ -1,6 +1,7 @@
 """Analyses of the result table: statistics against scipy, replicator dynamics of textbook games, matrices,
 BR-normalised scores, the results file and the report. Pure NumPy on hand-made tables (no rollouts)."""
 
+import gzip
 import math
 from pathlib import Path
 
@@ -257,6 +258,14 @@ def test_results_file_round_trip_and_errors(tmp_path: Path):
     (tmp_path / "bad2.csv").write_text("\n".join(lines))
     with pytest.raises(ResultsError, match="line 4"):
         read_csv(tmp_path / "bad2.csv")
+    (tmp_path / "r.csv.gz").write_bytes(gzip.compress((tmp_path / "r.csv").read_bytes()))
+    zipped = read_csv(tmp_path / "r.csv.gz")  # a table committed gzipped reads as it is
+    assert [list(getattr(zipped, f)) for f in an_fields()] == [list(getattr(back, f)) for f in an_fields()]
+    (tmp_path / "cut.csv.gz").write_bytes((tmp_path / "r.csv.gz").read_bytes()[:-20])
+    (tmp_path / "plain.csv.gz").write_bytes((tmp_path / "r.csv").read_bytes())
+    for corrupt in ("cut.csv.gz", "plain.csv.gz"):
+        with pytest.raises(ResultsError, match=f"{corrupt} cannot be read as a results file"):
+            read_csv(tmp_path / corrupt)
     mixed = type(t).concat([t, _table(POLICIES[:1], _value, env="dual_destination", steps=100)])
     with pytest.raises(ResultsError, match="mix games"):
         an.check_single_env(mixed)

@@ -12,10 +12,8 @@ themselves, 1.3 MB each, were not kept in the repository).
 
 from __future__ import annotations
 
-import gzip
 import json
 import re
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -27,14 +25,6 @@ HERE = Path(__file__).parent
 START = 64_012_288  # the shipped 64M seeds' env steps per seed
 WINDOW1 = 1145 * 131_072  # the first call's env steps per seed (it ran to its end)
 STEPS_PER_UPDATE = 131_072
-
-
-def _table(path: Path):  # noqa: ANN202
-    """A gzipped `cec eval` table, read through a temporary plain copy."""
-    with tempfile.TemporaryDirectory() as tmp, gzip.open(path, "rt") as f:
-        plain = Path(tmp) / path.stem
-        plain.write_text(f.read())
-        return read_csv(plain)
 
 
 def point(table) -> dict[str, float]:  # noqa: ANN001
@@ -50,8 +40,8 @@ def main() -> None:
     for f in sorted((HERE / "curve").glob("window*-heldout-u*.csv.gz")):
         w, u = (int(x) for x in re.match(r"window(\d)-heldout-u(\d+)", f.name).groups())
         steps = START + (WINDOW1 if w == 2 else 0) + u * STEPS_PER_UPDATE
-        row = {"window": w, "update": u, "env_steps": steps, "heldout": point(_table(f))}
-        row["classic"] = point(_table(f.with_name(f.name.replace("heldout", "classic"))))
+        row = {"window": w, "update": u, "env_steps": steps, "heldout": point(read_csv(f))}
+        row["classic"] = point(read_csv(f.with_name(f.name.replace("heldout", "classic"))))
         rows.append(row)
     rows.sort(key=lambda r: r["env_steps"])
     print(f"{'env steps/seed':>15s} {'held-out XP':>14s} {'SP':>6s} {'classic XP':>14s} {'SP':>6s}")
