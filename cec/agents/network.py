@@ -49,6 +49,10 @@ class NetworkConfig:
         cell_features: width of a per-cell embedding (one dense layer on each cell's channels, shared by
             all cells, i.e. a 1x1 convolution) before the convolutions (0: none). Shrinks the flattened
             input of the first dense layer, which dominates the cost of an MLP encoder.
+        egocentric_radius: with `egocentric`, how far the frame reaches from the seat's cell: a
+            (2r+1) x (2r+1) window (0: the whole frame, (2H-1) x (2W-1), every cell of the grid from any
+            cell). A smaller frame shrinks the first dense layer's input with its square, at the cost of
+            what lies further away than r cells.
     """
 
     conv_features: tuple[int, ...] = (64, 32)
@@ -59,6 +63,7 @@ class NetworkConfig:
     partner_history: int = 0
     egocentric: bool = False
     cell_features: int = 0
+    egocentric_radius: int = 0
 
     def __post_init__(self) -> None:
         if self.partner_history < 0:
@@ -66,6 +71,10 @@ class NetworkConfig:
         widths = (*self.conv_features, *self.encoder_features, *self.actor_features, *self.critic_features)
         if any(w <= 0 for w in widths) or self.lstm_features < 0 or self.cell_features < 0:
             raise ConfigError(f"network widths must be positive (lstm_features may be 0), got {self}")
+        if self.egocentric_radius < 0 or (self.egocentric_radius and not self.egocentric):
+            raise ConfigError(
+                f"egocentric_radius must be >= 0 and needs egocentric: true, got {self.egocentric_radius}"
+            )
         if self.lstm_features == 0 and not self.encoder_features:
             raise ConfigError("a network without an LSTM needs at least one encoder layer")
 
@@ -166,33 +175,43 @@ class Conv2x2(nn.Module):
         return patches @ kernel.reshape((-1, self.features)) + bias
 
 
-def egocentric_view(x: jax.Array) -> jax.Array:
-    """[N, H, W, C] grids -> [N, 2H-1, 2W-1, C+1]: each grid shifted so that the cell marked in channel 0
-    is at the centre. The added last channel is 1 on the grid's own cells and 0 on the padding around it,
-    so "outside the frame" differs from an empty cell."""
+def _frame_radii(h: int, w: int, radius: int) -> tuple[int, int]:
+    """The frame's reach in rows and columns: `radius`, or 0 for the whole frame (H-1, W-1)."""
+    return (radius, radius) if radius else (h - 1, w - 1)
+
+
+def egocentric_view(x: jax.Array, radius: int = 0) -> jax.Array:
+    """[N, H, W, C] grids -> [N, 2a+1, 2b+1, C+1]: each grid shifted so that the cell marked in channel 0
+    is at the centre, cut to `radius` cells around it (a = b = radius; 0: a = H-1, b = W-1, the whole grid
+    from any cell). The added last channel is 1 on the grid's own cells and 0 on the padding around it, so
+    "outside the grid" differs from an empty cell."""
     n, h, w, c = x.shape
+    a, b = _frame_radii(h, w, radius)
     at = jnp.argmax(x[..., 0].reshape(n, h * w), axis=-1)
     x = jnp.concatenate([x, jnp.ones((n, h, w, 1), x.dtype)], axis=-1)
-    padded = jnp.pad(x, ((0, 0), (h - 1, h - 1), (w - 1, w - 1), (0, 0)))
-    window = lambda grid, r, col: jax.lax.dynamic_slice(grid, (r, col, 0), (2 * h - 1, 2 * w - 1, c + 1))  # noqa: E731
+    padded = jnp.pad(x, ((0, 0), (a, a), (b, b), (0, 0)))
+    window = lambda grid, r, col: jax.lax.dynamic_slice(grid, (r, col, 0), (2 * a + 1, 2 * b + 1, c + 1))  # noqa: E731
     return jax.vmap(window)(padded, at // w, at % w)
 
 
-def _frame_indices(x: jax.Array) -> tuple[jax.Array, jax.Array, jax.Array]:
+def _frame_indices(x: jax.Array, radius: int) -> tuple[jax.Array, jax.Array, jax.Array]:
     """For [N, H, W, C] grids with the seat's cell marked in channel 0, where the egocentric frame's cells
-    come from: (src int32[N, F] the grid cell (row * W + col) each of the F = (2H-1)(2W-1) frame cells shows,
-    inside bool[N, F] the frame cell shows a grid cell rather than padding, dst int32[N, H * W] the frame
-    cell each grid cell lands on). The map is a bijection between the grid and a window of the frame."""
+    come from: (src int32[N, F] the grid cell (row * W + col) each of the F frame cells shows, inside
+    bool[N, F] the frame cell shows a grid cell rather than padding, dst int32[N, H * W] the frame cell
+    each grid cell lands on, F where it lies outside a cut frame). Between the grid cells shown and the
+    frame cells that show them the map is a bijection."""
     n, h, w, _ = x.shape
+    a, b = _frame_radii(h, w, radius)
     at = jnp.argmax(x[..., 0].reshape(n, h * w), axis=-1)
     row, col = (at // w)[:, None, None], (at % w)[:, None, None]
-    src_r = jnp.arange(2 * h - 1)[None, :, None] + row - (h - 1)
-    src_c = jnp.arange(2 * w - 1)[None, None, :] + col - (w - 1)
+    src_r = jnp.arange(2 * a + 1)[None, :, None] + row - a
+    src_c = jnp.arange(2 * b + 1)[None, None, :] + col - b
     inside = (src_r >= 0) & (src_r < h) & (src_c >= 0) & (src_c < w)
     src = jnp.where(inside, src_r * w + src_c, 0).reshape(n, -1)
-    dst = (jnp.arange(h)[None, :, None] - row + h - 1) * (2 * w - 1) + (
-        jnp.arange(w)[None, None, :] - col + w - 1
-    )
+    dst_r = jnp.arange(h)[None, :, None] - row + a
+    dst_c = jnp.arange(w)[None, None, :] - col + b
+    shown = (dst_r <= 2 * a) & (dst_r >= 0) & (dst_c <= 2 * b) & (dst_c >= 0)
+    dst = jnp.where(shown, dst_r * (2 * b + 1) + dst_c, (2 * a + 1) * (2 * b + 1))
     return src.astype(jnp.int32), inside.reshape(n, -1), dst.reshape(n, -1).astype(jnp.int32)
 
 
@@ -209,9 +228,10 @@ def _to_frame_fwd(cells: jax.Array, src: jax.Array, dst: jax.Array) -> tuple[jax
 
 
 def _to_frame_bwd(dst: jax.Array, grad: jax.Array) -> tuple[jax.Array, None, None]:
-    # Each grid cell is shown by exactly one frame cell, so its gradient is that cell's, gathered. The
-    # caller zeroes the padding cells' gradient (they are replaced), so none of it reaches grid cell 0.
-    return jnp.take_along_axis(grad, dst[..., None], axis=1), None, None
+    # Each grid cell is shown by at most one frame cell, so its gradient is that cell's, gathered (zero for
+    # a cell outside a cut frame, whose index is out of range). The caller zeroes the padding cells'
+    # gradient (they are replaced), so none of it reaches grid cell 0.
+    return jnp.take_along_axis(grad, dst[..., None], axis=1, mode="fill", fill_value=0), None, None
 
 
 _to_frame.defvjp(_to_frame_fwd, _to_frame_bwd)
@@ -224,20 +244,22 @@ class EgocentricCells(nn.Module):
     [C+1, features]: its last row weighs the frame-membership channel, which is 1 on every grid cell and 0
     on padding, whose embedding is therefore relu(bias)); the same function up to float rounding.
 
-    [N, H, W, C] (any dtype) -> float32[N, 2H-1, 2W-1, features].
+    [N, H, W, C] (any dtype) -> float32[N, 2a+1, 2b+1, features] (a, b as `egocentric_view`'s `radius`).
     """
 
     features: int
+    radius: int = 0
 
     @nn.compact
     def __call__(self, x: jax.Array) -> jax.Array:
         n, h, w, c = x.shape
         kernel = self.param("kernel", orthogonal(SQRT2), (c + 1, self.features), jnp.float32)
         bias = self.param("bias", constant(0.0), (self.features,), jnp.float32)
-        src, inside, dst = _frame_indices(x)
+        src, inside, dst = _frame_indices(x, self.radius)
         cells = nn.relu(x.reshape(n, h * w, c).astype(jnp.float32) @ kernel[:c] + (kernel[c] + bias))
         frame = jnp.where(inside[..., None], _to_frame(cells, src, dst), nn.relu(bias))
-        return frame.reshape(n, 2 * h - 1, 2 * w - 1, self.features)
+        a, b = _frame_radii(h, w, self.radius)
+        return frame.reshape(n, 2 * a + 1, 2 * b + 1, self.features)
 
 
 class LSTMCore(nn.Module):
@@ -291,10 +313,10 @@ class ActorCritic(nn.Module):
         x = obs.reshape((t * b, *obs.shape[2:]))
         # ENCODER: egocentric view and per-cell embedding, 2x2 convolutions, flatten, fully connected.
         if cfg.egocentric and cfg.cell_features:
-            x = EgocentricCells(cfg.cell_features, name="cell")(x)
+            x = EgocentricCells(cfg.cell_features, cfg.egocentric_radius, name="cell")(x)
         else:
-            if cfg.egocentric:
-                x = egocentric_view(x)  # on the raw (uint8) observation: 4x fewer bytes than float32
+            if cfg.egocentric:  # on the raw (uint8) observation: 4x fewer bytes than float32
+                x = egocentric_view(x, cfg.egocentric_radius)
             x = x.astype(jnp.float32)
             if cfg.cell_features:
                 x = nn.relu(_dense(cfg.cell_features, SQRT2, "cell")(x))

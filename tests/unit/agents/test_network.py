@@ -103,6 +103,8 @@ def test_egocentric_view_centres_the_seat_and_marks_the_frame():
         np.testing.assert_array_equal(v[8 - r : 17 - r, 8 - c : 17 - c, :4], g)
         assert v[..., 4].sum() == 81 and v[8 - r : 17 - r, 8 - c : 17 - c, 4].all()
         assert v[..., :4].sum() == g.sum()
+    # a cut frame is the centre of the whole one: what lies within 3 cells of the seat, padding included
+    np.testing.assert_array_equal(egocentric_view(jnp.asarray(grids), radius=3), view[:, 5:12, 5:12])
 
 
 def test_egocentric_network_with_a_cell_embedding_runs():
@@ -126,22 +128,25 @@ def test_egocentric_network_with_a_cell_embedding_runs():
         NetworkConfig(cell_features=-1)
 
 
-def test_egocentric_cells_equal_the_embedding_of_the_egocentric_view_with_their_gradients():
-    """The embed-then-shift layer the recipe trains with is the plain per-cell Dense on the 17x17 view (same
-    parameters): values and gradients equal to float rounding, padding included (a positive bias makes
-    the padding's embedding nonzero), for seats in corners, on edges and inside."""
+@pytest.mark.parametrize("radius", [0, 3])
+def test_egocentric_cells_equal_the_embedding_of_the_egocentric_view_with_their_gradients(radius):
+    """The embed-then-shift layer the recipe trains with is the plain per-cell Dense on the egocentric view
+    (same parameters), on the whole 17x17 frame and on a frame cut to 3 cells around the seat (grid cells
+    outside it get no gradient): values and gradients equal to float rounding, padding included (a
+    positive bias makes the padding's embedding nonzero), for seats in corners, on edges and inside."""
     rng = np.random.default_rng(1)
     grids = rng.integers(0, 2, (6, 9, 9, 5)).astype(np.uint8)
     grids[..., 0] = 0
     for g, (r, c) in zip(grids, [(0, 0), (8, 8), (0, 8), (4, 4), (8, 0), (3, 6)], strict=True):
         g[r, c, 0] = 1
     x = jnp.asarray(grids)
-    layer = EgocentricCells(4)
+    layer = EgocentricCells(4, radius)
     p = {**layer.init(jax.random.PRNGKey(0), x)["params"], "bias": jnp.asarray([0.3, -0.2, 0.1, 0.5])}
-    plain = lambda p: nn.relu(egocentric_view(x).astype(jnp.float32) @ p["kernel"] + p["bias"])  # noqa: E731
+    plain = lambda p: nn.relu(egocentric_view(x, radius).astype(jnp.float32) @ p["kernel"] + p["bias"])  # noqa: E731
     mine = lambda p: layer.apply({"params": p}, x)  # noqa: E731
     np.testing.assert_allclose(mine(p), plain(p), rtol=1e-6, atol=1e-6)
-    weights = jnp.asarray(rng.normal(size=(6, 17, 17, 4)), jnp.float32)
+    side = 2 * radius + 1 if radius else 17
+    weights = jnp.asarray(rng.normal(size=(6, side, side, 4)), jnp.float32)
     g_mine = jax.grad(lambda p: (mine(p) * weights).sum())(p)
     g_plain = jax.grad(lambda p: (plain(p) * weights).sum())(p)
     for name in ("kernel", "bias"):
