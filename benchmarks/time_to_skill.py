@@ -159,7 +159,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     from cec.evaluation.plotting import distinct_colours, pyplot
 
     plt = pyplot()
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(9, 4.5))
     runs = sorted({r["run"] for r in rows})
     for run, colour in zip(runs, distinct_colours(len(runs)), strict=True):
         mine = sorted((r for r in rows if r["run"] == run), key=lambda r: r["core_hours_per_seed"])
@@ -170,7 +170,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     ax.set_xlabel("core-hours per seed (this CPU, one core per run)")
     ax.set_ylabel("team return per 400 steps, 100 held-out kitchens")
     ax.set_title("time to skill")
-    ax.legend(fontsize=7)
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))  # beside the curves, not over them
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

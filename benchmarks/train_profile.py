@@ -22,11 +22,14 @@ the end, so a run stopped by a time limit (a lent GPU's window) still leaves wha
 Cost analysis: XLA's FLOPs and bytes accessed of the compiled train call, per env step. Peak: a large
 jitted float32 matmul measured in the same run. With `--baseline-tree DIR` (a worktree of another commit)
 the train call's env-steps/s of that tree's code is measured in a subprocess of the same run, on the same
-config, and the ratio printed.
+config (or on `--baseline-config`, a path inside that tree, with `--baseline-set`: a recipe against the
+recipe it replaces), and the ratio printed.
 
     python benchmarks/train_profile.py                         # the CPU recipe, on this machine
     git worktree add /tmp/base f4d07d1 && python benchmarks/train_profile.py --baseline-tree /tmp/base
     python benchmarks/train_profile.py --set num_envs=1024 ppo.num_minibatches=8   # another batch
+    python benchmarks/train_profile.py --config configs/train/cec_overcooked_tts.yaml \
+        --baseline-tree /tmp/base --baseline-config configs/train/cec_overcooked_cpu.yaml  # recipe vs recipe
 """
 
 from __future__ import annotations
@@ -276,6 +279,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--baseline-tree", type=Path, help="a worktree of another commit, measured in the same run"
     )
+    ap.add_argument(
+        "--baseline-config", type=Path, help="the baseline's config, in the baseline tree (default: --config)"
+    )
+    ap.add_argument(
+        "--baseline-set", nargs="*", metavar="KEY=VALUE", help="the baseline's overrides (default: --set)"
+    )
     ap.add_argument("--throughput-only", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument(
         "--out", type=Path, help="results JSON (default: benchmarks/results/train_profile_<device>.json)"
@@ -352,7 +361,13 @@ def main(argv: list[str] | None = None) -> int:
         "fraction_of_peak": achieved / peak,
     }
     if args.baseline_tree:
-        base = baseline(args.baseline_tree.resolve(), config, args.set, args.updates, args.repeats)
+        tree = args.baseline_tree.resolve()
+        base_config = tree / args.baseline_config if args.baseline_config else config
+        if not base_config.is_file():
+            raise SystemExit(f"--baseline-config: no {base_config} in the baseline tree")
+        base_set = args.set if args.baseline_set is None else args.baseline_set
+        base = baseline(tree, base_config, base_set, args.updates, args.repeats)
+        base |= {"config": str(base_config), "overrides": base_set}
         result["baseline"] = base
         result["speedup_vs_baseline"] = call["env_steps_per_s"] / base["env_steps_per_s"]
         print(
