@@ -323,7 +323,7 @@ def build_parser() -> argparse.ArgumentParser:
         nargs=2,
         metavar=("SEAT0", "SEAT1"),
         help="two trained policies instead (checkpoint or run directories, or shipped policies' names, "
-        "e.g. cec451m-s200); episode length --steps (default 400)",
+        "e.g. cec758m-s200); episode length --steps (default 400)",
     )
     render.add_argument("--seed", type=int, default=0)
     render.add_argument("--tile-size", type=int, default=64, help="pixels per cell (default 64)")

@@ -17,8 +17,9 @@
 # `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
 # end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (300) seconds of CEC training, stopped by
 # SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (120)
-# for the profile; WINDOW_STEPS per seed the LR anneals over (270M: what 4 seeds at 4M env-steps/s on an H200
-# train in the time left after the compile); WINDOW_BATCH the continued seeds' and the profile's batch (1024
+# for the profile; WINDOW_LR (1e-3; two restarts at 2e-3 each lost cross-play first, docs/gpu.md) the
+# continued seeds' LR, annealed to 0 over WINDOW_STEPS per seed (270M: what 4 seeds at 4M env-steps/s on an
+# H200 train in the time left after the compile); WINDOW_BATCH the continued seeds' and the profile's batch (1024
 # envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
 # WINDOW_INIT the four checkpoints continued (comma-separated; default: the shipped seeds). A time of 0 skips
 # the profile or the paper preset (a second window continuing the first's seeds).
@@ -113,7 +114,7 @@ pack)
     ;;
 window)
     T_TRAIN=${WINDOW_TRAIN_S:-300} T_PAPER=${WINDOW_PAPER_S:-75} T_PROFILE=${WINDOW_PROFILE_S:-120}
-    STEPS=${WINDOW_STEPS:-270000000}
+    STEPS=${WINDOW_STEPS:-270000000} LR=${WINDOW_LR:-0.001}
     read -r -a EXTRA <<< "${WINDOW_SET:-}"
     # The batch of the continued seeds and of the profile: 1024 envs per seed with the time-to-skill recipe's
     # 2 epochs (half the update's arithmetic; the same Adam steps per sample with twice the minibatches: 16 of
@@ -131,10 +132,13 @@ window)
             timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --repeats 2 --set "${BATCH[@]}" "${EXTRA[@]}" \
                 --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
         fi
-        seeds=${WINDOW_INIT:-$(ls -d cec/shipped/cec*-s20? | sort | paste -sd, -)}
+        # The shipped CEC seeds as cec/shipped/zoo.yaml names them (a directory glob also matched a replaced
+        # seed the GPU machine's copy still held).
+        seeds=${WINDOW_INIT:-$("$PY" -c "import yaml; print(','.join('cec/shipped/' + e['checkpoint'] for e in \
+yaml.safe_load(open('cec/shipped/zoo.yaml'))['policies'] if e['algorithm'] == 'cec'))")}
         echo "== 2. CEC seeds trained further from $seeds (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config configs/train/cec_overcooked_cpu.yaml \
-            seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr=0.002 "${BATCH[@]}" \
+            seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr="$LR" "${BATCH[@]}" \
             checkpoint.every_updates=50 'checkpoint.milestones=[0.125,0.25,0.5,0.75,1.0]' \
             run_dir=$RUN name=cec-continued "${EXTRA[@]}"
         echo "training: exit $? (124: stopped by the window's SIGTERM, after its checkpoint)"

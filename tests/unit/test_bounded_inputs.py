@@ -111,7 +111,7 @@ def test_a_zoo_manifest_is_read_bounded(tmp_path):
 
 def test_a_zoo_of_10000_entries_is_refused_at_once_through_cec_eval(tmp_path):
     manifest = tmp_path / "zoo.json"
-    entries = [{"name": f"p{i}", "checkpoint": "cec451m-s200"} for i in range(10_000)]
+    entries = [{"name": f"p{i}", "checkpoint": "cec758m-s200"} for i in range(10_000)]
     manifest.write_text(json.dumps({"policies": entries}))
     with pytest.raises(ConfigError, match="ZOO_MAX_ENTRIES"):
         zoo.load_zoo(manifest)

@@ -3,10 +3,10 @@
 # 100 held-out kitchens (1 episode per pairing, seat order and kitchen) and the 5 classic ones (4 episodes),
 # with the human proxies on their kitchens, and with the scripted cook beside two controls (an untrained
 # network one update old, and a partner that always stays put). 400-step episodes, sampled actions, common
-# random numbers (the same seed as every earlier evaluation here, so the seeds shipped before, in cec64m/,
-# played the same episodes). Then the paired comparison with those seeds (the same seeds 64M steps in:
-# `compare_crossplay_paired`, the jackknife of the difference matrix over seeds) into paired.json, and the
-# README's GIF (the median cross-play episode).
+# random numbers (the same seed as every earlier evaluation here, so the seeds shipped before, in cec64m/ and
+# cec451m/, played the same episodes). Then the paired comparison with those seeds (the same seeds 64M and
+# 451M steps in: `compare_crossplay_paired`, the jackknife of the difference matrix over seeds) into
+# paired.json, and the README's GIF (the median cross-play episode).
 set -euo pipefail
 cd "$(dirname "$0")/../../../.."
 S=benchmarks/results/overcooked/shipped
@@ -38,14 +38,15 @@ from cec.evaluation.seeds import seed_matrix
 from cec.evaluation.stats import compare_crossplay_paired
 S = Path(sys.argv[1])
 out = {}
-for name in ("heldout", "classic"):
-    now, before = (seed_matrix(read_csv(p)) for p in (S / f"{name}.csv", S / "cec64m" / f"{name}.csv"))
-    a, b = now.summary(now.indices("cec")), before.summary(before.indices("cec"))
-    assert a.seeds == b.seeds, (a.seeds, b.seeds)
-    c = compare_crossplay_paired(a.matrix, b.matrix)
-    out[name] = {"seeds": a.seeds, **c._asdict()}
-    print(f"{name}: cross-play {c.mean_a:.1f} now vs {c.mean_b:.1f} at 64M steps: {c.diff:+.1f} "
-          f"[{c.ci_low:+.1f}, {c.ci_high:+.1f}] (95%, paired jackknife over {c.n_a} seeds, p = {c.p:.2g})")
+for before_dir in ("cec451m", "cec64m"):
+    for name in ("heldout", "classic"):
+        now, before = (seed_matrix(read_csv(p)) for p in (S / f"{name}.csv", S / before_dir / f"{name}.csv"))
+        a, b = now.summary(now.indices("cec")), before.summary(before.indices("cec"))
+        assert a.seeds == b.seeds, (a.seeds, b.seeds)
+        c = compare_crossplay_paired(a.matrix, b.matrix)
+        out[f"{name}_vs_{before_dir}"] = {"seeds": a.seeds, **c._asdict()}
+        print(f"{name}: cross-play {c.mean_a:.1f} now vs {c.mean_b:.1f} in {before_dir}/: {c.diff:+.1f} "
+              f"[{c.ci_low:+.1f}, {c.ci_high:+.1f}] (95%, paired jackknife over {c.n_a} seeds, p = {c.p:.2g})")
 (S / "paired.json").write_text(json.dumps(out, indent=1) + "\n")
 EOF
 "$PY" -c "

@@ -1,8 +1,9 @@
 """Cross-play of the shipped seeds over their GPU training: the 64M-step seeds (../cec64m/), then every
-milestone of the two `benchmarks/gpu_session.sh window` calls that trained them on (1024 envs x 128 steps
-per update and seed, so an update is 131,072 env steps per seed). Each point: `cec eval` of the four seeds
-at that checkpoint (held-out: 100 kitchens, 1 episode; classic: 5 kitchens, 4 episodes; 400 steps, both seat
-orders, the evaluation seed of every shipped evaluation), cross-play with its jackknife SE over seeds.
+milestone of the four `benchmarks/gpu_session.sh window` calls that trained them on (1024 envs x 128 steps
+per update and seed, so an update is 131,072 env steps per seed; each call's LR schedule starts anew).
+Each point: `cec eval` of the four seeds at that checkpoint (held-out: 100 kitchens, 1 episode; classic: 5
+kitchens, 4 episodes; 400 steps, both seat orders, the evaluation seed of every shipped evaluation),
+cross-play with its jackknife SE over seeds.
 
     .venv/bin/python benchmarks/results/overcooked/shipped/window/curve.py     # writes curve.json, curve.png
 
@@ -23,8 +24,12 @@ from cec.evaluation.seeds import seed_matrix
 
 HERE = Path(__file__).parent
 START = 64_012_288  # the shipped 64M seeds' env steps per seed
-WINDOW1 = 1145 * 131_072  # the first call's env steps per seed (it ran to its end)
 STEPS_PER_UPDATE = 131_072
+# Each call's updates: the first ran its schedule to the end, the second was stopped after 1,810 (the 451M
+# seeds), the third after 2,340 (the 758M seeds), the fourth after 940 (the 881M seeds). The LR restarted
+# at each call's start: 2e-3 in the first three, 1e-3 in the fourth.
+CALL_UPDATES = (1145, 1810, 2340, 940)
+CALL_START = {w: START + sum(CALL_UPDATES[: w - 1]) * STEPS_PER_UPDATE for w in (1, 2, 3, 4)}
 
 
 def point(table) -> dict[str, float]:  # noqa: ANN001
@@ -39,7 +44,7 @@ def main() -> None:
     rows[0] |= {k: point(read_csv(HERE.parent / "cec64m" / f"{k}.csv")) for k in ("heldout", "classic")}
     for f in sorted((HERE / "curve").glob("window*-heldout-u*.csv.gz")):
         w, u = (int(x) for x in re.match(r"window(\d)-heldout-u(\d+)", f.name).groups())
-        steps = START + (WINDOW1 if w == 2 else 0) + u * STEPS_PER_UPDATE
+        steps = CALL_START[w] + u * STEPS_PER_UPDATE
         row = {"window": w, "update": u, "env_steps": steps, "heldout": point(read_csv(f))}
         row["classic"] = point(read_csv(f.with_name(f.name.replace("heldout", "classic"))))
         rows.append(row)
@@ -64,7 +69,9 @@ def main() -> None:
         y = np.array([r[key]["xp"] for r in rows])
         se = np.array([r[key]["xp_se"] for r in rows])
         ax.errorbar(x, y, yerr=se, marker="o", capsize=3, label=f"cross-play, {label}")
-    ax.axvline((START + WINDOW1) / 1e6, color="grey", lw=0.8, ls=":", label="the second call starts")
+    for w in (2, 3, 4):
+        label = "a call starts (the LR restarts)" if w == 2 else None
+        ax.axvline(CALL_START[w] / 1e6, color="grey", lw=0.8, ls=":", label=label)
     ax.set_xlabel("env steps per seed (M)")
     ax.set_ylabel("team return per 400 steps (20 per soup)")
     ax.set_title("Shipped CEC seeds 200-203 over their training (± jackknife SE over seeds)", fontsize=9)
