@@ -126,6 +126,8 @@ def test_egocentric_network_with_a_cell_embedding_runs():
     assert logits.shape == (2, 3, 6) and values.shape == (2, 3)
     with pytest.raises(ConfigError):
         NetworkConfig(cell_features=-1)
+    with pytest.raises(ConfigError, match="needs egocentric"):  # a cut frame of an allocentric view
+        NetworkConfig(egocentric_radius=3)
 
 
 @pytest.mark.parametrize("radius", [0, 3])
