@@ -393,7 +393,8 @@ def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_default_free_pl
     cook of the evaluations (greedy, 5% random moves), reading the state on screen
     (`window.cecStats.lastState`) and pressing arrow keys. The team must score: the shipped agent may not
     freeze or block the pot for a whole round. (A person with no random moves at all and shipped seed 201
-    block each other in most rounds: benchmarks/results/overcooked/shipped/README.md, "With a person".)"""
+    block each other in a third of rounds: benchmarks/results/overcooked/shipped/README.md, "With a
+    person".)"""
     import jax
 
     from cec.envs.overcooked.scripted import scripted_actions
