@@ -29,7 +29,9 @@ STEPS_PER_UPDATE = 131_072
 # seeds), the third after 2,340 (the 758M seeds), the fourth after 940 (the 881M seeds). The LR restarted
 # at each call's start: 2e-3 in the first three, 1e-3 in the fourth.
 CALL_UPDATES = (1145, 1810, 2340, 940)
-CALL_START = {w: START + sum(CALL_UPDATES[: w - 1]) * STEPS_PER_UPDATE for w in (1, 2, 3, 4)}
+CALL_START = {
+    w: START + sum(CALL_UPDATES[: w - 1]) * STEPS_PER_UPDATE for w in range(1, len(CALL_UPDATES) + 1)
+}
 
 
 def point(table) -> dict[str, float]:  # noqa: ANN001
@@ -69,7 +71,7 @@ def main() -> None:
         y = np.array([r[key]["xp"] for r in rows])
         se = np.array([r[key]["xp_se"] for r in rows])
         ax.errorbar(x, y, yerr=se, marker="o", capsize=3, label=f"cross-play, {label}")
-    for w in (2, 3, 4):
+    for w in range(2, len(CALL_UPDATES) + 1):
         label = "a call starts (the LR restarts)" if w == 2 else None
         ax.axvline(CALL_START[w] / 1e6, color="grey", lw=0.8, ls=":", label=label)
     ax.set_xlabel("env steps per seed (M)")
