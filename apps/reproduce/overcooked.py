@@ -7,21 +7,25 @@
 
 1. **Train** (`cec zoo build`: finished runs are skipped, interrupted ones resumed, so the same command
    continues after any interruption) CEC seeds on the procedural generator (the 100 held-out kitchens and
-   the five classic ones excluded), and on each classic kitchen IPPO seeds, FCP seeds (population: the
-   IPPO seeds of that kitchen at their first, middle and last checkpoints), E3T seeds, and CEC-Finetune
-   from each CEC seed. Every algorithm has the CEC recipe's network, so that only the training differs.
+   the five classic ones excluded), CEC-E3T seeds (the same with E3T's partner), and on each classic
+   kitchen IPPO seeds, FCP seeds (population: the IPPO seeds of that kitchen at their first, middle and
+   last checkpoints), E3T seeds, and CEC-Finetune from each CEC seed. Every algorithm has the CEC recipe's
+   network, so that only the training differs.
 2. **Evaluate** (`cec.evaluation.crossplay`, common random numbers, both seat orders, 400-step episodes)
-   each algorithm's seeds with each other (cross-play: partners they never met), with themselves
-   (self-play), and with the scripted cook (`cook`, a partner none of them trained with), on the five
-   classic kitchens and on the 100 held-out kitchens; on the classic kitchens also with the human proxies
-   (`--proxies`, default the shipped `hp_<kitchen>`: behaviour-cloned from recorded human games, each in
-   its own kitchen). A single-kitchen agent meets others on its own kitchen among the classic ones, and
-   plays every held-out kitchen.
+   every agent with every other (cross-play: two seeds of one algorithm, partners they never met; ad hoc:
+   two algorithms), with itself (self-play) and with the scripted cook (`cook`, a partner none of them
+   trained with), on the five classic kitchens and on the 100 held-out kitchens; on the classic kitchens
+   also with the human proxies (`--proxies`, default the shipped `hp_<kitchen>`: behaviour-cloned from
+   recorded human games, each in its own kitchen). A single-kitchen agent meets others on its own kitchen
+   among the classic ones; on the held-out kitchens each kitchen's agents meet each other and the
+   generator-trained agents (`lineups`).
 3. **Report** `report.md` + `summary.json`: per level set and algorithm the mean team return over seeds
    (each seed's mean over its partners first: seeds are the independent units), SP beside XP beside the
    cook and the human proxies, the paper's values (`paper_overcooked.yaml`, read off its figures) and its
    human study's ordering beside ours, Welch tests of CEC against each baseline on per-seed XP and score
-   with the proxies, learning curves (PNG) and a GIF of two CEC seeds in a held-out kitchen.
+   with the proxies, the cross-algorithm matrices, held-out play by training kitchen, what the failing
+   baselines did in training, learning curves (PNG) and a GIF of two CEC seeds in a held-out kitchen;
+   `crossplay/report.md` is `cec report` of the agents' table (seed matrices, heatmaps, the meta-game).
 
 The work directory (`--work`, default `runs/reproduce/overcooked-<mode>`) holds the zoo (`zoo/`), its spec
 and the result tables; the report goes to `--out` (default `benchmarks/results/overcooked/<mode>`).
@@ -57,10 +61,12 @@ from cec.levels.classic import CLASSIC_ASCII
 ROOT = Path(__file__).resolve().parents[2]
 PAPER_FILE = Path(__file__).with_name("paper_overcooked.yaml")
 KITCHENS = tuple(CLASSIC_ASCII)
-ALGORITHMS = ("cec", "cec_finetune", "e3t", "fcp", "ippo")
+ALGORITHMS = ("cec", "cec_e3t", "cec_finetune", "e3t", "fcp", "ippo")
+GENERALISTS = ("cec", "cec_e3t")  # trained on the generator: they play every kitchen; the others one each
 UNTRAINED, NOOP = "untrained", "noop"  # the controls: partners that learned nothing (`control_policies`)
 TITLES = {
-    "cec": "CEC", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP", "ippo": "IPPO",
+    "cec": "CEC", "cec_e3t": "CEC-E3T", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP",
+    "ippo": "IPPO",
     UNTRAINED: "control: untrained CEC network", NOOP: "control: no-op agent",
 }  # fmt: skip
 COOK = "cook"
@@ -117,8 +123,22 @@ class Mode:
 QUICK = Mode(
     name="quick",
     preset="configs/train/cec_overcooked_cpu.yaml",
-    seeds={"cec": (200, 201), "ippo": (0, 1), "fcp": (100,), "e3t": (150,), "cec_finetune": (300, 301)},
-    steps={"cec": 327_680, "ippo": 163_840, "fcp": 163_840, "e3t": 163_840, "cec_finetune": 81_920},
+    seeds={
+        "cec": (200, 201),
+        "cec_e3t": (400, 401),
+        "ippo": (0, 1),
+        "fcp": (100,),
+        "e3t": (150,),
+        "cec_finetune": (300, 301),
+    },
+    steps={
+        "cec": 327_680,
+        "cec_e3t": 327_680,
+        "ippo": 163_840,
+        "fcp": 163_840,
+        "e3t": 163_840,
+        "cec_finetune": 81_920,
+    },  # fmt: skip
     kitchens=("cramped_room",),
     episodes={"classic": 2, "heldout": 1},
     seconds_per_update=6.8,
@@ -131,13 +151,21 @@ CPU = Mode(
     preset="configs/train/cec_overcooked_cpu.yaml",
     seeds={
         "cec": (200, 201, 202, 203),
+        "cec_e3t": (400, 401, 402, 403),
         "ippo": (0, 1, 2, 3),
         "fcp": (100, 101, 102, 103),
         "e3t": (150, 151, 152, 153),
         "cec_finetune": (300, 301, 302, 303),
     },
     # CEC: the recipe's 916 updates; IPPO reached 56 per 128-step episode on Cramped Room at 2M steps
-    steps={"cec": 15_007_744, "ippo": 1_966_080, "fcp": 1_966_080, "e3t": 1_966_080, "cec_finetune": 983_040},
+    steps={
+        "cec": 15_007_744,
+        "cec_e3t": 15_007_744,
+        "ippo": 1_966_080,
+        "fcp": 1_966_080,
+        "e3t": 1_966_080,
+        "cec_finetune": 983_040,
+    },  # fmt: skip
     episodes={"classic": 4, "heldout": 1},
     seconds_per_update=6.8,
     measured_on=MEASURED_ON,
@@ -149,6 +177,7 @@ PAPER = Mode(
     seeds=CPU.seeds,
     steps={
         "cec": 3_000_000_000,
+        "cec_e3t": 3_000_000_000,
         "ippo": 100_000_000,
         "fcp": 100_000_000,
         "e3t": 100_000_000,
@@ -170,7 +199,8 @@ def _run_name(algorithm: str, kitchen: str = "") -> str:
 
 
 def zoo_spec(mode: Mode) -> dict[str, Any]:
-    """CEC first (the runs CEC-Finetune starts from), then per kitchen IPPO, FCP (its population: that
+    """CEC first (the runs CEC-Finetune starts from) and CEC-E3T (the paper's appendix: CEC's kitchens with
+    E3T's partner, epsilon 0.5 as the paper sets it there), then per kitchen IPPO, FCP (its population: that
     kitchen's IPPO run), E3T and CEC-Finetune (one run per CEC seed)."""
     preset = str(ROOT / mode.preset)  # absolute: the spec works from any directory
     common = list(mode.overrides)
@@ -184,7 +214,8 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
             "overrides": [f"total_env_steps={mode.steps[algo]}", *overrides, *common],
         }
 
-    entries = [entry("cec", cec_seeds, [])]
+    cec_e3t = ["algorithm=cec_e3t", "partner.kind=e3t", "partner.epsilon=0.5", "partner.predict_partner=10"]
+    entries = [entry("cec", cec_seeds, []), entry("cec_e3t", mode.seeds["cec_e3t"], cec_e3t)]
     for k in mode.kitchens:
         single = [f"env.levels={k}"]
         ippo = mode.seeds["ippo"]
@@ -244,12 +275,15 @@ def human_proxies(mode: Mode) -> list[Any]:
 
 def eval_config(mode: Mode, level_set: str, seed: int = 0) -> Any:
     """How every policy plays on a level set: the mode's episodes per pair, seat order and kitchen, the
-    paper's episode length, common random numbers from `seed`."""
+    paper's episode length, common random numbers from `seed` (per level and episode: the same games
+    whatever the games per call, 8 on a CPU and 64 on an accelerator, which plays them side by side)."""
+    import jax
+
     from cec.evaluation.crossplay import EvalConfig
 
     return EvalConfig(
         levels=level_spec(mode, level_set), episodes=mode.episodes[level_set], seed=seed,
-        max_steps=EVAL_STEPS, games_per_call=8,
+        max_steps=EVAL_STEPS, games_per_call=8 if jax.default_backend() == "cpu" else 64,
     )  # fmt: skip
 
 
@@ -259,12 +293,34 @@ def _eval_key(mode: Mode) -> dict[str, Any]:
     return {**settings, "steps": EVAL_STEPS}
 
 
+def lineups(policies: Sequence[Any], level_set: str) -> list[tuple[list[Any], frozenset[str] | None]]:
+    """Who meets whom on a level set, as (line-up, the names whose games it adds; None: all of them). On
+    the classic kitchens one line-up of every agent, each on the kitchens it plays (a single-kitchen agent
+    on its own, so it meets that kitchen's agents and the generator-trained ones). On the held-out kitchens
+    one line-up per training kitchen: that kitchen's agents, free of their kitchen, with the
+    generator-trained ones, whose games without a kitchen's agent the first line-up already has. A seed of
+    a single-kitchen algorithm is then, as on the classic kitchens, its agents of every kitchen: the
+    result table names a policy by algorithm and seed, and a pair's score averages its kitchens."""
+    if level_set == "classic":
+        return [(list(policies), None)]
+    generalists = [p for p in policies if p.levels is None]
+    by_kitchen: dict[tuple[str, ...], list[Any]] = {}
+    for p in policies:
+        if p.levels is not None:
+            by_kitchen.setdefault(tuple(p.levels), []).append(dataclasses.replace(p, levels=None))
+    if not by_kitchen:
+        return [(generalists, None)]
+    return [
+        ([*generalists, *agents], None if i == 0 else frozenset(a.name for a in agents))
+        for i, agents in enumerate(by_kitchen.values())
+    ]
+
+
 def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
-    """Per level set and algorithm: its seeds and the scripted cook, every pair (XP, SP, with the cook),
-    and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable` (the proxies'
-    and the cook's own games once). On the held-out kitchens single-kitchen agents play every kitchen (the
-    paper's baselines there). Proxies that cannot play with the agents (another network) are the table's
-    skipped entries, with the reason."""
+    """Per level set, every line-up (`lineups`) with the scripted cook, every pair (XP, SP, ad hoc, with
+    the cook), and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable`.
+    Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
+    reason."""
     from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
@@ -276,22 +332,18 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     for level_set in LEVEL_SETS:
         config = eval_config(mode, level_set, seed)
         levels = eval_levels("overcooked", config.levels)
-        for k, algo in enumerate(a for a in ALGORITHMS if any(p.algorithm == a for p in policies)):
-            group = [p for p in policies if p.algorithm == algo]
-            if level_set == "heldout":  # one entry per seed, free of its kitchen
-                firsts = {p.seed: p for p in reversed(group)}
-                group = [dataclasses.replace(p, levels=None) for p in firsts.values()]
+        partners = [cook, *proxies] if level_set == "classic" else [cook]
+        for lineup, adds in lineups(policies, level_set):
             t0 = time.perf_counter()
-            partners = [cook, *proxies] if level_set == "classic" else [cook]
-            table = crossplay([*group, *partners], levels, config)
-            if k:  # the cook's and the proxies' own games once per level set
-                table = table.select((table.algorithm_a == algo) | (table.algorithm_b == algo))
+            table = crossplay([*lineup, *partners], levels, config)
+            if adds is not None:
+                names = list(adds)
+                table = table.select(np.isin(table.policy_a, names) | np.isin(table.policy_b, names))
             tables.append(table)
             with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
             where = f"{len(levels.names)} {level_set} kitchens"
-            seconds = time.perf_counter() - t0
-            played = f"{len(table)} episodes in {seconds:.0f}s"
-            pipeline.note(log, f"{algo}: {len(group)} entries + {with_whom} on {where}: {played}")
+            played = f"{len(table)} episodes in {time.perf_counter() - t0:.0f}s"
+            pipeline.note(log, f"{len(lineup)} agents + {with_whom} on {where}: {played}")
     return EpisodeTable.concat(tables)
 
 
@@ -361,7 +413,8 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
 
     entries = sorted(pipeline.zoo_entries(manifest))
     proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
-    key = {**_eval_key(mode), "zoo": entries, "proxies": proxies}
+    # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
+    key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
     return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
 
 
@@ -492,13 +545,13 @@ def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
     skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
-    episodes: Sequence[str] = (),
+    sections: Sequence[str] = (),
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
     (proxies that could not play with the agents); `train_s`: the recorded seconds of each training run (by
     run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
-    `episodes`: the per-kitchen section (`episode_lines`)."""
+    `sections`: the lines after the tests (`analysis_lines`)."""
 
     paper, paper_text = paper_values(), paper_values("text")
     tests = comparisons(summary)
@@ -565,7 +618,7 @@ def write_report(
                 f"{'yes' if t['significant'] else 'no'} |"
             )
         lines.append("")
-    lines += episodes
+    lines += sections
     lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
               "|---|---|---|---|---|"]  # fmt: skip
     recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
@@ -591,11 +644,11 @@ def episode_lines(mode: Mode, table: Any) -> list[str]:
     seeds) and self-play in each classic kitchen and over the held-out ones, then per level set the
     collisions per episode and the share of cross-play episodes without a soup. Means over episodes
     (descriptive; the seed-level tests are above)."""
-    xp = (table.algorithm_a == table.algorithm_b) & (table.seed_a != table.seed_b)
-    sp = (table.algorithm_a == table.algorithm_b) & (table.seed_a == table.seed_b)
+    xp, sp = _xp_sp(table)
     held = np.isin(table.level, level_spec(mode, "heldout").split(","))
     columns = [(k, table.level == k) for k in mode.kitchens] + [("held-out", held)]
     algos = [a for a in ALGORITHMS if np.any(table.algorithm_a == a)]
+    kitchens = [k for k in mode.kitchens if any(_of_kitchen(table.policy_a[held], a, k).any() for a in algos)]
 
     def mean(values: np.ndarray, mask: np.ndarray, fmt: str = "{:.1f}") -> str:
         return fmt.format(float(values[mask].mean())) if mask.any() else "—"
@@ -606,8 +659,9 @@ def episode_lines(mode: Mode, table: Any) -> list[str]:
         f"Team return per {EVAL_STEPS}-step episode, the mean over episodes: cross-play (two different seeds "
         "of the algorithm) and, in brackets, self-play, in each classic kitchen and over the held-out ones. "
         "The baselines of a classic kitchen are that kitchen's agents; on the held-out kitchens the "
-        f"{TITLES['ippo']}, {TITLES['fcp']}, {TITLES['e3t']} and {TITLES['cec_finetune']} agents that play "
-        "are those of the first classic kitchen listed (as in the tables above).",
+        "single-kitchen agents that played are those trained on "
+        + ", ".join(kitchens or ["none"])
+        + " (as in the tables above; by training kitchen below).",
         "",
         "| algorithm | " + " | ".join(k for k, _ in columns) + " |",
         "|---" * (len(columns) + 1) + "|",
@@ -633,6 +687,194 @@ def episode_lines(mode: Mode, table: Any) -> list[str]:
         none = [mean((table.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
         lines.append(f"| {TITLES[algo]} | {' | '.join(coll)} | {' | '.join(none)} |")
     return [*lines, ""]
+
+
+def _xp_sp(table: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of cross-play (two different seeds of one algorithm) and of self-play."""
+    same = table.algorithm_a == table.algorithm_b
+    return same & (table.seed_a != table.seed_b), same & (table.seed_a == table.seed_b)
+
+
+def _agents(table: Any, *, with_proxies: bool = True) -> Any:
+    """The games of the trained agents with each other (and with the human proxies): the table without the
+    cook and the controls."""
+    who = (*ALGORITHMS, HUMAN_PROXY) if with_proxies else ALGORITHMS
+    return table.select(np.isin(table.algorithm_a, who) & np.isin(table.algorithm_b, who))
+
+
+def _of_kitchen(names: np.ndarray, algo: str, kitchen: str) -> np.ndarray:
+    """Which policy names are `algo`'s agents of `kitchen` (the zoo's run names: `ALGO_KITCHEN-sSEED`)."""
+    return np.char.startswith(names.astype(str), f"{_run_name(algo, kitchen)}-s")
+
+
+def analysis_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
+    """The sections after the tests: per kitchen (`episode_lines`), the cross-algorithm matrices, held-out
+    play by training kitchen, whether the single-kitchen runs levelled off, and the baselines without a soup
+    in their own kitchen."""
+    return [
+        *episode_lines(mode, table), *cross_algorithm_lines(mode, table),
+        *heldout_kitchen_lines(mode, table), *plateau_lines(mode, runs), *failing_lines(mode, table, runs),
+    ]  # fmt: skip
+
+
+def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
+    """Per level set the cross-algorithm matrix (`cec.evaluation.analysis.algorithm_matrix`): cell (A, B)
+    the mean team return of the pairs of an A agent and a different B agent (on the diagonal: cross-play),
+    each pair's score the mean over the kitchens both play (the paper's ad-hoc teamplay heatmaps)."""
+    from cec.evaluation import analysis as an
+
+    agents = _agents(table, with_proxies=False)
+    lines = [
+        "## Cross-algorithm play (ad-hoc teamplay)",
+        "",
+        "Team return per 400-step episode of an agent of the row's algorithm with a different agent of the "
+        "column's (the diagonal is cross-play), each pair's score the mean over the kitchens both play: on "
+        "the classic kitchens a single-kitchen agent meets the others of its kitchen and the "
+        "generator-trained agents, on the held-out kitchens its kitchen's agents and the generator-trained "
+        "ones. Means over pairs (descriptive; seeds as units for tests above). Heatmaps, seed matrices and "
+        "the meta-game (replicator dynamics): [crossplay/report.md](crossplay/report.md).",
+        "",
+    ]
+    for level_set in LEVEL_SETS:
+        m = an.algorithm_matrix(an.pair_level_scores(agents, level_spec(mode, level_set).split(",")))
+        if not m.labels:
+            continue
+        titles = [TITLES.get(a, a) for a in m.labels]
+        lines += [f"**{level_set}**", "", "| | " + " | ".join(titles) + " |", "|---" * len(titles) + "|---|"]
+        for title, row in zip(titles, m.values, strict=True):
+            cells = ("—" if math.isnan(v) else f"{v:.1f}" for v in row)
+            lines.append(f"| {title} | " + " | ".join(cells) + " |")
+        off = m.values[~np.eye(len(m.labels), dtype=bool)]
+        if off.size and np.isnan(off).all():
+            lines += ["", "No two algorithms met in this table (it was played before every agent met every "
+                      "other): the cells off the diagonal are empty."]  # fmt: skip
+        lines.append("")
+    return lines
+
+
+def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
+    """Held-out cross-play (self-play) of each single-kitchen algorithm by the kitchen its agents trained
+    on: which kitchens' agents carry anything to kitchens they never saw."""
+    xp, sp = _xp_sp(table)
+    held = np.isin(table.level, level_spec(mode, "heldout").split(","))
+    algos = [a for a in ALGORITHMS if a not in GENERALISTS and np.any(table.algorithm_a == a)]
+    if not algos:
+        return []
+    lines = [
+        "## The held-out kitchens by training kitchen",
+        "",
+        f"Team return per {EVAL_STEPS}-step episode on the held-out kitchens, the mean over episodes: "
+        "cross-play (two different seeds of one algorithm, both trained on the column's kitchen) and, in "
+        "brackets, self-play; — where that kitchen's agents did not play them.",
+        "",
+        "| algorithm | " + " | ".join(mode.kitchens) + " |",
+        "|---" * (len(mode.kitchens) + 1) + "|",
+    ]
+    for algo in algos:
+        cells = []
+        for k in mode.kitchens:
+            mine = held & _of_kitchen(table.policy_a, algo, k) & _of_kitchen(table.policy_b, algo, k)
+            cells.append(
+                f"{table.returns[mine & xp].mean():.1f} ({table.returns[mine & sp].mean():.1f})"
+                if (mine & xp).any() and (mine & sp).any() else "—"
+            )  # fmt: skip
+        lines.append(f"| {TITLES[algo]} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def _curves(runs: Path, algo: str, kitchen: str, column: str) -> list[np.ndarray]:
+    """Per seed of `algo`'s runs on `kitchen` under `runs`, `column` of its `metrics.csv` by update."""
+    from cec.evaluation.curves import read_curve
+
+    runs_k = [r for r in sorted(runs.glob(f"{_run_name(algo, kitchen)}-s*")) if (r / "metrics.csv").is_file()]
+    return [v for r in runs_k for _, v in read_curve(r, column).values() if len(v)]
+
+
+def plateau_lines(mode: Mode, runs: Path) -> list[str]:
+    """Whether each single-kitchen algorithm's training had levelled off: its team return per training
+    episode over the last 10 updates, and how much it rose over the last quarter of the run (the mean over
+    seeds; `metrics.csv` of its runs under `runs`)."""
+    from cec.evaluation.curves import trailing_mean
+
+    algos = [a for a in ALGORITHMS if a not in GENERALISTS]
+    cells = {}
+    for algo in algos:
+        for k in mode.kitchens:
+            ends = [(trailing_mean(v, 10)[-1], trailing_mean(v, 10)[(3 * len(v)) // 4 - 1]) for v in
+                    _curves(runs, algo, k, "mean_return") if len(v) >= 4]  # fmt: skip
+            if ends:
+                last, earlier = np.mean(ends, axis=0)
+                cells[algo, k] = f"{last:.1f} ({last - earlier:+.1f})"
+    if not cells:
+        return []
+    return [
+        "## Single-kitchen training: levelled off?",
+        "",
+        "Team return per 128-step training episode with its training partners over the last 10 updates and, "
+        "in brackets, its rise over the last quarter of the run (the mean over seeds): a rise that is large "
+        "beside the return means the run stopped before its self-play levelled off.",
+        "",
+        "| algorithm | " + " | ".join(mode.kitchens) + " |",
+        "|---" * (len(mode.kitchens) + 1) + "|",
+        *(
+            f"| {TITLES[a]} | " + " | ".join(cells.get((a, k), "—") for k in mode.kitchens) + " |"
+            for a in algos
+        ),
+        "",
+    ]
+
+
+def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
+    """Every single-kitchen algorithm and kitchen whose self-play there delivers nothing, with what its
+    training recorded (`metrics.csv` of its runs under `runs`): the team return per training episode with
+    its training partners at the first update and over the last 10, the shaped return, and the reading
+    those numbers allow."""
+    from cec.evaluation.curves import trailing_mean
+
+    xp, sp = _xp_sp(table)
+    rows = []
+    for algo in (a for a in ALGORITHMS if a not in GENERALISTS):
+        for k in mode.kitchens:
+            own = (table.algorithm_a == algo) & (table.level == k)
+            if not (own & sp).any() or table.returns[own & sp].mean() > 0:
+                continue
+            curves = {c: _curves(runs, algo, k, c) for c in ("mean_return", "mean_shaped_return")}
+            if not curves["mean_return"]:
+                rows.append(f"| {TITLES[algo]} | {k} | 0.0 | — | — | — | its training metrics are not in the "
+                            "work folder |")  # fmt: skip
+                continue
+            first = float(np.mean([v[0] for v in curves["mean_return"]]))
+            last, shaped = (float(np.mean([trailing_mean(v, 10)[-1] for v in curves[c]])) for c in curves)
+            if last < 1.0:
+                reading = "no soup in training either: it learned the shaped steps only, not to deliver"
+            elif first >= last / 2:
+                reading = (
+                    f"its training partners delivered from the start ({first:.1f} beside the untrained "
+                    "agent): it scored with them, not by itself"
+                )
+            else:
+                reading = "it learned to deliver with its training partners, but not with a copy of itself"
+            xp_k = f"{table.returns[own & xp].mean():.1f}" if (own & xp).any() else "—"
+            rows.append(f"| {TITLES[algo]} | {k} | 0.0 | {xp_k} | {first:.1f} → {last:.1f} | {shaped:.1f} | "
+                        f"{reading} |")  # fmt: skip
+    if not rows:
+        return ["## Baselines in their own kitchen", "", "Every single-kitchen algorithm delivers in "
+                "self-play in its own kitchen (self-play > 0 in each).", ""]  # fmt: skip
+    return [
+        "## Baselines without a soup in their own kitchen",
+        "",
+        "Each algorithm and kitchen whose self-play there (every seed with itself, 400-step episodes) "
+        "delivers nothing, with what its training recorded: the team return per 128-step training episode "
+        "with its training partners (IPPO and CEC-Finetune: itself; FCP: its population; E3T: itself mixed "
+        "with random moves) at the first update and over the last 10 (the mean over seeds), and the shaped "
+        "return over the last 10.",
+        "",
+        "| algorithm | kitchen | self-play | cross-play | training return, first → last | shaped, last | "
+        "reading |",
+        "|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
 
 
 def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped: Sequence[Any]) -> list[str]:
@@ -680,21 +922,25 @@ def _machine_text(m: dict[str, Any]) -> str:
 
 
 def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, policies: Path) -> dict[str, str]:
-    """Learning curves of every run (PNG) and a GIF of a median cross-play episode (`crossplay_gif`)."""
+    """Learning curves of every run (PNG), a GIF of a median cross-play episode (`crossplay_gif`) and
+    `cec report` of the agents' games (`out/crossplay/`: heatmaps, seed matrices, the meta-game)."""
     from cec.evaluation.curves import plot_learning_curves
+    from cec.evaluation.report import write_report as crossplay_report
 
     figures = {}
     runs = {d.name: d for d in sorted((work / "zoo" / "runs").glob("*")) if (d / "metrics.csv").exists()}
-    cec_runs = {k: v for k, v in runs.items() if k.startswith("cec-")}
+    generalist = tuple(f"{a}-" for a in GENERALISTS)
+    cec_runs = {k: v for k, v in runs.items() if k.startswith(generalist)}
     if cec_runs:
-        plot_learning_curves(cec_runs, out / "curves_cec.png", title="CEC on the generator's kitchens")
-        figures["CEC learning curves"] = "curves_cec.png"
-    others = {k: v for k, v in runs.items() if not k.startswith("cec-")}
+        plot_learning_curves(cec_runs, out / "curves_cec.png", title="trained on the generator's kitchens")
+        figures["CEC (and CEC-E3T) learning curves"] = "curves_cec.png"
+    others = {k: v for k, v in runs.items() if not k.startswith(generalist)}
     if others:
         plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
     figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
-    pipeline.note(log, f"figures: {', '.join(figures.values())}")
+    crossplay_report(_agents(table), out / "crossplay", sources=[str(work / "results.csv")])
+    pipeline.note(log, f"figures: {', '.join(figures.values())}; crossplay/report.md")
     return figures
 
 
@@ -738,7 +984,7 @@ def reproduce_overcooked(
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
-        episodes=episode_lines(mode, table),
+        sections=analysis_lines(mode, table, work / "zoo" / "runs"),
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report

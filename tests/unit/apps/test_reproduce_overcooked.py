@@ -20,7 +20,7 @@ from apps.reproduce import overcooked as ro
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
 from cec.config import ConfigError, load_config
-from cec.evaluation.results import make_table
+from cec.evaluation.results import make_table, read_csv
 from cec.humans.bc import BCConfig
 from cec.training.config import TrainConfig
 
@@ -33,6 +33,7 @@ TINY = ro.Mode(
     preset=ro.QUICK.preset,
     seeds={
         "cec": (200, 201),
+        "cec_e3t": (400, 401),
         "ippo": (0, 1),
         "fcp": (100, 101),
         "e3t": (150, 151),
@@ -93,6 +94,67 @@ def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
     assert scores.cook[0] == 20.0 and np.isnan(scores.cook[1])
 
 
+def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() -> None:
+    from cec.agents.policy import scripted_policy
+
+    def agent(algo: str, seed: int, kitchen: str | None = None) -> object:
+        name = f"{algo}_{kitchen}-s{seed}" if kitchen else f"{algo}-s{seed}"
+        levels = (kitchen,) if kitchen else None
+        return scripted_policy("noop", name, algorithm=algo, seed=seed, levels=levels)
+
+    zoo = [agent("cec", 200), agent("cec", 201)]
+    zoo += [agent("ippo", s, k) for k in ("cramped_room", "coord_ring") for s in (0, 1)]
+    assert ro.lineups(zoo, "classic") == [(zoo, None)]  # each on its kitchens: a kitchen's agents meet
+    first, second = ro.lineups(zoo, "heldout")
+    assert [p.name for p in first[0]] == [
+        "cec-s200",
+        "cec-s201",
+        "ippo_cramped_room-s0",
+        "ippo_cramped_room-s1",
+    ]
+    assert first[1] is None  # the generalists' own games are kept once, from the first line-up
+    assert [p.name for p in second[0]] == ["cec-s200", "cec-s201", "ippo_coord_ring-s0", "ippo_coord_ring-s1"]
+    assert second[1] == {"ippo_coord_ring-s0", "ippo_coord_ring-s1"}
+    assert all(p.levels is None for lineup, _ in (first, second) for p in lineup)  # every held-out kitchen
+
+
+def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_training(tmp_path: Path) -> None:
+    """FCP's population delivered from its first update; E3T never delivered in training."""
+    rows = [("fcp", 100, 0.0, "cramped_room"), ("fcp", 101, 0.0, "cramped_room"),
+            ("e3t", 150, 0.0, "coord_ring"), ("ippo", 0, 60.0, "cramped_room"),
+            ("fcp", 100, 40.0, "coord_ring")]  # fmt: skip
+    n = len(rows)
+    table = make_table({
+        "policy_a": [f"{a}_{k}-s{s}" for a, s, _, k in rows], "algorithm_a": [r[0] for r in rows],
+        "seed_a": [r[1] for r in rows], "policy_b": [f"{a}_{k}-s{s}" for a, s, _, k in rows],
+        "algorithm_b": [r[0] for r in rows], "seed_b": [r[1] for r in rows], "level": [r[3] for r in rows],
+        "seat": [0] * n, "episode": [0] * n, "returns": [r[2] for r in rows], "deliveries": [0] * n,
+        "collisions": [0] * n, "shaped_return": [0.0] * n, "env": ["overcooked"] * n,
+        "episode_steps": [400] * n, "actions": ["sampled"] * n,
+    })  # fmt: skip
+    runs = tmp_path / "runs"
+    for run, first, last in (("fcp_cramped_room-s100", 17.0, 24.0), ("e3t_coord_ring-s150", 0.0, 0.0)):
+        (runs / run).mkdir(parents=True)
+        lines = ["update,env_steps,seed,mean_return,mean_shaped_return"]
+        lines += [f"{u},{u * 100},0,{first if u == 1 else last},12.5" for u in range(1, 21)]
+        (runs / run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    mode = dataclasses.replace(TINY, kitchens=("cramped_room", "coord_ring"))
+    text = "\n".join(ro.failing_lines(mode, table, runs))
+    fcp = next(line for line in text.splitlines() if line.startswith("| FCP | cramped_room"))
+    assert "| 17.0 → 24.0 |" in fcp and "partners delivered from the start" in fcp
+    e3t = next(line for line in text.splitlines() if line.startswith("| E3T | coord_ring"))
+    assert "| 0.0 → 0.0 | 12.5 |" in e3t and "no soup in training either" in e3t
+    assert "| IPPO |" not in text and "| FCP | coord_ring" not in text  # they deliver in their kitchen
+    # whether each run levelled off: the return over its last 10 updates, its rise over the last quarter
+    (runs / "ippo_cramped_room-s0").mkdir()
+    rising = "\n".join(f"{u},{u * 100},0,{u},0" for u in range(1, 21))
+    (runs / "ippo_cramped_room-s0" / "metrics.csv").write_text(
+        f"update,env_steps,seed,mean_return,x\n{rising}\n"
+    )
+    plateau = ro.plateau_lines(mode, runs)
+    assert "| IPPO | 15.5 (+5.0) | — |" in plateau and "| FCP | 24.0 (+0.0) | — |" in plateau
+
+
 @pytest.mark.slow
 @pytest.mark.timeout(900)
 def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results(tmp_path: Path) -> None:
@@ -109,8 +171,9 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert report is not None and report.exists()
     text = report.read_text()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
-                   "| FCP |", "| E3T |", "| CEC-Finetune |", "130.51 (text)", "≈70 (figure)",
-                   "the paper's text gives: CEC-E3T 28.21", "(seeds as units)",
+                   "| FCP |", "| E3T |", "| CEC-Finetune |", "| CEC-E3T |", "130.51 (text)", "≈70 (figure)",
+                   "28.21 (text)", "(seeds as units)", "## Cross-algorithm play",
+                   "## The held-out kitchens by training kitchen", "in their own kitchen",
                    "| with human proxies |", "The paper's human study", "| control: untrained CEC network |",
                    "| control: no-op agent |", "## Per kitchen, collisions",
                    "| cramped_room | held-out |"):  # fmt: skip
@@ -135,6 +198,13 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert (work / "controls" / ro.MACHINE_FILE).is_file()  # where they were played, for a later report
     assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
     assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
+    # every agent met every other: CEC with each baseline on both level sets, `cec report` of those games
+    played = read_csv(work / "results.csv")
+    for level_set in ro.LEVEL_SETS:
+        on = np.isin(played.level, ro.level_spec(mode, level_set).split(","))
+        met = {(a, b) for a, b in zip(played.algorithm_a[on], played.algorithm_b[on], strict=True)}
+        assert all(("cec", x) in met or (x, "cec") in met for x in ro.ALGORITHMS), (level_set, met)
+    assert "Cross-algorithm heatmap" in (out / "crossplay" / "report.md").read_text()
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
     ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
@@ -150,14 +220,21 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         mode, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
         policies=tmp_path / "shipped" / "zoo.yaml",
     )  # fmt: skip
-    assert (
-        again is not None and again.read_text().count("| CEC |") == 4
-    )  # 2 level sets, per kitchen, collisions
+    assert again is not None
+    for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training"):
+        assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
     with pytest.raises(ConfigError, match="results.csv"):
         ro.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
+
+
+def _section(text: str, head: str) -> str:
+    """The Markdown section that starts with `head`, up to the next `## ` heading."""
+    start = text.index(head)
+    end = text.find("\n## ", start + 1)
+    return text[start : end if end >= 0 else None]
 
 
 def test_proxies_that_cannot_play_are_named_with_the_reason() -> None:
