@@ -215,6 +215,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     for ckpt in (work / "zoo" / "runs").glob("*/checkpoints"):
         shutil.rmtree(ckpt)
     (out / "cec_xp_heldout.gif").unlink()
+    shutil.rmtree(work / "zoo" / "runs" / "cec_e3t-s400")  # as in a folder trained before the mode had it
     ran_on = json.loads((work / ro.MACHINE_FILE).read_text())
     again = ro.reproduce_overcooked(
         mode, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
@@ -225,6 +226,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time
+    assert "| cec_e3t-s400 |" not in again.read_text() and "Not in this work folder" in again.read_text()
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
     with pytest.raises(ConfigError, match="results.csv"):
         ro.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
