@@ -164,8 +164,10 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
     for run, colour in zip(runs, distinct_colours(len(runs)), strict=True):
         mine = sorted((r for r in rows if r["run"] == run), key=lambda r: r["core_hours_per_seed"])
         hours = [r["core_hours_per_seed"] for r in mine]
-        ax.plot(hours, [r["xp"] for r in mine], "o-", color=colour, label=f"{run} XP")
-        ax.plot(hours, [r["sp"] for r in mine], "x--", color=colour, label=f"{run} SP")
+        ax.plot(hours, [r["xp"] for r in mine], "o-", color=colour, label=run)
+        ax.plot(hours, [r["sp"] for r in mine], "x--", color=colour)
+    ax.plot([], [], "o-", color="k", label="cross-play (XP)")  # one entry per run, the styles once
+    ax.plot([], [], "x--", color="k", label="self-play (SP)")
     ax.axhline(20, color="grey", lw=0.8, ls=":")
     ax.set_xlabel("core-hours per seed (this CPU, one core per run)")
     ax.set_ylabel("team return per 400 steps, 100 held-out kitchens")
