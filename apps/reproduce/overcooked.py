@@ -63,6 +63,7 @@ PAPER_FILE = Path(__file__).with_name("paper_overcooked.yaml")
 KITCHENS = tuple(CLASSIC_ASCII)
 ALGORITHMS = ("cec", "cec_e3t", "cec_finetune", "e3t", "fcp", "ippo")
 GENERALISTS = ("cec", "cec_e3t")  # trained on the generator: they play every kitchen; the others one each
+SELF_PLAY = ("cec", "cec_finetune", "ippo")  # their training partner is themselves
 UNTRAINED, NOOP = "untrained", "noop"  # the controls: partners that learned nothing (`control_policies`)
 TITLES = {
     "cec": "CEC", "cec_e3t": "CEC-E3T", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP",
@@ -851,10 +852,12 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
             last, shaped = (float(np.mean([trailing_mean(v, 10)[-1] for v in curves[c]])) for c in curves)
             if last < 1.0:
                 reading = "no soup in training either: it learned the shaped steps only, not to deliver"
+            elif algo in SELF_PLAY:
+                reading = "it delivered in its 128-step training episodes (with itself), not in these"
             elif first >= last / 2:
                 reading = (
-                    f"its training partners delivered from the start ({first:.1f} beside the untrained "
-                    "agent): it scored with them, not by itself"
+                    f"its training partners delivered from its first update ({first:.1f}): it scored with "
+                    "them, not by itself"
                 )
             else:
                 reading = "it learned to deliver with its training partners, but not with a copy of itself"

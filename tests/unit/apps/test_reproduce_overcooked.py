@@ -119,10 +119,11 @@ def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() 
 
 
 def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_training(tmp_path: Path) -> None:
-    """FCP's population delivered from its first update; E3T never delivered in training."""
+    """FCP's population delivered from its first update; E3T never delivered in training; IPPO delivered
+    with itself in training, not in the evaluation."""
     rows = [("fcp", 100, 0.0, "cramped_room"), ("fcp", 101, 0.0, "cramped_room"),
             ("e3t", 150, 0.0, "coord_ring"), ("ippo", 0, 60.0, "cramped_room"),
-            ("fcp", 100, 40.0, "coord_ring")]  # fmt: skip
+            ("fcp", 100, 40.0, "coord_ring"), ("ippo", 0, 0.0, "coord_ring")]  # fmt: skip
     n = len(rows)
     table = make_table({
         "policy_a": [f"{a}_{k}-s{s}" for a, s, _, k in rows], "algorithm_a": [r[0] for r in rows],
@@ -133,7 +134,8 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
         "episode_steps": [400] * n, "actions": ["sampled"] * n,
     })  # fmt: skip
     runs = tmp_path / "runs"
-    for run, first, last in (("fcp_cramped_room-s100", 17.0, 24.0), ("e3t_coord_ring-s150", 0.0, 0.0)):
+    for run, first, last in (("fcp_cramped_room-s100", 17.0, 24.0), ("e3t_coord_ring-s150", 0.0, 0.0),
+                             ("ippo_coord_ring-s0", 0.0, 30.0)):  # fmt: skip
         (runs / run).mkdir(parents=True)
         lines = ["update,env_steps,seed,mean_return,mean_shaped_return"]
         lines += [f"{u},{u * 100},0,{first if u == 1 else last},12.5" for u in range(1, 21)]
@@ -141,10 +143,12 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
     mode = dataclasses.replace(TINY, kitchens=("cramped_room", "coord_ring"))
     text = "\n".join(ro.failing_lines(mode, table, runs))
     fcp = next(line for line in text.splitlines() if line.startswith("| FCP | cramped_room"))
-    assert "| 17.0 → 24.0 |" in fcp and "partners delivered from the start" in fcp
+    assert "| 17.0 → 24.0 |" in fcp and "partners delivered from its first update" in fcp
     e3t = next(line for line in text.splitlines() if line.startswith("| E3T | coord_ring"))
     assert "| 0.0 → 0.0 | 12.5 |" in e3t and "no soup in training either" in e3t
-    assert "| IPPO |" not in text and "| FCP | coord_ring" not in text  # they deliver in their kitchen
+    ippo = next(line for line in text.splitlines() if line.startswith("| IPPO | coord_ring"))
+    assert "| 0.0 → 30.0 |" in ippo and "(with itself), not in these" in ippo
+    assert "| IPPO | cramped_room" not in text and "| FCP | coord_ring" not in text  # they deliver there
     # whether each run levelled off: the return over its last 10 updates, its rise over the last quarter
     (runs / "ippo_cramped_room-s0").mkdir()
     rising = "\n".join(f"{u},{u * 100},0,{u},0" for u in range(1, 21))
@@ -152,7 +156,7 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
         f"update,env_steps,seed,mean_return,x\n{rising}\n"
     )
     plateau = ro.plateau_lines(mode, runs)
-    assert "| IPPO | 15.5 (+5.0) | — |" in plateau and "| FCP | 24.0 (+0.0) | — |" in plateau
+    assert "| IPPO | 15.5 (+5.0) | 30.0 (+0.0) |" in plateau and "| FCP | 24.0 (+0.0) | — |" in plateau
 
 
 @pytest.mark.slow
