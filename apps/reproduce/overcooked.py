@@ -546,13 +546,13 @@ def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
     skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
-    sections: Sequence[str] = (), absent: Sequence[str] = (),
+    sections: Sequence[str] = (), missing: Sequence[str] = (),
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
     (proxies that could not play with the agents); `train_s`: the recorded seconds of each training run (by
     run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
-    `sections`: the lines after the tests (`analysis_lines`); `absent`: runs of the mode's plan that the
+    `sections`: the lines after the tests (`analysis_lines`); `missing`: runs of the mode's plan that the
     work folder does not have (a folder trained before the mode had them)."""
 
     paper, paper_text = paper_values(), paper_values("text")
@@ -627,9 +627,9 @@ def write_report(
     lines += [
         f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} | {recorded.get(p.run, '—')} |" for p in plan
     ]
-    if absent:
+    if missing:
         lines += ["", f"Not in this work folder (trained before the mode had them; the tables have none of "
-                  f"their games): {', '.join(absent)}."]  # fmt: skip
+                  f"their games): {', '.join(missing)}."]  # fmt: skip
     lines.append("")
     for title, rel in figures.items():
         lines += [f"![{title}]({rel})", ""]
@@ -986,14 +986,15 @@ def reproduce_overcooked(
     if (work / "controls" / MACHINE_FILE).is_file():
         ran_on = {**ran_on, "controls": json.loads((work / "controls" / MACHINE_FILE).read_text())}
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
-    absent = [p.run for p in plan if not (work / "zoo" / "runs" / p.run).is_dir()]
-    plan = [p for p in plan if p.run not in absent]
+    # a run trained has its metrics (planning a run makes its folder: the folder alone says nothing)
+    missing = [p.run for p in plan if not (work / "zoo" / "runs" / p.run / "metrics.csv").is_file()]
+    plan = [p for p in plan if p.run not in missing]
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
-        sections=analysis_lines(mode, table, work / "zoo" / "runs"), absent=absent,
+        sections=analysis_lines(mode, table, work / "zoo" / "runs"), missing=missing,
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report
