@@ -57,13 +57,16 @@ from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
 from cec.config import ConfigError
 from cec.levels.classic import CLASSIC_ASCII
+from cec.training.config import ALGORITHMS as TRAINING
 
 ROOT = Path(__file__).resolve().parents[2]
 PAPER_FILE = Path(__file__).with_name("paper_overcooked.yaml")
 KITCHENS = tuple(CLASSIC_ASCII)
 ALGORITHMS = ("cec", "cec_e3t", "cec_finetune", "e3t", "fcp", "ippo")
-GENERALISTS = ("cec", "cec_e3t")  # trained on the generator: they play every kitchen; the others one each
-SELF_PLAY = ("cec", "cec_finetune", "ippo")  # their training partner is themselves
+# as the trainer defines them: trained on the generator (they play every kitchen; the others one each), and
+# trained with themselves as the partner
+GENERALISTS = tuple(a for a in ALGORITHMS if TRAINING[a][1])
+SELF_PLAY = tuple(a for a in ALGORITHMS if TRAINING[a][0] == "self_play")
 UNTRAINED, NOOP = "untrained", "noop"  # the controls: partners that learned nothing (`control_policies`)
 TITLES = {
     "cec": "CEC", "cec_e3t": "CEC-E3T", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP",
@@ -650,7 +653,7 @@ def episode_lines(mode: Mode, table: Any) -> list[str]:
     collisions per episode and the share of cross-play episodes without a soup. Means over episodes
     (descriptive; the seed-level tests are above)."""
     xp, sp = _xp_sp(table)
-    held = np.isin(table.level, level_spec(mode, "heldout").split(","))
+    held = _held_out(mode, table)
     columns = [(k, table.level == k) for k in mode.kitchens] + [("held-out", held)]
     algos = [a for a in ALGORITHMS if np.any(table.algorithm_a == a)]
     kitchens = [k for k in mode.kitchens if any(_of_kitchen(table.policy_a[held], a, k).any() for a in algos)]
@@ -698,6 +701,11 @@ def _xp_sp(table: Any) -> tuple[np.ndarray, np.ndarray]:
     """Rows of cross-play (two different seeds of one algorithm) and of self-play."""
     same = table.algorithm_a == table.algorithm_b
     return same & (table.seed_a != table.seed_b), same & (table.seed_a == table.seed_b)
+
+
+def _held_out(mode: Mode, table: Any) -> np.ndarray:
+    """Rows played on the mode's held-out kitchens."""
+    return np.isin(table.level, level_spec(mode, "heldout").split(","))
 
 
 def _agents(table: Any, *, with_proxies: bool = True) -> Any:
@@ -761,7 +769,7 @@ def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
     """Held-out cross-play (self-play) of each single-kitchen algorithm by the kitchen its agents trained
     on: which kitchens' agents carry anything to kitchens they never saw."""
     xp, sp = _xp_sp(table)
-    held = np.isin(table.level, level_spec(mode, "heldout").split(","))
+    held = _held_out(mode, table)
     algos = [a for a in ALGORITHMS if a not in GENERALISTS and np.any(table.algorithm_a == a)]
     if not algos:
         return []
@@ -805,8 +813,8 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
     cells = {}
     for algo in algos:
         for k in mode.kitchens:
-            ends = [(trailing_mean(v, 10)[-1], trailing_mean(v, 10)[(3 * len(v)) // 4 - 1]) for v in
-                    _curves(runs, algo, k, "mean_return") if len(v) >= 4]  # fmt: skip
+            smooth = [trailing_mean(v, 10) for v in _curves(runs, algo, k, "mean_return") if len(v) >= 4]
+            ends = [(m[-1], m[(3 * len(m)) // 4 - 1]) for m in smooth]
             if ends:
                 last, earlier = np.mean(ends, axis=0)
                 cells[algo, k] = f"{last:.1f} ({last - earlier:+.1f})"
