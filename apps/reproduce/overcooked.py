@@ -252,6 +252,26 @@ def zoo(mode: Mode, work: Path) -> pipeline.Zoo:
     return pipeline.Zoo(work, zoo_spec(mode), f"`cec reproduce overcooked` ({mode.name})")
 
 
+def trained_runs(mode: Mode, work: Path) -> tuple[list[pipeline.PlanLine], list[str]]:
+    """The runs of the mode's plan as the work folder trained them, each read from its own `config.yaml`
+    (a folder trained by an earlier version of the mode reports the steps it trained, not the mode's
+    present ones), and the runs it lacks (without metrics: planning a run makes its folder)."""
+    from cec.config import load_config
+    from cec.training.config import TrainConfig
+
+    runs, trained, missing = work / "zoo" / "runs", [], []
+    for e in zoo_spec(mode)["entries"]:
+        run = f"{e['name']}-s{e['seeds'][0]}"
+        if not (runs / run / "metrics.csv").is_file():
+            missing.append(run)
+            continue
+        cfg = load_config(TrainConfig, runs / run / "config.yaml")
+        trained.append(
+            pipeline.PlanLine(run, cfg.num_seeds, cfg.total_env_steps, cfg.num_updates, math.nan, 1.0)
+        )
+    return trained, missing
+
+
 def plan_lines(mode: Mode, work: Path) -> list[pipeline.PlanLine]:
     """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds) and the
     share of it already trained under `work`."""
@@ -357,18 +377,27 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
     return EpisodeTable.concat(tables)
 
 
-def control_policies(mode: Mode) -> list[Any]:
-    """The controls beside every score with the cook (and a chance level for XP and SP): the CEC network
-    at its random initialisation, one per CEC seed (`untrained`), and the agent that always stays
-    (`noop`): what the cook delivers with a partner that learned nothing, so that an agent's own
-    contribution reads as the difference."""
-    import jax
-
-    from cec.agents.policy import random_policy, scripted_policy
+def cec_config(mode: Mode, work: Path) -> Any:
+    """The config of the work folder's CEC agents: their run's recorded `config.yaml` (a folder trained by
+    an earlier version of the mode has that version's network), else the mode's preset."""
     from cec.config import load_config
     from cec.training.config import TrainConfig
 
-    cfg = load_config(TrainConfig, str(ROOT / mode.preset), list(mode.overrides))
+    recorded = work / "zoo" / "runs" / f"{_run_name('cec')}-s{mode.seeds['cec'][0]}" / "config.yaml"
+    if recorded.is_file():
+        return load_config(TrainConfig, recorded)
+    return load_config(TrainConfig, str(ROOT / mode.preset), list(mode.overrides))
+
+
+def control_policies(mode: Mode, cfg: Any) -> list[Any]:
+    """The controls beside every score with the cook (and a chance level for XP and SP): the CEC network
+    of `cfg` (`cec_config`) at its random initialisation, one per CEC seed (`untrained`), and the agent
+    that always stays (`noop`): what the cook delivers with a partner that learned nothing, so that an
+    agent's own contribution reads as the difference."""
+    import jax
+
+    from cec.agents.policy import random_policy, scripted_policy
+
     untrained = [
         random_policy(f"{UNTRAINED}-s{s}", jax.random.PRNGKey(s), env=cfg.env, network=cfg.network_config,
                       algorithm=UNTRAINED, seed=s)
@@ -377,14 +406,14 @@ def control_policies(mode: Mode) -> list[Any]:
     return [*untrained, scripted_policy(NOOP, NOOP, env=cfg.env, algorithm=NOOP)]
 
 
-def evaluate_controls(mode: Mode, *, log: TextIO, seed: int = 0) -> Any:
-    """The controls (`control_policies`) with each other and the cook on both level sets, as `evaluate`
-    plays the algorithms (the cook's own games left out: `evaluate` has them)."""
+def evaluate_controls(mode: Mode, cfg: Any, *, log: TextIO, seed: int = 0) -> Any:
+    """The controls (`control_policies` of `cfg`) with each other and the cook on both level sets, as
+    `evaluate` plays the algorithms (the cook's own games left out: `evaluate` has them)."""
     from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
 
-    controls = control_policies(mode)
+    controls = control_policies(mode, cfg)
     cook = scripted_policy(COOK, COOK, env=controls[0].env, algorithm=COOK)
     tables = []
     for level_set in LEVEL_SETS:
@@ -399,15 +428,18 @@ def evaluate_controls(mode: Mode, *, log: TextIO, seed: int = 0) -> Any:
 
 def cached_controls(mode: Mode, work: Path, *, log: TextIO) -> Any:
     """`evaluate_controls`, or the table an earlier invocation wrote in `work/controls` while the settings
-    are unchanged. They need no trained agent, so `--report-only` plays them when a work folder lacks them."""
+    are unchanged (the untrained network: that of the folder's CEC agents, `cec_config`). They need no
+    trained agent, so `--report-only` plays them when a work folder lacks them."""
     from apps.reproduce.common import cached_table
 
-    key = {**_eval_key(mode), "preset": mode.preset, "overrides": list(mode.overrides)}
+    cfg = cec_config(mode, work)
+    network = dataclasses.asdict(cfg.network_config)
+    key = {**_eval_key(mode), "network": network, "seeds": mode.seeds["cec"]}
     folder = work / "controls"
     folder.mkdir(parents=True, exist_ok=True)
 
     def play() -> Any:  # they may be played by another machine than the zoo: it is named in the report
-        table = evaluate_controls(mode, log=log)
+        table = evaluate_controls(mode, cfg, log=log)
         ran_on = {"machine": machine_info(), "commit": code_version(short=True)}
         (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
         return table
@@ -636,6 +668,7 @@ def write_report(
     lines += [
         f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} | {recorded.get(p.run, '—')} |" for p in plan
     ]
+    lines += ["", *budget_lines(mode, plan)]
     if missing:
         lines += ["", f"Not in this work folder (trained before the mode had them; the tables have none of "
                   f"their games): {', '.join(missing)}."]  # fmt: skip
@@ -651,6 +684,34 @@ def write_report(
     }  # fmt: skip
     (out / "summary.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
     return report
+
+
+def budget_lines(mode: Mode, plan: Sequence[pipeline.PlanLine]) -> list[str]:
+    """Env steps per trained model (one seed; a single-kitchen model: one kitchen) by algorithm, and CEC's
+    against those of one single-kitchen model and of all of an algorithm's kitchens together; the paper
+    trains every model for the same 3e9 steps (its section on the generator: "all other baselines, for 3
+    billion steps"), 1:1."""
+    steps: dict[str, int] = {}
+    for p in plan:
+        stem = p.run.rsplit("-s", 1)[0]
+        algo = next((stem[: -len(k) - 1] for k in mode.kitchens if stem.endswith(f"_{k}")), stem)
+        steps.setdefault(algo, p.env_steps)
+    if "cec" not in steps:
+        return []
+    cec, k = steps["cec"], len(mode.kitchens)
+    parts = [f"{TITLES[a]} {steps[a]:,} per model" for a in GENERALISTS if a in steps]
+    single = [a for a in ALGORITHMS if a in steps and a not in (*GENERALISTS, "cec_finetune")]
+    for n in sorted({steps[a] for a in single}):
+        names = ", ".join(TITLES[a] for a in single if steps[a] == n)
+        parts.append(
+            f"{names} {n:,} per model, one per kitchen (CEC trains {cec / n:.1f}x the steps of one of their "
+            f"models, {cec / (n * k):.1f}x those of all {k} together)"
+        )
+    if "cec_finetune" in steps:
+        parts.append(f"CEC-Finetune {steps['cec_finetune']:,} per kitchen on top of its CEC seed's")
+    return [
+        f"Budget (env steps per seed): {'; '.join(parts)}. The paper trains every model for 3e9 steps (1:1)."
+    ]
 
 
 def episode_lines(mode: Mode, table: Any) -> list[str]:
@@ -982,7 +1043,6 @@ def reproduce_overcooked(
     the folder lacks them (`cached_controls`). `policies`: a manifest whose CEC entries draw the GIF
     instead of the zoo's (the exported CEC seeds)."""
     commit = code_version(short=True)  # before this command writes anything into the checkout
-    plan = plan_lines(mode, work)
     if report_only:
         table = pipeline.played_table(work, "overcooked", MACHINE_FILE)
         ran_on = json.loads((work / MACHINE_FILE).read_text())
@@ -1000,9 +1060,7 @@ def reproduce_overcooked(
     if (work / "controls" / MACHINE_FILE).is_file():
         ran_on = {**ran_on, "controls": json.loads((work / "controls" / MACHINE_FILE).read_text())}
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
-    # a run trained has its metrics (planning a run makes its folder: the folder alone says nothing)
-    missing = [p.run for p in plan if not (work / "zoo" / "runs" / p.run / "metrics.csv").is_file()]
-    plan = [p for p in plan if p.run not in missing]
+    plan, missing = trained_runs(mode, work)
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
     report = write_report(

@@ -184,6 +184,10 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         assert needle in text, needle
     # the recorded time of each training run and of the cross-play, kept for a report that reuses them
     assert "Recorded times of the work behind these numbers" in text and "not recorded" not in text
+    assert (
+        "Budget (env steps per seed): CEC 256 per model; CEC-E3T 256 per model; E3T, FCP, IPPO 256 per "
+        in text
+    )
     row = re.search(r"\| cec-s200 \| 2 \| 256 \| 2 \| [0-9.]+ min \|", text)
     assert row, text
     summary = json.loads((out / "summary.json").read_text())
@@ -221,11 +225,16 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     (out / "cec_xp_heldout.gif").unlink()
     shutil.rmtree(work / "zoo" / "runs" / "cec_e3t-s400")  # as in a folder trained before the mode had it
     ran_on = json.loads((work / ro.MACHINE_FILE).read_text())
+    # ... by an earlier version of the mode (another preset and budget): the report says what was trained
+    earlier = dataclasses.replace(mode, preset="configs/train/cec_overcooked_tts.yaml",
+                                  steps={a: 2 * n for a, n in mode.steps.items()})  # fmt: skip
+    log = io.StringIO()
     again = ro.reproduce_overcooked(
-        mode, work, tmp_path / "again", log=io.StringIO(), command="tiny", report_only=True,
+        earlier, work, tmp_path / "again", log=log, command="tiny", report_only=True,
         policies=tmp_path / "shipped" / "zoo.yaml",
     )  # fmt: skip
     assert again is not None
+    assert "controls: cross-play results found" in log.getvalue()  # the folder's own untrained network
     for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training"):
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
