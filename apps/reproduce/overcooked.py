@@ -426,10 +426,11 @@ def evaluate_controls(mode: Mode, cfg: Any, *, log: TextIO, seed: int = 0) -> An
     return EpisodeTable.concat(tables)
 
 
-def cached_controls(mode: Mode, work: Path, *, log: TextIO) -> Any:
+def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
     """`evaluate_controls`, or the table an earlier invocation wrote in `work/controls` while the settings
     are unchanged (the untrained network: that of the folder's CEC agents, `cec_config`). They need no
-    trained agent, so `--report-only` plays them when a work folder lacks them."""
+    trained agent, so `--report-only` plays them when a work folder lacks them. `commit`: the checkout's
+    as the command started (written beside a table it plays, with the machine)."""
     from apps.reproduce.common import cached_table
 
     cfg = cec_config(mode, work)
@@ -440,7 +441,7 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO) -> Any:
 
     def play() -> Any:  # they may be played by another machine than the zoo: it is named in the report
         table = evaluate_controls(mode, cfg, log=log)
-        ran_on = {"machine": machine_info(), "commit": code_version(short=True)}
+        ran_on = {"machine": machine_info(), "commit": commit}
         (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
         return table
 
@@ -1056,7 +1057,7 @@ def reproduce_overcooked(
         (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
     from cec.evaluation.results import EpisodeTable
 
-    with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log)])
+    with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log, commit=commit)])
     if (work / "controls" / MACHINE_FILE).is_file():
         ran_on = {**ran_on, "controls": json.loads((work / "controls" / MACHINE_FILE).read_text())}
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
