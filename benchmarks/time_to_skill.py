@@ -40,12 +40,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cec.agents.policy import load_policies
-from cec.agents.zoo import ZooEntry
-from cec.checkpoints import CheckpointStore, read_meta
-from cec.evaluation import analysis as an
-from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.evaluation.stats import crossplay_estimate, sem
+from cec.evaluation.crossplay import EvalConfig, eval_levels
+from cec.evaluation.milestones import checkpoints_by_update, milestone_points, play_milestone
 
 STALL = 5.0  # an update at under 1/STALL of the run's median env-steps/s was stalled, not slow
 
@@ -56,13 +52,15 @@ def training_seconds(run: Path) -> tuple[dict[int, float], int]:
     under 1/STALL of the run's median (the process was stopped, e.g. SIGSTOP while the machine measured
     something else, or the laptop slept) counts at the median rate: the recipe's cost, not the pause's."""
     per_update: dict[int, tuple[float, float]] = {}
+    seed_set: set[str] = set()
     with (run / "metrics.csv").open() as f:
         for row in csv.DictReader(f):
             u = int(row["update"])
             steps, sps = float(row["env_steps"]), float(row["env_steps_per_s"])
             per_update.setdefault(u, (steps, sps))
+            seed_set.add(row["seed"])
     median = float(np.median([sps for _, sps in per_update.values()]))
-    out, total, last_steps, seeds, stalled = {}, 0.0, 0.0, _seeds(run), 0
+    out, total, last_steps, seeds, stalled = {}, 0.0, 0.0, len(seed_set), 0
     for u in sorted(per_update):
         steps, sps = per_update[u]
         if sps < median / STALL:
@@ -70,17 +68,6 @@ def training_seconds(run: Path) -> tuple[dict[int, float], int]:
         total += (steps - last_steps) * seeds / max(sps, 1e-9)  # one seed's steps, every seed's rate
         out[u], last_steps = total, steps
     return out, stalled
-
-
-def _seeds(run: Path) -> int:
-    latest = CheckpointStore(run, keep_last=1).latest()
-    assert latest is not None, f"{run} has no checkpoints"
-    return len(read_meta(latest.path)["metadata"]["seeds"])
-
-
-def _checkpoints(run: Path) -> dict[int, Path]:
-    """{update: checkpoint directory} of the run's loadable checkpoints (its milestones and its latest)."""
-    return {c.update: c.path for c in CheckpointStore(run, keep_last=1).list()}
 
 
 def _recipe(run: Path) -> dict[str, Any]:
@@ -94,9 +81,9 @@ def evaluate(
 ) -> list[dict[str, Any]]:
     """One row per checkpoint update (milestones and latest) that every run saved and `done` ((name,
     update) pairs already evaluated) does not hold: env steps per seed, core-hours per seed, XP and SP on
-    the held-out kitchens. Several runs are one recipe's seeds trained in separate processes (`--join`):
-    their seeds play each other as one population, and a seed's cost is their training time over all their
-    seeds."""
+    the held-out kitchens (`cec.evaluation.milestones`). Several runs are one recipe's seeds trained in
+    separate processes (`--join`): their seeds play each other as one population, and a seed's cost is
+    their training time over all their seeds."""
     name = name or runs[0].name
     if any(_recipe(run) != _recipe(runs[0]) for run in runs[1:]):
         raise SystemExit(f"{name}: the runs joined differ in more than seed and name: {runs}")
@@ -109,47 +96,33 @@ def evaluate(
             print(
                 f"{run.name}: {run_stalled} stalled update(s) counted at its median env-steps/s", flush=True
             )
-    saved = [_checkpoints(run) for run in runs]
     levels = eval_levels("overcooked", "generated")
+    config = EvalConfig(episodes=episodes, max_steps=400)
     rows = []
-    for update in sorted(set.intersection(*(set(s) for s in saved))):
+    for update, checkpoints in checkpoints_by_update(runs).items():
         if (name, update) in done:
             continue
-        metas = [read_meta(s[update]) for s in saved]
-        entries = [
-            ZooEntry(f"s{seed}", str(s[update]), algorithm="cec", seed=int(seed))
-            for s, meta in zip(saved, metas, strict=True)
-            for seed in meta["metadata"]["seeds"]
-        ]
-        seeds = [e.seed for e in entries]
-        policies, skipped = load_policies(entries)
-        if skipped:
-            raise SystemExit(f"{name} update {update}: {skipped}")
-        table = crossplay(policies, levels, EvalConfig(episodes=episodes, max_steps=400, pairs="all"))
-        m = an.pair_scores(an.pair_level_scores(table))
-        est = crossplay_estimate(m)
-        sp = np.diag(m)
-        cost = sum(s.get(update, float("nan")) for s in seconds) / len(seeds) / 3600
-        steps = int(metas[0]["env_steps"])
+        [point] = milestone_points(play_milestone(name, checkpoints, levels, config))
+        cost = sum(s.get(update, float("nan")) for s in seconds) / len(point.seeds) / 3600
         rows.append(
             {
                 "run": name,
                 "runs": [run.name for run in runs],
                 "update": update,
-                "env_steps_per_seed": steps,
+                "env_steps_per_seed": point.env_steps,
                 "core_hours_per_seed": cost,
-                "xp": est.mean,
-                "xp_se": est.se,
-                "sp": float(sp.mean()),
-                "sp_se": sem(sp),
-                "seeds": seeds,
+                "xp": point.xp,
+                "xp_se": point.xp_se,
+                "sp": point.sp,
+                "sp_se": point.sp_se,
+                "seeds": list(point.seeds),
                 "stalled_updates_at_median_rate": stalled,
             }  # fmt: skip
         )
-        se = "" if np.isnan(est.se) else f" +- {est.se:.1f}"
+        se = "" if np.isnan(point.xp_se) else f" +- {point.xp_se:.1f}"
         print(
-            f"{name} update {update}: {steps:,} steps/seed, {cost:.3f} core-h/seed | XP {est.mean:.1f}{se} | "
-            f"SP {sp.mean():.1f} ({len(seeds)} seeds)",
+            f"{name} update {update}: {point.env_steps:,} steps/seed, {cost:.3f} core-h/seed | "
+            f"XP {point.xp:.1f}{se} | SP {point.sp:.1f} ({len(point.seeds)} seeds)",
             flush=True,
         )
     return rows

@@ -461,6 +461,40 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
     return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
 
 
+CURVES = "curves"  # in the work folder: the milestone checkpoints' games (`cached_curves`)
+
+
+def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = False) -> Any:
+    """Cross-play learning curves of the generator-trained runs: at each checkpoint a run saved (its
+    milestones and its last), its seeds with each other on the held-out kitchens (`cec.evaluation.
+    milestones`), as the evaluation plays them; cached in `work/curves` while neither the checkpoints nor
+    the settings changed. `report_only`: the cached games whatever their key (a folder without its
+    checkpoints), None where there are none."""
+    from apps.reproduce.common import cached_table
+    from cec.checkpoints import read_meta
+    from cec.evaluation.crossplay import eval_levels
+    from cec.evaluation.milestones import checkpoints_by_update, play_milestone
+    from cec.evaluation.results import EpisodeTable, read_csv
+
+    folder = work / CURVES
+    if report_only:
+        return read_csv(folder / "results.csv") if (folder / "results.csv").is_file() else None
+    runs = {a: work / "zoo" / "runs" / f"{_run_name(a)}-s{mode.seeds[a][0]}" for a in GENERALISTS}
+    saved = {a: checkpoints_by_update([run]) for a, run in runs.items() if run.is_dir()}
+    config = eval_config(mode, "heldout")
+    states = {a: [read_meta(p)["sha256"] for ps in s.values() for p in ps] for a, s in saved.items()}
+    key = {**_eval_key(mode), "checkpoints": states}  # each checkpoint's state by its SHA-256
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def play() -> Any:
+        levels = eval_levels("overcooked", config.levels)
+        return EpisodeTable.concat(
+            [play_milestone(a, paths, levels, config) for a, s in saved.items() for paths in s.values()]
+        )
+
+    return cached_table(folder, key, play, label="learning curves: ", log=log)
+
+
 # ---------------------------------------------------------------------------------------------------------
 # SUMMARY: seeds are the units
 # ---------------------------------------------------------------------------------------------------------
@@ -798,6 +832,35 @@ def analysis_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
     ]  # fmt: skip
 
 
+def curve_lines(curves: Any) -> list[str]:
+    """The cross-play learning curves (`cached_curves`) as a table: each checkpoint's cross-play and
+    self-play on the held-out kitchens."""
+    from cec.evaluation.milestones import milestone_points
+
+    head = "## Cross-play learning curves (held-out kitchens)"
+    if curves is None or not len(curves):
+        missing = "Not measured: the work folder has neither the runs' milestone checkpoints nor their games."
+        return [head, "", missing, ""]
+    about = (
+        "At each checkpoint a generator-trained run saved (its milestones and its last), its seeds with each "
+        f"other on the {len(set(curves.level))} held-out kitchens, {EVAL_STEPS}-step episodes: cross-play "
+        "(every pair of two different seeds) ± its jackknife standard error over seeds, and self-play ± "
+        "the standard error over seeds (`curves_xp.png`)."
+    )
+    lines = [head, "", about, "", "| algorithm | env steps per seed | seeds | cross-play | self-play |",
+             "|---|---|---|---|---|"]  # fmt: skip
+
+    def cell(mean: float, se: float) -> str:
+        return "—" if math.isnan(mean) else f"{mean:.1f}" + ("" if math.isnan(se) else f" ± {se:.1f}")
+
+    for p in milestone_points(curves):
+        lines.append(
+            f"| {TITLES.get(p.name, p.name)} | {p.env_steps:,} | {len(p.seeds)} | {cell(p.xp, p.xp_se)} | "
+            f"{cell(p.sp, p.sp_se)} |"
+        )
+    return [*lines, ""]
+
+
 def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
     """Per level set the cross-algorithm matrix (`cec.evaluation.analysis.algorithm_matrix`): cell (A, B)
     the mean team return of the pairs of an A agent and a different B agent (on the diagonal: cross-play),
@@ -1004,10 +1067,14 @@ def _machine_text(m: dict[str, Any]) -> str:
     return f"{m['device']} (JAX {m['jax']}), {m['cpu']} ({m['cpu_count']} cores), host {m['host']}"
 
 
-def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, policies: Path) -> dict[str, str]:
-    """Learning curves of every run (PNG), a GIF of a median cross-play episode (`crossplay_gif`) and
-    `cec report` of the agents' games (`out/crossplay/`: heatmaps, seed matrices, the meta-game)."""
+def _figures(
+    mode: Mode, work: Path, out: Path, table: Any, curves: Any, *, log: TextIO, policies: Path
+) -> dict[str, str]:
+    """Learning curves of every run (PNG), the cross-play learning curves (`cached_curves`), a GIF of a
+    median cross-play episode (`crossplay_gif`) and `cec report` of the agents' games (`out/crossplay/`:
+    heatmaps, seed matrices, the meta-game)."""
     from cec.evaluation.curves import plot_learning_curves
+    from cec.evaluation.milestones import milestone_points, plot_milestones
     from cec.evaluation.report import write_report as crossplay_report
 
     figures = {}
@@ -1021,6 +1088,10 @@ def _figures(mode: Mode, work: Path, out: Path, table: Any, *, log: TextIO, poli
     if others:
         plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
+    if curves is not None and len(curves):
+        title = f"cross-play at each checkpoint, held-out kitchens ({EVAL_STEPS}-step episodes)"
+        plot_milestones(milestone_points(curves), out / "curves_xp.png", title=title)
+        figures["Cross-play learning curves (held-out kitchens)"] = "curves_xp.png"
     figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
     crossplay_report(_agents(table), out / "crossplay", sources=[str(work / "results.csv")])
     pipeline.note(log, f"figures: {', '.join(figures.values())}; crossplay/report.md")
@@ -1063,11 +1134,14 @@ def reproduce_overcooked(
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     plan, missing = trained_runs(mode, work)
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
-    figures = _figures(mode, work, out, table, log=log, policies=policies or work / "zoo" / "zoo.yaml")
+    curves = cached_curves(mode, work, log=log, report_only=report_only)
+    figures = _figures(
+        mode, work, out, table, curves, log=log, policies=policies or work / "zoo" / "zoo.yaml"
+    )  # fmt: skip
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
-        sections=analysis_lines(mode, table, work / "zoo" / "runs"), missing=missing,
+        sections=[*analysis_lines(mode, table, work / "zoo" / "runs"), *curve_lines(curves)], missing=missing,
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report

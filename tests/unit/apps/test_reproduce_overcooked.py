@@ -206,6 +206,16 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert (work / "controls" / ro.MACHINE_FILE).is_file()  # where they were played, for a later report
     assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
     assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
+    # cross-play at each milestone checkpoint (the preset's 0.5 and 1.0 of 2 updates)
+    curves = _section(text, "## Cross-play learning curves")
+    for point in (
+        "| CEC | 128 | 2 |",
+        "| CEC | 256 | 2 |",
+        "| CEC-E3T | 128 | 1 | — |",
+        "| CEC-E3T | 256 | 1 | — |",
+    ):
+        assert point in curves, curves
+    assert (out / "curves_xp.png").exists()
     # every agent met every other: CEC with each baseline on both level sets, `cec report` of those games
     played = read_csv(work / "results.csv")
     for level_set in ro.LEVEL_SETS:
@@ -216,7 +226,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
     ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
-    assert log.getvalue().count("not played again") == 2 and "finished, skipping" in log.getvalue()
+    assert log.getvalue().count("not played again") == 3 and "finished, skipping" in log.getvalue()
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
     # the GIF from the exported CEC seeds, the machine that trained and played named
     export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
@@ -235,7 +245,8 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     )  # fmt: skip
     assert again is not None
     assert "controls: cross-play results found" in log.getvalue()  # the folder's own untrained network
-    for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training"):
+    for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training",
+                    "## Cross-play learning curves"):  # fmt: skip
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time
