@@ -409,6 +409,37 @@ def forward_partner(
     return carry, logits, value, state["intermediates"]["partner_logits"][0]
 
 
+def frame_embeddable(config: NetworkConfig) -> bool:
+    """Whether a network's egocentric frame can be widened by zero weights (`embed_frame`): the frame is
+    flattened straight into the first dense layer (no convolution over it)."""
+    return config.egocentric and not config.conv_features and bool(config.encoder_features)
+
+
+def frame_size(config: NetworkConfig, grid: tuple[int, int]) -> tuple[int, int]:
+    """The (rows, columns) reach of a network's egocentric frame over `grid` (H, W) cells."""
+    return _frame_radii(grid[0], grid[1], config.egocentric_radius)
+
+
+def embed_frame(params: Any, config: NetworkConfig, radius: int, grid: tuple[int, int]) -> Any:
+    """`params` of a `frame_embeddable` network with `config` as parameters of the same network with
+    `egocentric_radius` = `radius`, a frame at least as large over `grid` (H, W): the first dense layer's
+    weights for the frame cells the smaller frame does not show are zero, so the policy is exactly the same
+    (each frame cell's embedding is the same function in both). Lets cross-play batch agents trained with
+    a cut frame and agents trained with the whole one through one network."""
+    (a, b), (big_a, big_b) = frame_size(config, grid), _frame_radii(grid[0], grid[1], radius)
+    if not frame_embeddable(config) or big_a < a or big_b < b:
+        raise ValueError(f"cannot embed the frame of {config} into radius {radius} over a {grid} grid")
+    if (a, b) == (big_a, big_b):
+        return params
+    p = dict(params["params"])
+    kernel = p["fc0"]["kernel"]
+    rows, cols = 2 * a + 1, 2 * b + 1
+    cells = kernel.reshape(rows, cols, -1, kernel.shape[-1])  # frame rows, columns, cell width, outputs
+    pad = ((big_a - a, big_a - a), (big_b - b, big_b - b), (0, 0), (0, 0))
+    p["fc0"] = {**p["fc0"], "kernel": jnp.pad(cells, pad).reshape(-1, kernel.shape[-1])}
+    return {"params": p}
+
+
 def embed_partner_model(params: Any, config: NetworkConfig, target: NetworkConfig, num_actions: int) -> Any:
     """`params` of a network with `config` as parameters of `target` that compute exactly the same policy.
 

@@ -34,7 +34,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec.agents.network import ActorCritic, NetworkConfig, embed_partner_model
+from cec.agents.network import (
+    ActorCritic,
+    NetworkConfig,
+    embed_frame,
+    embed_partner_model,
+    frame_embeddable,
+    frame_size,
+)
 from cec.agents.policy import Policy
 from cec.config import ConfigError
 from cec.envs.registry import game
@@ -139,8 +146,11 @@ def _obs_settings(policy: Policy) -> tuple:
     return policy.env.game.obs_settings(policy.env.params)
 
 
-def _without_partner_model(network: NetworkConfig) -> NetworkConfig:
-    return dataclasses.replace(network, partner_history=0)
+def _architecture(network: NetworkConfig) -> NetworkConfig:
+    """What must agree between networks that cross-play batches through one: all but E3T's partner model
+    and an egocentric frame's reach, which zero weights widen (`_lineup`)."""
+    radius = 0 if frame_embeddable(network) else network.egocentric_radius
+    return dataclasses.replace(network, partner_history=0, egocentric_radius=radius)
 
 
 def compatibility_problem(reference: Policy, policy: Policy, level_names: Sequence[str]) -> str | None:
@@ -152,11 +162,11 @@ def compatibility_problem(reference: Policy, policy: Policy, level_names: Sequen
     if policy.env.name != reference.env.name:
         return f"it plays {policy.env.name}, the evaluation plays {reference.env.name}"
     networks = policy.scripted is None and reference.scripted is None
-    if networks and _without_partner_model(policy.network) != _without_partner_model(reference.network):
+    if networks and _architecture(policy.network) != _architecture(reference.network):
         return (
             f"its network {policy.network} differs from the evaluation's {reference.network} (the first "
-            "policy's); cross-play batches both seats through one architecture (E3T's partner model "
-            "aside): evaluate each architecture in its own run"
+            "policy's); cross-play batches both seats through one architecture (E3T's partner model and "
+            "an egocentric frame's reach aside): evaluate each architecture in its own run"
         )
     if networks and _obs_settings(policy) != _obs_settings(reference):
         return (
@@ -287,12 +297,32 @@ def _states_fn(
 def _lineup(policies: Sequence[Policy], reference: Policy) -> tuple[Task, NetworkConfig, tuple[str, ...]]:
     """The game, the one network architecture and the scripted kinds an evaluation of `policies` runs.
 
-    Networks that differ only in E3T's partner model play as one architecture: the longest history, the
-    others embedded with zero weights (`embed_partner_model`: the same policies exactly)."""
-    k = max((p.network.partner_history for p in policies if p.scripted is None), default=0)
-    network = dataclasses.replace(reference.network, partner_history=k)
+    Networks that differ only in E3T's partner model and in their egocentric frame's reach play as one
+    architecture: the longest history and the largest frame, the others embedded with zero weights
+    (`embed_partner_model`, `embed_frame`: the same policies exactly)."""
+    task = Task.from_config(reference.env)
+    nets = [p.network for p in policies if p.scripted is None]
+    k = max((n.partner_history for n in nets), default=0)
+    largest = max(nets, key=lambda n: frame_size(n, _grid(task)), default=reference.network)
+    network = dataclasses.replace(
+        reference.network, partner_history=k, egocentric_radius=largest.egocentric_radius
+    )
     kinds = tuple(sorted({p.scripted for p in policies if p.scripted is not None}))
-    return Task.from_config(reference.env), network, kinds
+    return task, network, kinds
+
+
+def _grid(task: Task) -> tuple[int, int]:
+    """The observation's grid (H, W): what an egocentric frame's reach is measured over."""
+    return task.obs_shape[0], task.obs_shape[1]
+
+
+def _embedded(policy: Policy, network: NetworkConfig, task: Task) -> Any:
+    """A network policy's parameters in the evaluation's `network` (`_lineup`)."""
+    params, own = policy.params, policy.network
+    if own.egocentric_radius != network.egocentric_radius:
+        params = embed_frame(params, own, network.egocentric_radius, _grid(task))
+        own = dataclasses.replace(own, egocentric_radius=network.egocentric_radius)
+    return embed_partner_model(params, own, network, task.num_actions)
 
 
 def episode_states(
@@ -327,12 +357,11 @@ def episode_states(
 def _seat_params(policy: Policy, network: NetworkConfig, task: Task, kinds: tuple[str, ...]) -> Any:
     """The parameter set a policy brings to a seat of the evaluation's network (see `play_fn`)."""
     if not kinds:
-        return embed_partner_model(policy.params, policy.network, network, task.num_actions)
+        return _embedded(policy, network, task)
     from cec.agents.scripted import placeholder_params, with_scripted_params
 
     if policy.scripted is None:
-        own = embed_partner_model(policy.params, policy.network, network, task.num_actions)
-        return with_scripted_params(own, 0)
+        return with_scripted_params(_embedded(policy, network, task), 0)
     zeros = placeholder_params(ActorCritic(network, task.num_actions), task.obs_shape)
     return with_scripted_params(zeros, kinds.index(policy.scripted) + 1)
 

@@ -1,5 +1,7 @@
 """The actor-critic network: presets, initialisation, the 2x2 convolution, LSTM resets at episode starts."""
 
+import dataclasses
+
 import flax.linen as nn
 import jax
 import jax.numpy as jnp
@@ -153,3 +155,37 @@ def test_egocentric_cells_equal_the_embedding_of_the_egocentric_view_with_their_
     g_plain = jax.grad(lambda p: (plain(p) * weights).sum())(p)
     for name in ("kernel", "bias"):
         np.testing.assert_allclose(g_mine[name], g_plain[name], rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize("cell_features", [4, 0])
+def test_a_cut_frame_embedded_in_a_larger_one_is_the_same_policy(cell_features):
+    """Cross-play batches agents with different egocentric radii through the largest frame: the smaller
+    frame's first dense layer padded with zero weights gives the same logits and values, for seats in
+    corners, on edges and inside (with and without the per-cell embedding); a frame that does not fit, or
+    one a convolution reads, is refused."""
+    from cec.agents.network import embed_frame
+
+    rng = np.random.default_rng(2)
+    grids = rng.integers(0, 2, (6, 9, 9, 5)).astype(np.uint8)
+    grids[..., 0] = 0
+    for g, (r, c) in zip(grids, [(0, 0), (8, 8), (0, 8), (4, 4), (8, 0), (3, 6)], strict=True):
+        g[r, c, 0] = 1
+    obs = jnp.asarray(grids)[None]  # T = 1, B = 6
+    reset = jnp.zeros((1, 6), bool)
+    base = NetworkConfig(conv_features=(), encoder_features=(32,), lstm_features=0, actor_features=(16,),
+                         critic_features=(16,), egocentric=True, cell_features=cell_features)  # fmt: skip
+    small = dataclasses.replace(base, egocentric_radius=3)
+    net = ActorCritic(small, 6)
+    params = init_params(net, jax.random.PRNGKey(3), (9, 9, 5))
+    _, logits, values = _run(net, params, obs, reset)
+    for radius in (5, 0):  # a larger cut, and the whole 17x17 frame
+        big = dataclasses.replace(base, egocentric_radius=radius)
+        embedded = embed_frame(params, small, radius, (9, 9))
+        _, logits2, values2 = _run(ActorCritic(big, 6), embedded, obs, reset)
+        np.testing.assert_allclose(logits2, logits, rtol=1e-5, atol=1e-5)
+        np.testing.assert_allclose(values2, values, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="cannot embed"):
+        embed_frame(params, small, 2, (9, 9))
+    conv = dataclasses.replace(small, conv_features=(8,))
+    with pytest.raises(ValueError, match="cannot embed"):
+        embed_frame(params, conv, 0, (9, 9))

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from apps.cli import main
-from cec.agents.network import ActorCritic, network_preset
+from cec.agents.network import ActorCritic, NetworkConfig, network_preset
 from cec.agents.policy import Policy, load_policies, random_policy
 from cec.agents.zoo import load_zoo, parse_zoo
 from cec.config import ConfigError
@@ -204,6 +204,24 @@ def test_level_restrictions_and_incompatible_policies_are_recorded(zoo, levels):
     assert "dual_destination" in reasons["dd"]
     assert "network" in reasons["big"] and "own run" in reasons["big"]
     assert "forced_coord" in reasons["nowhere"]
+
+
+def test_agents_with_different_egocentric_frames_play_each_other_as_they_play_alone(levels):
+    """An agent trained with a cut egocentric frame (the time-to-skill recipe's) and one with the whole
+    frame (the shipped agents and human proxies) play in one evaluation, through the larger frame: the cut
+    agent's games with itself are the ones it plays alone (common random numbers, the same policy)."""
+    ego = NetworkConfig(conv_features=(), encoder_features=(32,), lstm_features=0, actor_features=(16,),
+                        critic_features=(16,), egocentric=True, cell_features=4)  # fmt: skip
+    whole = _policy("whole", 5, "a", 0, network=ego)
+    cut = _policy("cut", 6, "b", 0, network=dataclasses.replace(ego, egocentric_radius=3))
+    table = crossplay([whole, cut], levels, CFG)
+    assert not table.skipped and set(table.seat[(table.policy_a == "whole") & (table.policy_b == "cut")]) == {
+        0,
+        1,
+    }
+    alone = crossplay([cut], levels, CFG)
+    assert _rows(table, "cut", "cut", 0) == _rows(alone, "cut", "cut", 0)
+    assert len(set(table.returns)) > 1 or len(set(table.collisions)) > 1  # the games were not all alike
 
 
 def test_zoo_manifest_errors_name_the_cause(tmp_path):
