@@ -106,6 +106,8 @@ class Mode:
         kitchens: the classic kitchens the single-kitchen baselines train on.
         episodes: evaluation episodes per pairing, seat order and level, per level set.
         finetune: overrides of CEC-Finetune (on top of the CEC preset).
+        tuned: per algorithm, overrides its tuning probes chose (on top of the preset; docs/
+            reproduce_overcooked.md, "Tuning the baselines").
         seconds_per_update: measured seconds of one update of one seed (the basis of `--plan`).
         measured_on: where and how they were measured.
         overrides: applied to every run (a tiny network in tests).
@@ -121,6 +123,7 @@ class Mode:
     kitchens: tuple[str, ...] = KITCHENS
     episodes: dict[str, int] = field(default_factory=lambda: {"classic": 4, "heldout": 1})
     finetune: tuple[str, ...] = ("ppo.lr=0.001",)
+    tuned: dict[str, tuple[str, ...]] = field(default_factory=dict)
     seconds_per_update: float = math.nan
     measured_on: str = ""
     overrides: tuple[str, ...] = ()
@@ -177,6 +180,10 @@ CPU = Mode(
         "cec_finetune": 983_040,
     },  # fmt: skip
     episodes={"classic": 4, "heldout": 1},
+    # the tuning probes' choice (docs/reproduce_overcooked.md, "Tuning the baselines"): FCP and E3T train on
+    # the evaluation's 400-step episodes (FCP: no soup with itself on Cramped Room in 128-step ones; E3T:
+    # none on Forced Coordination); IPPO keeps CEC's 128 (its cross-play on Cramped Room fell with 400)
+    tuned={"fcp": ("env.overcooked.max_steps=400",), "e3t": ("env.overcooked.max_steps=400",)},
     seconds_per_update=1.1,
     measured_on=TTS_MEASURED_ON,
 )
@@ -221,7 +228,12 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
             "preset": preset,
             "seeds": list(seeds),
             "name": _run_name(algo, kitchen),
-            "overrides": [f"total_env_steps={mode.steps[algo]}", *overrides, *common],
+            "overrides": [
+                f"total_env_steps={mode.steps[algo]}",
+                *overrides,
+                *mode.tuned.get(algo, ()),
+                *common,
+            ],
         }
 
     cec_e3t = ["algorithm=cec_e3t", "partner.kind=e3t", "partner.epsilon=0.5", "partner.predict_partner=10"]
