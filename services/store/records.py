@@ -3,6 +3,7 @@ delivered messages, zoo partners and evaluation results; `checkpoint_id` names a
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
@@ -124,6 +125,11 @@ class CheckpointEvent:
             )
         except (TypeError, ValueError) as err:
             raise ValueError(f"malformed checkpoint event: {err}") from err
+        if not math.isfinite(event.created_at) or event.update < 0 or event.env_steps < 0:
+            raise ValueError(
+                f"malformed checkpoint event: created_at {data['created_at']!r} must be a finite Unix time, "
+                f"update {event.update} and env_steps {event.env_steps} must be >= 0"
+            )
         if "checkpoint_id" in data and data["checkpoint_id"] != event.checkpoint_id:
             raise ValueError(f"checkpoint_id {data['checkpoint_id']!r} does not match run_id and update")
         return event

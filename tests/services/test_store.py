@@ -173,6 +173,16 @@ def test_touch_keeps_a_long_job_and_poison_events_are_given_up(server, plane):
     poison_plane.close()
 
 
+def test_an_event_with_an_impossible_time_or_count_is_malformed():
+    """A stream entry is parsed whole or refused: NaN or infinite creation times and negative counts are
+    not checkpoints (they would sort and age wrongly in every consumer)."""
+    fields = _event(4).to_fields()
+    assert CheckpointEvent.from_fields(fields) == _event(4)
+    for key, value in (("created_at", "nan"), ("created_at", "inf"), ("update", "-1"), ("env_steps", "-5")):
+        with pytest.raises(ValueError, match="malformed checkpoint event"):
+            CheckpointEvent.from_fields({**fields, key: value})
+
+
 def test_duplicate_publications_are_one_checkpoint(plane):
     event = _event(7)
     first = plane.publish_checkpoint(event)
