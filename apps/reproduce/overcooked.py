@@ -264,6 +264,11 @@ def zoo(mode: Mode, work: Path) -> pipeline.Zoo:
     return pipeline.Zoo(work, zoo_spec(mode), f"`cec reproduce overcooked` ({mode.name})")
 
 
+def _generalist_run(mode: Mode, work: Path, algorithm: str) -> Path:
+    """The run directory of a generator-trained algorithm's seeds in the work folder."""
+    return work / "zoo" / "runs" / f"{_run_name(algorithm)}-s{mode.seeds[algorithm][0]}"
+
+
 def trained_runs(mode: Mode, work: Path) -> tuple[list[pipeline.PlanLine], list[str]]:
     """The runs of the mode's plan as the work folder trained them, each read from its own `config.yaml`
     (a folder trained by an earlier version of the mode reports the steps it trained, not the mode's
@@ -278,9 +283,8 @@ def trained_runs(mode: Mode, work: Path) -> tuple[list[pipeline.PlanLine], list[
             missing.append(run)
             continue
         cfg = load_config(TrainConfig, runs / run / "config.yaml")
-        trained.append(
-            pipeline.PlanLine(run, cfg.num_seeds, cfg.total_env_steps, cfg.num_updates, math.nan, 1.0)
-        )
+        size = (cfg.num_seeds, cfg.total_env_steps, cfg.num_updates)
+        trained.append(pipeline.PlanLine(run, *size, math.nan, 1.0, algorithm=cfg.algorithm))
     return trained, missing
 
 
@@ -395,7 +399,7 @@ def cec_config(mode: Mode, work: Path) -> Any:
     from cec.config import load_config
     from cec.training.config import TrainConfig
 
-    recorded = work / "zoo" / "runs" / f"{_run_name('cec')}-s{mode.seeds['cec'][0]}" / "config.yaml"
+    recorded = _generalist_run(mode, work, "cec") / "config.yaml"
     if recorded.is_file():
         return load_config(TrainConfig, recorded)
     return load_config(TrainConfig, str(ROOT / mode.preset), list(mode.overrides))
@@ -491,7 +495,7 @@ def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = Fa
     folder = work / CURVES
     if report_only:
         return read_csv(folder / "results.csv") if (folder / "results.csv").is_file() else None
-    runs = {a: work / "zoo" / "runs" / f"{_run_name(a)}-s{mode.seeds[a][0]}" for a in GENERALISTS}
+    runs = {a: _generalist_run(mode, work, a) for a in GENERALISTS}
     saved = {a: checkpoints_by_update([run]) for a, run in runs.items() if run.is_dir()}
     config = eval_config(mode, "heldout")
     states = {a: [read_meta(p)["sha256"] for ps in s.values() for p in ps] for a, s in saved.items()}
@@ -739,10 +743,8 @@ def budget_lines(mode: Mode, plan: Sequence[pipeline.PlanLine]) -> list[str]:
     trains every model for the same 3e9 steps (its section on the generator: "all other baselines, for 3
     billion steps"), 1:1."""
     steps: dict[str, int] = {}
-    for p in plan:
-        stem = p.run.rsplit("-s", 1)[0]
-        algo = next((stem[: -len(k) - 1] for k in mode.kitchens if stem.endswith(f"_{k}")), stem)
-        steps.setdefault(algo, p.env_steps)
+    for p in plan:  # `trained_runs`' lines: each with its run's algorithm
+        steps.setdefault(p.algorithm, p.env_steps)
     if "cec" not in steps:
         return []
     cec, k = steps["cec"], len(mode.kitchens)
@@ -844,18 +846,26 @@ def analysis_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
     ]  # fmt: skip
 
 
-def curve_lines(curves: Any) -> list[str]:
-    """The cross-play learning curves (`cached_curves`) as a table: each checkpoint's cross-play and
-    self-play on the held-out kitchens."""
+def curve_points(curves: Any) -> tuple[list[Any], int]:
+    """The cross-play learning curves' points (`cec.evaluation.milestones.milestone_points`) of
+    `cached_curves`' games, and the held-out kitchens they were played on (none: no games)."""
     from cec.evaluation.milestones import milestone_points
 
-    head = "## Cross-play learning curves (held-out kitchens)"
     if curves is None or not len(curves):
+        return [], 0
+    return milestone_points(curves), len(set(curves.level))
+
+
+def curve_lines(points: Sequence[Any], kitchens: int) -> list[str]:
+    """The cross-play learning curves (`curve_points`) as a table: each checkpoint's cross-play and
+    self-play on the held-out kitchens."""
+    head = "## Cross-play learning curves (held-out kitchens)"
+    if not points:
         missing = "Not measured: the work folder has neither the runs' milestone checkpoints nor their games."
         return [head, "", missing, ""]
     about = (
         "At each checkpoint a generator-trained run saved (its milestones and its last), its seeds with each "
-        f"other on the {len(set(curves.level))} held-out kitchens, {EVAL_STEPS}-step episodes: cross-play "
+        f"other on the {kitchens} held-out kitchens, {EVAL_STEPS}-step episodes: cross-play "
         "(every pair of two different seeds) ± its jackknife standard error over seeds, and self-play ± "
         "the standard error over seeds (`curves_xp.png`)."
     )
@@ -865,7 +875,7 @@ def curve_lines(curves: Any) -> list[str]:
     def cell(mean: float, se: float) -> str:
         return "—" if math.isnan(mean) else f"{mean:.1f}" + ("" if math.isnan(se) else f" ± {se:.1f}")
 
-    for p in milestone_points(curves):
+    for p in points:
         lines.append(
             f"| {TITLES.get(p.name, p.name)} | {p.env_steps:,} | {len(p.seeds)} | {cell(p.xp, p.xp_se)} | "
             f"{cell(p.sp, p.sp_se)} |"
@@ -1080,13 +1090,13 @@ def _machine_text(m: dict[str, Any]) -> str:
 
 
 def _figures(
-    mode: Mode, work: Path, out: Path, table: Any, curves: Any, *, log: TextIO, policies: Path
+    mode: Mode, work: Path, out: Path, table: Any, points: Sequence[Any], *, log: TextIO, policies: Path
 ) -> dict[str, str]:
-    """Learning curves of every run (PNG), the cross-play learning curves (`cached_curves`), a GIF of a
+    """Learning curves of every run (PNG), the cross-play learning curves (`curve_points`), a GIF of a
     median cross-play episode (`crossplay_gif`) and `cec report` of the agents' games (`out/crossplay/`:
     heatmaps, seed matrices, the meta-game)."""
     from cec.evaluation.curves import plot_learning_curves
-    from cec.evaluation.milestones import milestone_points, plot_milestones
+    from cec.evaluation.milestones import plot_milestones
     from cec.evaluation.report import write_report as crossplay_report
 
     figures = {}
@@ -1100,9 +1110,9 @@ def _figures(
     if others:
         plot_learning_curves(others, out / "curves_baselines.png", title="single-kitchen runs")
         figures["Single-kitchen learning curves"] = "curves_baselines.png"
-    if curves is not None and len(curves):
+    if points:
         title = f"cross-play at each checkpoint, held-out kitchens ({EVAL_STEPS}-step episodes)"
-        plot_milestones(milestone_points(curves), out / "curves_xp.png", title=title)
+        plot_milestones(points, out / "curves_xp.png", title=title)
         figures["Cross-play learning curves (held-out kitchens)"] = "curves_xp.png"
     figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
     crossplay_report(_agents(table), out / "crossplay", sources=[str(work / "results.csv")])
@@ -1146,14 +1156,15 @@ def reproduce_overcooked(
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     plan, missing = trained_runs(mode, work)
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
-    curves = cached_curves(mode, work, log=log, report_only=report_only)
+    points, kitchens = curve_points(cached_curves(mode, work, log=log, report_only=report_only))
     figures = _figures(
-        mode, work, out, table, curves, log=log, policies=policies or work / "zoo" / "zoo.yaml"
+        mode, work, out, table, points, log=log, policies=policies or work / "zoo" / "zoo.yaml"
     )  # fmt: skip
+    sections = [*analysis_lines(mode, table, work / "zoo" / "runs"), *curve_lines(points, kitchens)]
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
-        skipped=table.skipped, train_s=train_s, played_s=play_seconds(work),
-        sections=[*analysis_lines(mode, table, work / "zoo" / "runs"), *curve_lines(curves)], missing=missing,
+        skipped=table.skipped, train_s=train_s, played_s=play_seconds(work), sections=sections,
+        missing=missing,
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report

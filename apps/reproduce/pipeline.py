@@ -76,7 +76,8 @@ class Zoo:
 @dataclass(frozen=True)
 class PlanLine:
     """One training run (or one spec entry's runs) with its size, estimated time and how much of it is
-    checkpointed; `zoo` names the zoo it belongs to where a reproduction trains several (the variant)."""
+    checkpointed; `zoo` names the zoo it belongs to where a reproduction trains several (the variant);
+    `algorithm` the run's training algorithm where it was read from the run's config."""
 
     run: str
     seeds: int
@@ -85,6 +86,7 @@ class PlanLine:
     estimate_s: float
     done: float  # share of its seed-updates checkpointed under the work directory
     zoo: str = ""
+    algorithm: str = ""
 
     @property
     def left_s(self) -> float:

@@ -15,6 +15,7 @@ under one name are one population: one recipe's seeds trained in separate proces
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -72,8 +73,6 @@ def checkpoints_by_update(runs: Sequence[Path]) -> dict[int, list[Path]]:
 def play_milestone(name: str, checkpoints: Sequence[Path], levels: Any, config: EvalConfig) -> EpisodeTable:
     """Every seed of `checkpoints` (one update of one population) with every other and itself on `levels`
     (`config.pairs` is replaced by `all`); their algorithm is `milestone_label(name, env steps per seed)`."""
-    import dataclasses
-
     metas = [read_meta(path) for path in checkpoints]
     steps = {int(m["env_steps"]) for m in metas}
     if len(steps) != 1:
