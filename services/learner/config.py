@@ -29,7 +29,10 @@ class DistributedConfig:
         num_actors: rollout actors; each plays `num_envs / num_actors` of the run's envs.
         max_policy_lag: async only: the oldest weights (in versions behind the learner) a batch may be from.
         actor_cpus: CPUs Ray reserves per actor.
-        actor_threads: XLA CPU threads per actor process (0: XLA's default, all cores).
+        actor_threads: 1: each actor's XLA:CPU kernels run on one thread (`--xla_cpu_multi_thread_eigen=
+            false`), so that actors sharing a node do not oversubscribe its cores; 0: XLA's default (a
+            thread per core the process may use). XLA has no flag for N threads: XLA sizes its pool from
+            the process's CPU affinity, so give an actor N cores by limiting that (`taskset`).
         actor_max_restarts: how often Ray restarts a dead actor (-1: always), on any node that has room: a
             dead node's actors come back on the others.
         actor_resource: a custom Ray resource each actor takes one unit of, so that actors run only on the
@@ -92,8 +95,14 @@ class DistributedConfig:
             )
         if self.learner_gpus < 0:
             raise ConfigError(f"distributed.learner_gpus must be >= 0, got {self.learner_gpus}")
-        if self.actor_cpus <= 0 or self.actor_threads < 0:
-            raise ConfigError("distributed.actor_cpus must be > 0 and distributed.actor_threads >= 0")
+        if self.actor_cpus <= 0:
+            raise ConfigError(f"distributed.actor_cpus must be > 0, got {self.actor_cpus}")
+        if self.actor_threads not in (0, 1):
+            raise ConfigError(
+                f"distributed.actor_threads must be 1 (one XLA thread per actor) or 0 (XLA's default), got "
+                f"{self.actor_threads}: XLA has no flag for N threads; it sizes its pool from the process's "
+                "CPU affinity, so limit that (taskset) to give an actor N cores"
+            )
         if self.metrics_port < -1 or self.metrics_port > 65535:
             raise ConfigError(
                 f"distributed.metrics_port must be -1 (off), 0 (free) or a port, got {self.metrics_port}"
@@ -115,6 +124,15 @@ class DistributedConfig:
             raise ConfigError(
                 f"num_envs={train.num_envs} must split evenly over distributed.num_actors={self.num_actors}"
             )
+
+
+def actor_env(dist: DistributedConfig) -> dict[str, str]:
+    """The environment of each rollout actor process Ray starts: CPU JAX unless the driver chose another
+    platform, and with `actor_threads=1` XLA:CPU's kernels on one thread."""
+    env = {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
+    if dist.actor_threads == 1:
+        env["XLA_FLAGS"] = xla_flags("--xla_cpu_multi_thread_eigen=false")
+    return env
 
 
 def xla_flags(*own: str) -> str:

@@ -7,14 +7,13 @@ imports Ray.
 from __future__ import annotations
 
 import contextlib
-import os
 from collections.abc import Sequence
 from typing import Any
 
 import ray
 
 from services.actors.actor import ActorNotReadyError, RolloutActor
-from services.learner.config import DistributedConfig, xla_flags
+from services.learner.config import DistributedConfig, actor_env
 from services.learner.pool import ActorLostError, ActorSpec
 
 
@@ -27,18 +26,13 @@ class RayPool:
 
     def start(self, specs: Sequence[ActorSpec]) -> None:
         d = self.dist
-        env_vars = {"JAX_PLATFORMS": os.environ.get("JAX_PLATFORMS", "cpu")}
-        if d.actor_threads > 0:
-            env_vars["XLA_FLAGS"] = xla_flags(
-                f"--xla_cpu_multi_thread_eigen=false intra_op_parallelism_threads={d.actor_threads}"
-            )
         remote = ray.remote(RolloutActor).options(
             num_cpus=d.actor_cpus,
             resources={d.actor_resource: 1} if d.actor_resource else None,
             scheduling_strategy="SPREAD" if d.actor_spread else "DEFAULT",
             max_restarts=d.actor_max_restarts,
             max_task_retries=0,
-            runtime_env={"env_vars": env_vars},
+            runtime_env={"env_vars": actor_env(d)},
         )
         self.handles = [remote.remote(*s.args()) for s in specs]
 

@@ -20,7 +20,7 @@ import pytest
 
 from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
-from services.learner.config import DistributedConfig
+from services.learner.config import DistributedConfig, actor_env
 from services.learner.driver import learner_options
 
 REPO = Path(__file__).resolve().parents[2]
@@ -102,3 +102,21 @@ def test_the_drivers_own_xla_flags_reach_the_learner_and_the_actors(monkeypatch:
     assert learner_options(DistributedConfig(), devices=2)["runtime_env"]["env_vars"]["XLA_FLAGS"] == (
         "--xla_force_host_platform_device_count=2"
     )
+
+
+def test_the_actors_xla_flags_are_flags_xla_reads(monkeypatch: pytest.MonkeyPatch) -> None:
+    """XLA ignores a word without `--` in `XLA_FLAGS` (`intra_op_parallelism_threads=1`, an often-copied
+    remedy, did nothing here) and aborts on an unknown `--` flag: every word the actors get is an XLA flag
+    that a JAX process starts with, and a thread count XLA cannot honour is refused with the fix."""
+    monkeypatch.setenv("XLA_FLAGS", "--xla_dump_to=/tmp/dump")
+    flags = actor_env(DistributedConfig())["XLA_FLAGS"]
+    assert flags == "--xla_dump_to=/tmp/dump --xla_cpu_multi_thread_eigen=false"
+    monkeypatch.delenv("XLA_FLAGS")
+    env = {**os.environ, **actor_env(DistributedConfig())}
+    assert all(word.startswith("--xla_") for word in env["XLA_FLAGS"].split())
+    code = "import jax, jax.numpy as jnp; print(float(jax.jit(lambda x: x @ x)(jnp.eye(4)).sum()))"
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0 and proc.stdout.strip() == "4.0", proc.stderr[-2000:]
+    assert "XLA_FLAGS" not in actor_env(DistributedConfig(actor_threads=0))  # XLA's own threads
+    with pytest.raises(ConfigError, match=r"actor_threads must be 1 .* or 0 .*got 2.*limit that \(taskset\)"):
+        DistributedConfig(actor_threads=2)
