@@ -382,10 +382,7 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
         partners = [cook, *proxies] if level_set == "classic" else [cook]
         for lineup, adds in lineups(policies, level_set):
             t0 = time.perf_counter()
-            table = crossplay([*lineup, *partners], levels, config)
-            if adds is not None:
-                names = list(adds)
-                table = table.select(np.isin(table.policy_a, names) | np.isin(table.policy_b, names))
+            table = crossplay([*lineup, *partners], levels, config, involving=adds)
             tables.append(table)
             with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
             where = f"{len(levels.names)} {level_set} kitchens"

@@ -26,7 +26,7 @@ import functools
 import logging
 import time
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -178,8 +178,14 @@ def compatibility_problem(reference: Policy, policy: Policy, level_names: Sequen
     return None
 
 
-def plan_games(policies: Sequence[Policy], level_names: Sequence[str], pairs: str = "all") -> list[Game]:
-    """The games to play: both seat orders of each pair of different policies, self-play once."""
+def plan_games(
+    policies: Sequence[Policy],
+    level_names: Sequence[str],
+    pairs: str = "all",
+    involving: Collection[str] | None = None,
+) -> list[Game]:
+    """The games to play: both seat orders of each pair of different policies, self-play once; with
+    `involving`, only the games in which a policy of those names plays (the rest already played)."""
     names = [p.name for p in policies]
     if pairs == "all":
         combos = [(i, j) for i in range(len(policies)) for j in range(i, len(policies))]
@@ -193,6 +199,8 @@ def plan_games(policies: Sequence[Policy], level_names: Sequence[str], pairs: st
         combos = [(k, j) for j in range(len(policies))]
     else:
         raise ConfigError(f"pairs {pairs!r} is unknown; choose one of {list(PAIR_MODES)}")
+    if involving is not None:
+        combos = [(i, j) for i, j in combos if names[i] in involving or names[j] in involving]
     games = []
     for i, j in combos:
         allowed = [
@@ -377,8 +385,10 @@ def crossplay(
     *,
     skipped: Sequence[SkippedEntry] = (),
     progress: Callable[[str], None] | None = None,
+    involving: Collection[str] | None = None,
 ) -> EpisodeTable:
-    """Plays the games of `config.pairs` among `policies` on `levels`; returns the long result table.
+    """Plays the games of `config.pairs` among `policies` on `levels` (with `involving`, only those in
+    which a policy of those names plays); returns the long result table.
 
     The first network policy leads (its network and env settings; a scripted one only when every policy
     is scripted). Policies that cannot join (another game, network or observation settings, or none of
@@ -405,7 +415,7 @@ def crossplay(
     env_params = reference.env.params
     steps = config.max_steps or int(env_params.max_steps)
     env_params = env_params.replace(max_steps=steps)
-    games = plan_games(usable, levels.names, config.pairs)
+    games = plan_games(usable, levels.names, config.pairs, involving)
     fn = play_fn(task, network, steps, config.greedy, kinds)
     stacked = _stack([_seat_params(p, network, task, kinds) for p in usable])
 

@@ -173,6 +173,19 @@ def test_common_random_numbers_make_pairings_comparable(zoo, levels):
     assert _rows(reseeded, "a0", "a0", 0) != _rows(first, "a0", "a0", 0)
 
 
+def test_games_involving_some_policies_are_those_games_of_the_whole_lineup(zoo, levels):
+    # a line-up that adds one agent to games already played plays only that agent's games, exactly as the
+    # whole line-up plays them (the reproduction adds each kitchen's agents to the generalists this way)
+    whole = crossplay(zoo, levels, CFG)
+    added = crossplay(zoo, levels, CFG, involving={"b0"})
+    pairs = set(zip(added.policy_a, added.policy_b, strict=True))
+    assert pairs == {("a0", "b0"), ("a1", "b0"), ("b0", "b0")}
+    for a, seats in (("a0", (0, 1)), ("a1", (0, 1)), ("b0", (0,))):
+        for seat in seats:
+            assert _rows(added, a, "b0", seat) == _rows(whole, a, "b0", seat)
+    assert plan_games(zoo, levels.names, "all", involving=()) == []
+
+
 def test_dual_destination_greedy_and_deliveries():
     pols = [_policy("p", 0, env=DD_ENV), _policy("q", 1, env=DD_ENV, algorithm="b")]
     table = crossplay(pols, eval_levels("dual_destination", "fixed"), EvalConfig(episodes=3, greedy=True))
