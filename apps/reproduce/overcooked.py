@@ -110,6 +110,8 @@ class Mode:
             reproduce_overcooked.md, "Tuning the baselines").
         seconds_per_update: measured seconds of one update of one seed (the basis of `--plan`).
         measured_on: where and how they were measured.
+        episodes_per_s: measured evaluation episodes (`EVAL_STEPS` steps) per second of one core (the basis
+            of `--plan`'s cross-play estimate, `planned_episodes`); `eval_measured_on`: where and how.
         overrides: applied to every run (a tiny network in tests).
         generated_levels: held-out generated kitchens played (fewer only in tests).
         proxies: a zoo manifest (or `shipped`) whose `human_proxy` entries play every agent on the classic
@@ -126,6 +128,8 @@ class Mode:
     tuned: dict[str, tuple[str, ...]] = field(default_factory=dict)
     seconds_per_update: float = math.nan
     measured_on: str = ""
+    episodes_per_s: float = math.nan
+    eval_measured_on: str = ""
     overrides: tuple[str, ...] = ()
     generated_levels: int = 100
     proxies: str = SHIPPED
@@ -187,6 +191,11 @@ CPU = Mode(
     tuned={"fcp": ("env.overcooked.max_steps=400",), "e3t": ("env.overcooked.max_steps=400",)},
     seconds_per_update=1.1,
     measured_on=TTS_MEASURED_ON,
+    episodes_per_s=90.0,
+    eval_measured_on=(
+        "`cec eval` of four radius-6 seeds on the 100 held-out kitchens, 8 games per call (800 episodes in "
+        "8.8 s once compiled), 2-core Intel Xeon, the other core training, 2026-11-28"
+    ),
 )
 
 PAPER = Mode(
@@ -295,6 +304,53 @@ def plan_lines(mode: Mode, work: Path) -> list[pipeline.PlanLine]:
     return [
         pipeline.plan_line(r.config.run_name, [r], mode.seconds_per_update) for r in zoo(mode, work).plan()
     ]
+
+
+def planned_episodes(mode: Mode) -> dict[str, int]:
+    """The episodes the evaluation plays, by part: `evaluate`'s on each level set (every line-up with the
+    cook, the human proxies on the classic kitchens), the controls' (`evaluate_controls`) and the learning
+    curves' (`cached_curves`: every seed pair of each CEC and CEC-E3T checkpoint the preset saves), counted
+    as they are played, from the mode alone (nothing loaded)."""
+    from cec.agents.policy import Policy
+    from cec.agents.zoo import load_zoo
+    from cec.config import load_config
+    from cec.evaluation.crossplay import plan_games
+    from cec.training.config import TrainConfig
+
+    def stand_in(name: str, algorithm: str, levels: tuple[str, ...] | None = None) -> Policy:
+        return Policy(name, algorithm, 0, None, None, None, levels)  # type: ignore[arg-type]
+
+    def episodes(lineup: Sequence[Policy], level_set: str, involving: frozenset[str] | None = None) -> int:
+        names = level_spec(mode, level_set).split(",")
+        games = plan_games(lineup, names, "all", involving)
+        return sum(len(g.levels) for g in games) * mode.episodes[level_set]
+
+    agents = [
+        stand_in(f"{algo}-{kitchen}-s{s}", algo, (kitchen,) if kitchen else None)
+        for algo in ALGORITHMS
+        for kitchen in (("",) if algo in GENERALISTS else mode.kitchens)
+        for s in mode.seeds[algo]
+    ]
+    cook = stand_in(COOK, COOK)
+    proxies = [
+        stand_in(e.name, HUMAN_PROXY, e.levels) for e in (load_zoo(mode.proxies) if mode.proxies else [])
+        if e.algorithm == HUMAN_PROXY
+    ]  # fmt: skip
+    controls = [*(stand_in(f"{UNTRAINED}-s{s}", UNTRAINED) for s in mode.seeds["cec"]), stand_in(NOOP, NOOP)]
+    partners = {"classic": [cook, *proxies], "heldout": [cook]}
+    counts = {
+        level_set: sum(episodes([*lineup, *partners[level_set]], level_set, adds)
+                       for lineup, adds in lineups(agents, level_set))
+        for level_set in LEVEL_SETS
+    }  # fmt: skip
+    names = frozenset(c.name for c in controls)
+    counts["controls"] = sum(episodes([*controls, cook], level_set, names) for level_set in LEVEL_SETS)
+    milestones = set(load_config(TrainConfig, str(ROOT / mode.preset)).checkpoint.milestones) | {1.0}
+    counts["curves"] = sum(
+        len(milestones) * episodes([stand_in(f"{a}-s{s}", a) for s in mode.seeds[a]], "heldout")
+        for a in GENERALISTS
+    )
+    return counts
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -433,8 +489,9 @@ def evaluate_controls(mode: Mode, cfg: Any, *, log: TextIO, seed: int = 0) -> An
     for level_set in LEVEL_SETS:
         config = eval_config(mode, level_set, seed)
         t0 = time.perf_counter()
-        table = crossplay([*controls, cook], eval_levels("overcooked", config.levels), config)
-        tables.append(table.select((table.algorithm_a != COOK) | (table.algorithm_b != COOK)))
+        levels = eval_levels("overcooked", config.levels)
+        table = crossplay([*controls, cook], levels, config, involving={c.name for c in controls})
+        tables.append(table)
         pipeline.note(log, f"controls on the {level_set} kitchens: {len(table)} episodes in "
                       f"{time.perf_counter() - t0:.0f}s")  # fmt: skip
     return EpisodeTable.concat(tables)
@@ -1184,7 +1241,18 @@ def _cmd(args: argparse.Namespace) -> int:
                   f"  ~{duration(p.estimate_s)}, {p.done:.0%} done")  # fmt: skip
         print(f"training: ~{duration(total)} on one core, ~{duration(left)} left "
               f"({mode.seconds_per_update} s per update, seed; measured on "
-              f"{mode.measured_on or 'no machine yet'}); then cross-play, report")  # fmt: skip
+              f"{mode.measured_on or 'no machine yet'})")  # fmt: skip
+        counts = planned_episodes(mode)
+        parts = ", ".join(f"{part} {n:,}" for part, n in counts.items())
+        played = sum(counts.values())
+        rate = "time not measured"
+        if mode.episodes_per_s > 0:
+            rate = (f"~{duration(played / mode.episodes_per_s)} on one core ({mode.episodes_per_s:g} "
+                    f"episodes/s; measured with {mode.eval_measured_on})")  # fmt: skip
+        print(
+            f"then cross-play: {played:,} episodes of {EVAL_STEPS} steps ({parts}), {rate}; then the "
+            "report (cached games are not played again)"
+        )
         return 0
     if args.proxies is not None:
         mode = dataclasses.replace(mode, proxies=args.proxies)

@@ -223,6 +223,13 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         met = {(a, b) for a, b in zip(played.algorithm_a[on], played.algorithm_b[on], strict=True)}
         assert all(("cec", x) in met or (x, "cec") in met for x in ro.ALGORITHMS), (level_set, met)
     assert "Cross-algorithm heatmap" in (out / "crossplay" / "report.md").read_text()
+    # `--plan` counts the episodes each part of the evaluation plays, from the mode alone
+    planned, tables = ro.planned_episodes(mode), {}
+    for level_set in ro.LEVEL_SETS:
+        tables[level_set] = int(np.isin(played.level, ro.level_spec(mode, level_set).split(",")).sum())
+    for part, folder in (("controls", "controls"), ("curves", ro.CURVES)):
+        tables[part] = len(read_csv(work / folder / "results.csv"))
+    assert planned == tables
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
     ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
