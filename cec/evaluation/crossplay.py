@@ -17,6 +17,10 @@ How the work is laid out:
   step's action sampling and env keys) from `fold_in(fold_in(PRNGKey(seed), crc32(level name)),
   episode)`. So every pairing, seat order, batch composition and run with the same `seed` meets the same
   randomness on the same level and episode, and pairings are compared on equal terms.
+
+Size: who can join a line-up (compatibility, the network it is played through), which games it plays and
+the one jitted call that plays them read the same `Game`s and line-up; split, each part would reach into
+the other's private helpers.
 """
 
 from __future__ import annotations
