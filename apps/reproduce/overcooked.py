@@ -1011,6 +1011,19 @@ def _curves(runs: Path, algo: str, kitchen: str, column: str) -> list[np.ndarray
     return [v for r in runs_k for _, v in read_curve(r, column).values() if len(v)]
 
 
+def _episode_steps(runs: Path, algo: str, kitchens: Sequence[str]) -> str:
+    """The training episode length of `algo`'s runs on `kitchens` under `runs`, as each run's `config.yaml`
+    recorded it ('128', or '128/400' where they differ; '—' when no run has its config there)."""
+    steps = set()
+    for k in kitchens:
+        for r in runs.glob(f"{_run_name(algo, k)}-s*"):
+            if (r / "config.yaml").is_file():
+                steps.add(
+                    int(yaml.safe_load((r / "config.yaml").read_text())["env"]["overcooked"]["max_steps"])
+                )
+    return "/".join(str(s) for s in sorted(steps)) or "—"
+
+
 def plateau_lines(mode: Mode, runs: Path) -> list[str]:
     """Whether each single-kitchen algorithm's training had levelled off: its team return per training
     episode over the last 10 updates, and how much it rose over the last quarter of the run (the mean over
@@ -1031,14 +1044,17 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
     return [
         "## Single-kitchen training: levelled off?",
         "",
-        "Team return per 128-step training episode with its training partners over the last 10 updates and, "
-        "in brackets, its rise over the last quarter of the run (the mean over seeds): a rise that is large "
-        "beside the return means the run stopped before its self-play levelled off.",
+        "Team return per training episode (of the steps given; its run's `config.yaml`) with its training "
+        "partners over the last 10 updates and, in brackets, its rise over the last quarter of the run (the "
+        "mean over seeds): a rise that is large beside the return means the run stopped before its "
+        "self-play levelled off.",
         "",
-        "| algorithm | " + " | ".join(mode.kitchens) + " |",
-        "|---" * (len(mode.kitchens) + 1) + "|",
+        "| algorithm | training episode (steps) | " + " | ".join(mode.kitchens) + " |",
+        "|---" * (len(mode.kitchens) + 2) + "|",
         *(
-            f"| {TITLES[a]} | " + " | ".join(cells.get((a, k), "—") for k in mode.kitchens) + " |"
+            f"| {TITLES[a]} | {_episode_steps(runs, a, mode.kitchens)} | "
+            + " | ".join(cells.get((a, k), "—") for k in mode.kitchens)
+            + " |"
             for a in algos
         ),
         "",
@@ -1061,15 +1077,15 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
                 continue
             curves = {c: _curves(runs, algo, k, c) for c in ("mean_return", "mean_shaped_return")}
             if not curves["mean_return"]:
-                rows.append(f"| {TITLES[algo]} | {k} | 0.0 | — | — | — | its training metrics are not in the "
-                            "work folder |")  # fmt: skip
+                rows.append(f"| {TITLES[algo]} | {k} | 0.0 | — | — | — | — | its training metrics are not in "
+                            "the work folder |")  # fmt: skip
                 continue
             first = float(np.mean([v[0] for v in curves["mean_return"]]))
             last, shaped = (float(np.mean([trailing_mean(v, 10)[-1] for v in curves[c]])) for c in curves)
             if last < 1.0:
                 reading = "no soup in training either: it learned the shaped steps only, not to deliver"
             elif algo in SELF_PLAY:
-                reading = "it delivered in its 128-step training episodes (with itself), not in these"
+                reading = "it delivered in its training episodes (with itself), not in these"
             elif first >= last / 2:
                 reading = (
                     f"its training partners delivered from its first update ({first:.1f}): it scored with "
@@ -1078,8 +1094,8 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
             else:
                 reading = "it learned to deliver with its training partners, but not with a copy of itself"
             xp_k = f"{table.returns[own & xp].mean():.1f}" if (own & xp).any() else "—"
-            rows.append(f"| {TITLES[algo]} | {k} | 0.0 | {xp_k} | {first:.1f} → {last:.1f} | {shaped:.1f} | "
-                        f"{reading} |")  # fmt: skip
+            rows.append(f"| {TITLES[algo]} | {k} | 0.0 | {xp_k} | {_episode_steps(runs, algo, [k])} | "
+                        f"{first:.1f} → {last:.1f} | {shaped:.1f} | {reading} |")  # fmt: skip
     if not rows:
         return ["## Baselines in their own kitchen", "", "Every single-kitchen algorithm delivers in "
                 "self-play in its own kitchen (self-play > 0 in each).", ""]  # fmt: skip
@@ -1087,14 +1103,14 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
         "## Baselines without a soup in their own kitchen",
         "",
         "Each algorithm and kitchen whose self-play there (every seed with itself, 400-step episodes) "
-        "delivers nothing, with what its training recorded: the team return per 128-step training episode "
-        "with its training partners (IPPO and CEC-Finetune: itself; FCP: its population; E3T: itself mixed "
-        "with random moves) at the first update and over the last 10 (the mean over seeds), and the shaped "
-        "return over the last 10.",
+        "delivers nothing, with what its training recorded: the team return per training episode (of the "
+        "steps given) with its training partners (IPPO and CEC-Finetune: itself; FCP: its population; E3T: "
+        "itself mixed with random moves) at the first update and over the last 10 (the mean over seeds), "
+        "and the shaped return over the last 10.",
         "",
-        "| algorithm | kitchen | self-play | cross-play | training return, first → last | shaped, last | "
-        "reading |",
-        "|---|---|---|---|---|---|---|",
+        "| algorithm | kitchen | self-play | cross-play | training episode (steps) | training return, first "
+        "→ last | shaped, last | reading |",
+        "|---|---|---|---|---|---|---|---|",
         *rows,
         "",
     ]

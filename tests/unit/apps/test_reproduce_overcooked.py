@@ -134,20 +134,22 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
         "episode_steps": [400] * n, "actions": ["sampled"] * n,
     })  # fmt: skip
     runs = tmp_path / "runs"
-    for run, first, last in (("fcp_cramped_room-s100", 17.0, 24.0), ("e3t_coord_ring-s150", 0.0, 0.0),
-                             ("ippo_coord_ring-s0", 0.0, 30.0)):  # fmt: skip
+    for run, first, last, steps in (("fcp_cramped_room-s100", 17.0, 24.0, 400),
+                                    ("e3t_coord_ring-s150", 0.0, 0.0, 400),
+                                    ("ippo_coord_ring-s0", 0.0, 30.0, 128)):  # fmt: skip
         (runs / run).mkdir(parents=True)
         lines = ["update,env_steps,seed,mean_return,mean_shaped_return"]
         lines += [f"{u},{u * 100},0,{first if u == 1 else last},12.5" for u in range(1, 21)]
         (runs / run / "metrics.csv").write_text("\n".join(lines) + "\n")
+        (runs / run / "config.yaml").write_text(f"env:\n  overcooked:\n    max_steps: {steps}\n")
     mode = dataclasses.replace(TINY, kitchens=("cramped_room", "coord_ring"))
     text = "\n".join(ro.failing_lines(mode, table, runs))
     fcp = next(line for line in text.splitlines() if line.startswith("| FCP | cramped_room"))
-    assert "| 17.0 → 24.0 |" in fcp and "partners delivered from its first update" in fcp
+    assert "| 400 | 17.0 → 24.0 |" in fcp and "partners delivered from its first update" in fcp
     e3t = next(line for line in text.splitlines() if line.startswith("| E3T | coord_ring"))
-    assert "| 0.0 → 0.0 | 12.5 |" in e3t and "no soup in training either" in e3t
+    assert "| 400 | 0.0 → 0.0 | 12.5 |" in e3t and "no soup in training either" in e3t
     ippo = next(line for line in text.splitlines() if line.startswith("| IPPO | coord_ring"))
-    assert "| 0.0 → 30.0 |" in ippo and "(with itself), not in these" in ippo
+    assert "| 128 | 0.0 → 30.0 |" in ippo and "(with itself), not in these" in ippo
     assert "| IPPO | cramped_room" not in text and "| FCP | coord_ring" not in text  # they deliver there
     # whether each run levelled off: the return over its last 10 updates, its rise over the last quarter
     (runs / "ippo_cramped_room-s0").mkdir()
@@ -155,8 +157,11 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
     (runs / "ippo_cramped_room-s0" / "metrics.csv").write_text(
         f"update,env_steps,seed,mean_return,x\n{rising}\n"
     )
-    plateau = ro.plateau_lines(mode, runs)
-    assert "| IPPO | 15.5 (+5.0) | 30.0 (+0.0) |" in plateau and "| FCP | 24.0 (+0.0) | — |" in plateau
+    plateau = ro.plateau_lines(mode, runs)  # each algorithm's training episode as its runs recorded it
+    assert (
+        "| IPPO | 128 | 15.5 (+5.0) | 30.0 (+0.0) |" in plateau
+        and "| FCP | 400 | 24.0 (+0.0) | — |" in plateau
+    )
 
 
 @pytest.mark.slow
