@@ -79,8 +79,9 @@ EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
 ALPHA = 0.05
 MEASURED_ON = "the CEC CPU preset, one seed, 2-core AMD EPYC, both cores busy (2.4k steps/s), 2026-11-22"
 TTS_MEASURED_ON = (
-    "the time-to-skill preset, two seeds per process (7.5k steps/s for both), 2-core Intel Xeon, both cores "
-    "busy, 2026-11-27"
+    "the CPU zoo's runs of the time-to-skill preset, four seeds per process, each run's median env-steps/s "
+    "(metrics.csv), 2-core Intel Xeon, both cores busy, 2026-11-28; CEC-Finetune not measured, taken as IPPO "
+    "(self-play on one kitchen, the same network and episodes)"
 )
 MACHINE_FILE = "machine.json"  # the machine and commit that trained and played, in the work folder
 TABLE_HEAD = (
@@ -108,7 +109,8 @@ class Mode:
         finetune: overrides of CEC-Finetune (on top of the CEC preset).
         tuned: per algorithm, overrides its tuning probes chose (on top of the preset; docs/
             reproduce_overcooked.md, "Tuning the baselines").
-        seconds_per_update: measured seconds of one update of one seed (the basis of `--plan`).
+        seconds_per_update: per algorithm, measured seconds of one update of one seed (the basis of
+            `--plan`).
         measured_on: where and how they were measured.
         episodes_per_s: measured evaluation episodes (`EVAL_STEPS` steps) per second of one core (the basis
             of `--plan`'s cross-play estimate, `planned_episodes`); `eval_measured_on`: where and how.
@@ -126,7 +128,7 @@ class Mode:
     episodes: dict[str, int] = field(default_factory=lambda: {"classic": 4, "heldout": 1})
     finetune: tuple[str, ...] = ("ppo.lr=0.001",)
     tuned: dict[str, tuple[str, ...]] = field(default_factory=dict)
-    seconds_per_update: float = math.nan
+    seconds_per_update: dict[str, float] = field(default_factory=dict)
     measured_on: str = ""
     episodes_per_s: float = math.nan
     eval_measured_on: str = ""
@@ -156,7 +158,7 @@ QUICK = Mode(
     },  # fmt: skip
     kitchens=("cramped_room",),
     episodes={"classic": 2, "heldout": 1},
-    seconds_per_update=6.8,
+    seconds_per_update=dict.fromkeys(ALGORITHMS, 6.8),
     measured_on=MEASURED_ON,
     generated_levels=20,
 )
@@ -189,7 +191,14 @@ CPU = Mode(
     # none on Forced Coordination); IPPO keeps CEC's 128 (its cross-play on Cramped Room fell with 400); all
     # keep CEC's LR and shaping (LR 1e-3 and shaping annealed to 0 did worse for FCP and E3T)
     tuned={"fcp": ("env.overcooked.max_steps=400",), "e3t": ("env.overcooked.max_steps=400",)},
-    seconds_per_update=1.1,
+    seconds_per_update={
+        "cec": 1.14,
+        "cec_e3t": 0.82,
+        "ippo": 1.13,
+        "cec_finetune": 1.13,
+        "fcp": 1.65,
+        "e3t": 0.92,
+    },
     measured_on=TTS_MEASURED_ON,
     episodes_per_s=90.0,
     eval_measured_on=(
@@ -302,7 +311,8 @@ def plan_lines(mode: Mode, work: Path) -> list[pipeline.PlanLine]:
     """Every run of the mode's zoo, with the estimate from `mode.seconds_per_update` (x seeds) and the
     share of it already trained under `work`."""
     return [
-        pipeline.plan_line(r.config.run_name, [r], mode.seconds_per_update) for r in zoo(mode, work).plan()
+        pipeline.plan_line(r.config.run_name, [r], mode.seconds_per_update.get(r.config.algorithm, math.nan))
+        for r in zoo(mode, work).plan()
     ]
 
 
@@ -1256,8 +1266,8 @@ def _cmd(args: argparse.Namespace) -> int:
             print(f"  {p.run:<36} {p.seeds} seed(s) x {p.env_steps:>13,} steps ({p.updates} updates)"
                   f"  ~{duration(p.estimate_s)}, {p.done:.0%} done")  # fmt: skip
         print(f"training: ~{duration(total)} on one core, ~{duration(left)} left "
-              f"({mode.seconds_per_update} s per update, seed; measured on "
-              f"{mode.measured_on or 'no machine yet'})")  # fmt: skip
+              f"(s per update and seed: {', '.join(f'{a} {s:g}' for a, s in mode.seconds_per_update.items())}"
+              f"; measured on {mode.measured_on or 'no machine yet'})")  # fmt: skip
         counts = planned_episodes(mode)
         parts = ", ".join(f"{part} {n:,}" for part, n in counts.items())
         played = sum(counts.values())
