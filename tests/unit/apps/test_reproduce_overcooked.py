@@ -287,3 +287,4 @@ def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], t
     printed = capsys.readouterr().out
     assert "cec-s200" in printed and "ippo_cramped_room-s0" in printed and "training: ~" in printed
     assert "0% done" in printed and " left (" in printed
+    assert "then cross-play: 3,358 episodes of 400 steps (classic 288, heldout 2,420" in printed
