@@ -189,7 +189,8 @@ CPU = Mode(
     # the tuning probes' choice (docs/reproduce_overcooked.md, "Tuning the baselines"): FCP and E3T train on
     # the evaluation's 400-step episodes (FCP: no soup with itself on Cramped Room in 128-step ones; E3T:
     # none on Forced Coordination); IPPO keeps CEC's 128 (its cross-play on Cramped Room fell with 400); all
-    # keep CEC's LR and shaping (LR 1e-3 and shaping annealed to 0 did worse for FCP and E3T)
+    # keep CEC's LR and shaping (LR 1e-3 and shaping annealed to 0 did worse for FCP and E3T), and E3T its
+    # partner's epsilon 0.55 (0.3 did worse on Counter Circuit)
     tuned={"fcp": ("env.overcooked.max_steps=400",), "e3t": ("env.overcooked.max_steps=400",)},
     seconds_per_update={
         "cec": 1.14,
