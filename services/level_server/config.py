@@ -186,6 +186,17 @@ class LevelServerConfig:
     def is_loopback(self) -> bool:
         return is_loopback_host(self.host)
 
+    def exposure_warning(self) -> str | None:
+        """What an `insecure` bind beyond this machine leaves open (logged at start), or None."""
+        if self.is_loopback or self.tls:
+            return None
+        if self.token:
+            return (
+                f"{self.host} is reachable beyond this machine without TLS: the bearer token crosses the "
+                "network in clear text, readable on its way; set tls_cert/tls_key"
+            )
+        return f"{self.host} is reachable beyond this machine without TLS or token: anyone there may call it"
+
 
 def is_loopback_host(host: str) -> bool:
     """Whether `host` (a name or an IP address, IPv6 in brackets or not) is this machine's loopback: only

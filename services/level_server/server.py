@@ -455,6 +455,8 @@ class LevelServer:
             self.port = 0
         if self.port == 0:
             raise OSError(f"could not bind {address}; is the port in use? choose another with port=...")
+        if (exposed := c.exposure_warning()) is not None:
+            log.warning("insecure=true: %s", exposed)
         log.info("warming up: compiling the generator and computing the layout space")
         await asyncio.get_running_loop().run_in_executor(self.executor, self.source.warm_up)
         await server.start()

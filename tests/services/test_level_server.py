@@ -408,7 +408,11 @@ def test_exposed_bind_without_auth_is_a_config_error():
 
     with pytest.raises(ConfigError, match="auth_token"):
         LevelServerConfig(host="0.0.0.0")
-    LevelServerConfig(host="0.0.0.0", insecure=True)  # an explicit choice
+    open_bind = LevelServerConfig(host="0.0.0.0", insecure=True)  # an explicit choice, which start-up names
+    assert "without TLS or token: anyone there may call it" in open_bind.exposure_warning()
+    with_token = LevelServerConfig(host="0.0.0.0", insecure=True, auth_token="s3cret")
+    assert "the bearer token crosses the network in clear text" in with_token.exposure_warning()
+    assert LevelServerConfig(auth_token="s3cret").exposure_warning() is None  # loopback
 
 
 @pytest.mark.parametrize("token", ["two\nlines", "naïve", "tab\there", "\x00"])
