@@ -22,19 +22,27 @@ def cached_table(
     """The result table `folder/results.csv` an earlier invocation wrote when `key` (what it depends on,
     stored beside it in `results.key.json`) is unchanged, else `play()`'s table, written there. The key is
     written last, so an invocation interrupted while playing plays again."""
-    results, key_file = folder / "results.csv", folder / "results.key.json"
+    results, key_file = results_file(folder), folder / "results.key.json"
     key = json.loads(json.dumps(key))  # as stored: tuples as lists
     if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
         log_line(log, "reproduce", f"{label}cross-play results found ({results}); not played again")
         return read_csv(results)
     log_line(log, "reproduce", f"{label}cross-play")
     key_file.unlink(missing_ok=True)
+    (folder / "results.csv.gz").unlink(missing_ok=True)
     t0 = time.perf_counter()
     table = play()
-    write_csv(table, results)
+    write_csv(table, folder / "results.csv")
     (folder / PLAY_TIME_FILE).write_text(json.dumps({"seconds": time.perf_counter() - t0}) + "\n")
     key_file.write_text(json.dumps(key, indent=1) + "\n")
     return table
+
+
+def results_file(folder: Path) -> Path:
+    """`folder`'s cross-play table: `results.csv`, or `results.csv.gz` where only that is there (a work
+    folder committed with its tables gzipped; read as it is)."""
+    plain, gz = folder / "results.csv", folder / "results.csv.gz"
+    return gz if gz.is_file() and not plain.is_file() else plain
 
 
 PLAY_TIME_FILE = "results.time.json"

@@ -52,7 +52,7 @@ import yaml
 
 from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
-from apps.reproduce.common import play_seconds, read_metrics, train_seconds
+from apps.reproduce.common import play_seconds, read_metrics, results_file, train_seconds
 from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
 from cec.config import ConfigError
@@ -560,7 +560,7 @@ def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = Fa
 
     folder = work / CURVES
     if report_only:
-        return read_csv(folder / "results.csv") if (folder / "results.csv").is_file() else None
+        return read_csv(results_file(folder)) if results_file(folder).is_file() else None
     runs = {a: _generalist_run(mode, work, a) for a in GENERALISTS}
     saved = {a: checkpoints_by_update([run]) for a, run in runs.items() if run.is_dir()}
     config = eval_config(mode, "heldout")
@@ -1197,7 +1197,7 @@ def _figures(
         plot_milestones(points, out / "curves_xp.png", title=title)
         figures["Cross-play learning curves (held-out kitchens)"] = "curves_xp.png"
     figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
-    crossplay_report(_agents(table), out / "crossplay", sources=[str(work / "results.csv")])
+    crossplay_report(_agents(table), out / "crossplay", sources=[str(results_file(work))])
     pipeline.note(log, f"figures: {', '.join(figures.values())}; crossplay/report.md")
     return figures
 

@@ -158,10 +158,11 @@ def export_policies(zoo_manifest: Path, folder: Path, *, log: TextIO) -> Path:
 def played_table(work: Path, command: str, *needs: str) -> Any:
     """The cross-play table that a complete `cec reproduce <command>` left in `work` (for `--report-only`),
     checking that it and `needs` (paths under `work`) are there; a `ConfigError` naming what is missing."""
+    from apps.reproduce.common import results_file
     from cec.evaluation.results import read_csv
 
     # the key is written after the table (`common.cached_table`): its presence says the playing finished
-    paths = [work / "results.csv", work / "results.key.json", *(work / n for n in needs)]
+    paths = [results_file(work), work / "results.key.json", *(work / n for n in needs)]
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise ConfigError(

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import gzip
 import io
 import json
 import math
@@ -246,6 +247,10 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
         shutil.rmtree(ckpt)
     (out / "cec_xp_heldout.gif").unlink()
     shutil.rmtree(work / "zoo" / "runs" / "cec_e3t-s400")  # as in a folder trained before the mode had it
+    for folder in (work, work / "controls", work / ro.CURVES):  # committed gzipped, read as they are
+        plain = folder / "results.csv"
+        (folder / "results.csv.gz").write_bytes(gzip.compress(plain.read_bytes()))
+        plain.unlink()
     ran_on = json.loads((work / ro.MACHINE_FILE).read_text())
     # ... by an earlier version of the mode (another preset and budget): the report says what was trained
     earlier = dataclasses.replace(mode, preset="configs/train/cec_overcooked_tts.yaml",
