@@ -560,7 +560,8 @@ def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = Fa
 
     folder = work / CURVES
     if report_only:
-        return read_csv(results_file(folder)) if results_file(folder).is_file() else None
+        cached = results_file(folder)
+        return read_csv(cached) if cached.is_file() else None
     runs = {a: _generalist_run(mode, work, a) for a in GENERALISTS}
     saved = {a: checkpoints_by_update([run]) for a, run in runs.items() if run.is_dir()}
     config = eval_config(mode, "heldout")
@@ -1014,24 +1015,24 @@ def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
     return [*lines, ""]
 
 
+def _kitchen_runs(runs: Path, algo: str, kitchen: str, having: str) -> list[Path]:
+    """`algo`'s run directories on `kitchen` under `runs` (one per spec entry) that hold the file `having`."""
+    return [r for r in sorted(runs.glob(f"{_run_name(algo, kitchen)}-s*")) if (r / having).is_file()]
+
+
 def _curves(runs: Path, algo: str, kitchen: str, column: str) -> list[np.ndarray]:
     """Per seed of `algo`'s runs on `kitchen` under `runs`, `column` of its `metrics.csv` by update."""
     from cec.evaluation.curves import read_curve
 
-    runs_k = [r for r in sorted(runs.glob(f"{_run_name(algo, kitchen)}-s*")) if (r / "metrics.csv").is_file()]
+    runs_k = _kitchen_runs(runs, algo, kitchen, "metrics.csv")
     return [v for r in runs_k for _, v in read_curve(r, column).values() if len(v)]
 
 
 def _episode_steps(runs: Path, algo: str, kitchens: Sequence[str]) -> str:
     """The training episode length of `algo`'s runs on `kitchens` under `runs`, as each run's `config.yaml`
     recorded it ('128', or '128/400' where they differ; '—' when no run has its config there)."""
-    steps = set()
-    for k in kitchens:
-        for r in runs.glob(f"{_run_name(algo, k)}-s*"):
-            if (r / "config.yaml").is_file():
-                steps.add(
-                    int(yaml.safe_load((r / "config.yaml").read_text())["env"]["overcooked"]["max_steps"])
-                )
+    configs = [r / "config.yaml" for k in kitchens for r in _kitchen_runs(runs, algo, k, "config.yaml")]
+    steps = {int(yaml.safe_load(c.read_text())["env"]["overcooked"]["max_steps"]) for c in configs}
     return "/".join(str(s) for s in sorted(steps)) or "—"
 
 
