@@ -415,6 +415,26 @@ def test_exposed_bind_without_auth_is_a_config_error():
     assert LevelServerConfig(auth_token="s3cret").exposure_warning() is None  # loopback
 
 
+def test_cec_level_server_names_what_an_insecure_exposed_bind_leaves_open():
+    """`cec level-server` bound beyond loopback with insecure=true says at start-up, before warming up,
+    that its token crosses the network in clear text."""
+    cmd = [sys.executable, "-m", "apps.cli", "level-server", "host=0.0.0.0", "insecure=true",
+           "auth_token=s3cret", "port=0", "metrics_port=-1"]  # fmt: skip
+    proc = subprocess.Popen(cmd, cwd=ROOT, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    seen = []
+    try:
+        assert proc.stderr is not None
+        for line in proc.stderr:
+            seen.append(line)
+            if "warming up" in line:
+                break
+    finally:
+        proc.kill()
+        proc.wait(30)
+    warning = next((s for s in seen if "insecure=true" in s), "")
+    assert "the bearer token crosses the network in clear text" in warning, "".join(seen)
+
+
 @pytest.mark.parametrize("token", ["two\nlines", "naïve", "tab\there", "\x00"])
 def test_a_token_no_client_could_send_is_refused_at_start(token: str):
     """gRPC metadata carries printable ASCII only: such a token would start a server nobody can use."""
