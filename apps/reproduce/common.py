@@ -13,7 +13,8 @@ from typing import Any, TextIO
 import numpy as np
 
 from apps.machine import log_line
-from cec.evaluation.results import read_csv, write_csv
+from cec.evaluation.curves import metrics_file, read_metrics_csv
+from cec.evaluation.results import read_csv, stored, write_csv
 
 
 def cached_table(
@@ -41,8 +42,7 @@ def cached_table(
 def results_file(folder: Path) -> Path:
     """`folder`'s cross-play table: `results.csv`, or `results.csv.gz` where only that is there (a work
     folder committed with its tables gzipped; read as it is)."""
-    plain, gz = folder / "results.csv", folder / "results.csv.gz"
-    return gz if gz.is_file() and not plain.is_file() else plain
+    return stored(folder / "results.csv")
 
 
 PLAY_TIME_FILE = "results.time.json"
@@ -75,8 +75,9 @@ def train_seconds(rows: list[dict[str, Any]]) -> float:
 
 
 def read_metrics(run_dir: Path) -> list[dict[str, Any]]:
-    """A run's `metrics.jsonl` rows ([] when it has none yet)."""
+    """A run's `metrics.jsonl` rows, or where a committed run folder kept only its `metrics.csv` (or
+    `metrics.csv.gz`), that table's rows; [] when it has none yet."""
     path = run_dir / "metrics.jsonl"
-    if not path.is_file():
-        return []
-    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if path.is_file():
+        return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    return read_metrics_csv(run_dir) if metrics_file(run_dir).is_file() else []

@@ -56,6 +56,7 @@ from apps.reproduce.common import play_seconds, read_metrics, results_file, trai
 from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
 from cec.config import ConfigError
+from cec.evaluation.curves import metrics_file
 from cec.levels.classic import CLASSIC_ASCII
 from cec.training.config import ALGORITHMS as TRAINING
 
@@ -299,7 +300,7 @@ def trained_runs(mode: Mode, work: Path) -> tuple[list[pipeline.PlanLine], list[
     runs, trained, missing = work / "zoo" / "runs", [], []
     for e in zoo_spec(mode)["entries"]:
         run = f"{e['name']}-s{e['seeds'][0]}"
-        if not (runs / run / "metrics.csv").is_file():
+        if not metrics_file(runs / run).is_file():
             missing.append(run)
             continue
         cfg = load_config(TrainConfig, runs / run / "config.yaml")
@@ -1015,24 +1016,26 @@ def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
     return [*lines, ""]
 
 
-def _kitchen_runs(runs: Path, algo: str, kitchen: str, having: str) -> list[Path]:
-    """`algo`'s run directories on `kitchen` under `runs` (one per spec entry) that hold the file `having`."""
-    return [r for r in sorted(runs.glob(f"{_run_name(algo, kitchen)}-s*")) if (r / having).is_file()]
+def _kitchen_runs(runs: Path, algo: str, kitchen: str) -> list[Path]:
+    """`algo`'s run directories on `kitchen` under `runs` (one per spec entry)."""
+    return sorted(runs.glob(f"{_run_name(algo, kitchen)}-s*"))
 
 
 def _curves(runs: Path, algo: str, kitchen: str, column: str) -> list[np.ndarray]:
     """Per seed of `algo`'s runs on `kitchen` under `runs`, `column` of its `metrics.csv` by update."""
     from cec.evaluation.curves import read_curve
 
-    runs_k = _kitchen_runs(runs, algo, kitchen, "metrics.csv")
+    runs_k = [r for r in _kitchen_runs(runs, algo, kitchen) if metrics_file(r).is_file()]
     return [v for r in runs_k for _, v in read_curve(r, column).values() if len(v)]
 
 
 def _episode_steps(runs: Path, algo: str, kitchens: Sequence[str]) -> str:
     """The training episode length of `algo`'s runs on `kitchens` under `runs`, as each run's `config.yaml`
     recorded it ('128', or '128/400' where they differ; '—' when no run has its config there)."""
-    configs = [r / "config.yaml" for k in kitchens for r in _kitchen_runs(runs, algo, k, "config.yaml")]
-    steps = {int(yaml.safe_load(c.read_text())["env"]["overcooked"]["max_steps"]) for c in configs}
+    configs = [r / "config.yaml" for k in kitchens for r in _kitchen_runs(runs, algo, k)]
+    steps = {
+        int(yaml.safe_load(c.read_text())["env"]["overcooked"]["max_steps"]) for c in configs if c.is_file()
+    }
     return "/".join(str(s) for s in sorted(steps)) or "—"
 
 
@@ -1183,7 +1186,7 @@ def _figures(
     from cec.evaluation.report import write_report as crossplay_report
 
     figures = {}
-    runs = {d.name: d for d in sorted((work / "zoo" / "runs").glob("*")) if (d / "metrics.csv").exists()}
+    runs = {d.name: d for d in sorted((work / "zoo" / "runs").glob("*")) if metrics_file(d).exists()}
     generalist = tuple(f"{a}-" for a in GENERALISTS)
     cec_runs = {k: v for k, v in runs.items() if k.startswith(generalist)}
     if cec_runs:

@@ -12,10 +12,12 @@ from __future__ import annotations
 import csv
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from cec.evaluation.plotting import distinct_colours, pyplot
+from cec.evaluation.results import open_text, stored
 
 #: (metrics.csv column, panel title)
 PANELS: tuple[tuple[str, str], ...] = (
@@ -25,17 +27,35 @@ PANELS: tuple[tuple[str, str], ...] = (
 )
 
 
-def read_curve(run_dir: str | Path, column: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
-    """{seed: (env_steps, values)} of one metric of a run directory, in update order."""
-    path = Path(run_dir) / "metrics.csv"
+def metrics_file(run_dir: str | Path) -> Path:
+    """A run directory's `metrics.csv`, or its `metrics.csv.gz` where a committed run kept only that."""
+    return stored(Path(run_dir) / "metrics.csv")
+
+
+def read_metrics_csv(run_dir: str | Path) -> list[dict[str, Any]]:
+    """The rows of a run directory's `metrics.csv` (`metrics_file`): numbers as floats, blanks as None."""
+    path = metrics_file(run_dir)
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: give a training run directory")
+    with open_text(path) as f:
+        return [{k: _value(v) for k, v in row.items()} for row in csv.DictReader(f)]
+
+
+def _value(text: str | None) -> Any:
+    if text in ("", None):
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def read_curve(run_dir: str | Path, column: str) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """{seed: (env_steps, values)} of one metric of a run directory, in update order."""
     by_seed: dict[int, list[tuple[float, float]]] = {}
-    with open(path, newline="") as f:
-        for row in csv.DictReader(f):
-            value = row.get(column, "")
-            if value in ("", None):
-                continue
+    for row in read_metrics_csv(run_dir):
+        value = row.get(column)
+        if value is not None:
             by_seed.setdefault(int(row["seed"]), []).append((float(row["env_steps"]), float(value)))
     return {s: (np.array([x for x, _ in v]), np.array([y for _, y in v])) for s, v in by_seed.items()}
 

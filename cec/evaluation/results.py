@@ -17,7 +17,7 @@ Every analysis (`cec report`) is derived from this table. Columns, in file order
 
 A pairing of two different policies is played in both seat orders (`seat` 0 and 1); self-play (A = B) is
 one game, recorded with `seat` 0 (with common random numbers the swapped order is the same game).
-A table committed gzipped (`results.csv.gz`) is read as it is.
+A table committed gzipped (`results.csv.gz`) is read as it is (`stored` finds it).
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -166,6 +167,19 @@ def _fmt(x: object) -> object:
     return x
 
 
+def stored(path: str | Path) -> Path:
+    """`path`, or `path` + `.gz` where only that is there: a file committed gzipped (a large table, a long
+    run's metrics) is read as it is."""
+    plain = Path(path)
+    gz = plain.with_name(plain.name + ".gz")
+    return gz if gz.is_file() and not plain.is_file() else plain
+
+
+def open_text(path: Path) -> TextIO:
+    """`path` opened for reading text, through gzip where its name ends `.gz`."""
+    return gzip.open(path, "rt", newline="") if path.suffix == ".gz" else open(path, newline="")
+
+
 def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
     """Reads one or more results files (as written by `write_csv`, or gzipped: `.gz`) into one table.
 
@@ -181,9 +195,8 @@ def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
 def _read_one(path: Path) -> EpisodeTable:
     if not path.is_file():
         raise ResultsError(f"results file {str(path)!r} does not exist; write one with `cec eval`")
-    opener = gzip.open if path.suffix == ".gz" else open
     try:
-        with opener(path, "rt", newline="") as f:
+        with open_text(path) as f:
             return _parse(path, csv.DictReader(f))
     except (OSError, EOFError) as err:  # gzip.BadGzipFile is an OSError; a cut-off stream an EOFError
         raise ResultsError(f"{path} cannot be read as a results file: {err}") from err

@@ -18,12 +18,15 @@ import yaml
 from apps import humans
 from apps.cli import main
 from apps.reproduce import overcooked as ro
+from apps.reproduce.common import read_metrics, train_seconds
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
 from cec.config import ConfigError, load_config
+from cec.evaluation.curves import metrics_file, read_curve
 from cec.evaluation.results import make_table, read_csv
 from cec.humans.bc import BCConfig
 from cec.training.config import TrainConfig
+from cec.training.run import MetricsWriter
 
 TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 0, actor_features: [8], "
@@ -245,6 +248,11 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
     for ckpt in (work / "zoo" / "runs").glob("*/checkpoints"):
         shutil.rmtree(ckpt)
+    for jsonl in (work / "zoo" / "runs").glob("*/metrics.jsonl"):  # as committed: config and metrics.csv,
+        jsonl.unlink()
+    long_run = work / "zoo" / "runs" / "cec-s200" / "metrics.csv"  # ... a long run's metrics gzipped
+    long_run.with_name("metrics.csv.gz").write_bytes(gzip.compress(long_run.read_bytes()))
+    long_run.unlink()
     (out / "cec_xp_heldout.gif").unlink()
     shutil.rmtree(work / "zoo" / "runs" / "cec_e3t-s400")  # as in a folder trained before the mode had it
     for folder in (work, work / "controls", work / ro.CURVES):  # committed gzipped, read as they are
@@ -266,7 +274,8 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
                     "## Cross-play learning curves"):  # fmt: skip
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
-    assert row.group(0) in again.read_text()  # its metrics kept the recorded time
+    assert row.group(0) in again.read_text()  # its metrics kept the recorded time (from metrics.csv.gz)
+    assert (tmp_path / "again" / "curves_cec.png").exists()
     assert "| cec_e3t-s400 |" not in again.read_text() and "Not in this work folder" in again.read_text()
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
     with pytest.raises(ConfigError, match="results.csv"):
@@ -293,3 +302,29 @@ def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], t
     assert "cec-s200" in printed and "ippo_cramped_room-s0" in printed and "training: ~" in printed
     assert "0% done" in printed and " left (" in printed
     assert "then cross-play: 3,358 episodes of 400 steps (classic 288, heldout 2,420" in printed
+
+
+def test_a_run_committed_with_its_metrics_gzipped_reads_the_same(tmp_path: Path) -> None:
+    """A long run's `metrics.csv` is committed as `metrics.csv.gz` (over 1 MiB plain): its curves, and the
+    rows the reproduction's report reads its training time from, are those of the plain file."""
+    run = tmp_path / "run"
+    run.mkdir()
+    rows = [
+        {"update": u, "env_steps": 512 * u, "seed": s, "mean_return": u * s / 3, "env_steps_per_s": 900.0 + s}
+        for u in (1, 2, 3)
+        for s in (7, 8)
+    ]
+    MetricsWriter(run).write(rows)
+    plain, written = read_curve(run, "mean_return"), read_metrics(run)  # from metrics.jsonl
+    (run / "metrics.jsonl").unlink()  # a committed run keeps config.yaml and metrics.csv only
+    assert read_metrics(run) == written
+    (run / "metrics.csv.gz").write_bytes(gzip.compress((run / "metrics.csv").read_bytes()))
+    (run / "metrics.csv").unlink()
+    assert metrics_file(run).name == "metrics.csv.gz"
+    assert read_metrics(run) == written and train_seconds(read_metrics(run)) == pytest.approx(
+        train_seconds(rows)
+    )
+    assert train_seconds(rows) > 0
+    for seed, (steps, values) in read_curve(run, "mean_return").items():
+        np.testing.assert_array_equal(steps, plain[seed][0])
+        np.testing.assert_allclose(values, plain[seed][1])
