@@ -38,8 +38,10 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
+import shutil
 import sys
 import time
 from collections.abc import Sequence
@@ -431,13 +433,18 @@ def lineups(policies: Sequence[Any], level_set: str) -> list[tuple[list[Any], fr
     ]
 
 
-def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
+def evaluate(
+    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, Any], seed: int = 0
+) -> Any:
     """Per level set, every line-up (`lineups`) with the scripted cook, every pair (XP, SP, ad hoc, with
     the cook), and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable`.
     Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
-    reason."""
+    reason. Each line-up's table is kept in `parts/<level set>-<i>` under `key` (`cached_table`) until the
+    whole one is written: an interrupted evaluation (minutes to an hour per line-up on a CPU) resumes at
+    the line-up it was playing."""
+    from apps.reproduce.common import cached_table
     from cec.agents.policy import scripted_policy
-    from cec.evaluation.crossplay import crossplay, eval_levels
+    from cec.evaluation.crossplay import eval_levels
     from cec.evaluation.results import EpisodeTable
 
     policies = pipeline.load_zoo_policies(manifest, str(manifest))
@@ -448,15 +455,27 @@ def evaluate(mode: Mode, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
         config = eval_config(mode, level_set, seed)
         levels = eval_levels("overcooked", config.levels)
         partners = [cook, *proxies] if level_set == "classic" else [cook]
-        for lineup, adds in lineups(policies, level_set):
-            t0 = time.perf_counter()
-            table = crossplay([*lineup, *partners], levels, config, involving=adds)
-            tables.append(table)
-            with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
-            where = f"{len(levels.names)} {level_set} kitchens"
-            played = f"{len(table)} episodes in {time.perf_counter() - t0:.0f}s"
-            pipeline.note(log, f"{len(lineup)} agents + {with_whom} on {where}: {played}")
+        with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
+        where = f"{len(levels.names)} {level_set} kitchens"
+        everyone = lineups(policies, level_set)
+        for i, (lineup, adds) in enumerate(everyone):
+            what = f"{len(lineup)} agents + {with_whom} on {where}"
+            play = functools.partial(
+                _play_lineup, [*lineup, *partners], levels, config, adds, what=what, log=log
+            )
+            label = f"{level_set} line-up {i + 1} of {len(everyone)}: "
+            tables.append(cached_table(parts / f"{level_set}-{i}", key, play, label=label, log=log))
     return EpisodeTable.concat(tables)
+
+
+def _play_lineup(players: list[Any], levels: Any, config: Any, adds: Any, *, what: str, log: TextIO) -> Any:
+    """One line-up's cross-play (`evaluate`), logged with how many episodes it played and how long it took."""
+    from cec.evaluation.crossplay import crossplay
+
+    t0 = time.perf_counter()
+    table = crossplay(players, levels, config, involving=adds)
+    pipeline.note(log, f"{what}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
+    return table
 
 
 def cec_config(mode: Mode, work: Path) -> Any:
@@ -541,7 +560,15 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) ->
     proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
     # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
     key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
-    return cached_table(work, key, lambda: evaluate(mode, manifest, log=log), label="", log=log)
+    parts = work / PARTS
+    table = cached_table(
+        work, key, lambda: evaluate(mode, manifest, log=log, parts=parts, key=key), label="", log=log
+    )
+    shutil.rmtree(parts, ignore_errors=True)  # all in the table now
+    return table
+
+
+PARTS = "parts"  # in the work folder: each line-up's games until the whole table is written (`evaluate`)
 
 
 CURVES = "curves"  # in the work folder: the milestone checkpoints' games (`cached_curves`)

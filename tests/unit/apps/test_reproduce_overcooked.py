@@ -10,6 +10,7 @@ import math
 import re
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -170,7 +171,9 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
 
 @pytest.mark.slow
 @pytest.mark.timeout(900)
-def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results(tmp_path: Path) -> None:
+def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # human proxies with the agents' (tiny) network, cloned from the first recorded game of each kitchen
     humans.import_games(tmp_path / "humans", games_per_kitchen=1, log=io.StringIO())
     network = load_config(TrainConfig, str(ro.ROOT / TINY.preset), [TINY_NET]).network_config
@@ -243,6 +246,26 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     log = io.StringIO()
     ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert log.getvalue().count("not played again") == 3 and "finished, skipping" in log.getvalue()
+    assert not (work / ro.PARTS).exists()  # each line-up's table kept only until the whole one is written
+    # an evaluation interrupted after its first line-up plays the others again, not that one: the same table
+    first, manifest, real = (work / "results.csv").read_bytes(), work / "zoo" / "zoo.yaml", ro._play_lineup
+    (work / "results.key.json").unlink()
+    calls: list[int] = []
+
+    def interrupted(*args: Any, **kwargs: Any) -> Any:  # the first line-up plays, then Ctrl-C
+        if calls:
+            raise KeyboardInterrupt
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ro, "_play_lineup", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        ro.cached_evaluation(mode, manifest, work, log=io.StringIO())
+    monkeypatch.undo()
+    log = io.StringIO()
+    ro.cached_evaluation(mode, manifest, work, log=log)
+    assert "classic line-up 1 of 1: cross-play results found" in log.getvalue(), log.getvalue()
+    assert log.getvalue().count("not played again") == 1 and (work / "results.csv").read_bytes() == first
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
     # the GIF from the exported CEC seeds, the machine that trained and played named
     export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
