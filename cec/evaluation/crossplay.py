@@ -367,10 +367,14 @@ def episode_states(
 
 
 def _seat_params(policy: Policy, network: NetworkConfig, task: Task, kinds: tuple[str, ...]) -> Any:
-    """The parameter set a policy brings to a seat of the evaluation's network (see `play_fn`)."""
-    if not kinds:
-        return _embedded(policy, network, task)
+    """The parameter set a policy brings to a seat of the evaluation's network (see `play_fn`); without
+    `kinds` a scripted policy brings zeros (a call without its kind plays none of its games)."""
     from cec.agents.scripted import placeholder_params, with_scripted_params
+
+    if not kinds:
+        if policy.scripted is None:
+            return _embedded(policy, network, task)
+        return placeholder_params(ActorCritic(network, task.num_actions), task.obs_shape)
 
     if policy.scripted is None:
         return with_scripted_params(_embedded(policy, network, task), 0)
@@ -420,13 +424,35 @@ def crossplay(
     steps = config.max_steps or int(env_params.max_steps)
     env_params = env_params.replace(max_steps=steps)
     games = plan_games(usable, levels.names, config.pairs, involving)
-    fn = play_fn(task, network, steps, config.greedy, kinds)
-    stacked = _stack([_seat_params(p, network, task, kinds) for p in usable])
+    rows: dict[str, list] = {k: [] for k in ARRAY_FIELDS if k not in _SET_BY_TABLE}
+    # games of two networks play without the scripted kinds, whose rollout in every env of a call costs
+    # about as much as the network's (with the cook in a line-up, half the episodes per second)
+    scripted = {i for i, p in enumerate(usable) if p.scripted is not None}
+    plain = [g for g in games if not scripted & {g.a, g.b}]
+    for subset, with_kinds in ((plain, ()), ([g for g in games if scripted & {g.a, g.b}], kinds)):
+        if subset:
+            seats = [_seat_params(p, network, task, with_kinds) for p in usable]
+            fn = play_fn(task, network, steps, config.greedy, with_kinds)
+            _play_games(subset, usable, _stack(seats), fn, levels, env_params, config, rows, progress)
+    return _to_table(rows, reference, env_params, steps, config.greedy, skipped_out)
 
+
+def _play_games(
+    games: Sequence[Game],
+    usable: Sequence[Policy],
+    stacked: Any,
+    fn: Callable[..., EpisodeOutcome],
+    levels: EvalLevels,
+    env_params: Any,
+    config: EvalConfig,
+    rows: dict[str, list],
+    progress: Callable[[str], None] | None,
+) -> None:
+    """Plays `games` with the compiled call `fn` and the seats' parameters `stacked` (one per policy of
+    `usable`), `config.games_per_call` at a time, appending their rows."""
     groups: dict[tuple[int, ...], list[Game]] = {}
     for g in games:
         groups.setdefault(g.levels, []).append(g)
-    rows: dict[str, list] = {k: [] for k in ARRAY_FIELDS if k not in _SET_BY_TABLE}
     n = config.episodes
     for level_idx, group in groups.items():
         env_level = np.repeat(np.asarray(level_idx), n)  # env e plays level env_level[e], episode e % n
@@ -455,7 +481,6 @@ def crossplay(
                 _append_rows(
                     rows, usable[g.a], usable[g.b], g.seat, levels.names, env_level, env_episode, out, gi
                 )
-    return _to_table(rows, reference, env_params, steps, config.greedy, skipped_out)
 
 
 #: Result fields `_to_table` fills for the whole table (deliveries from the returns), not `_append_rows`.

@@ -186,6 +186,21 @@ def test_games_involving_some_policies_are_those_games_of_the_whole_lineup(zoo, 
     assert plan_games(zoo, levels.names, "all", involving=()) == []
 
 
+def test_networks_play_each_other_alike_with_and_without_the_cook_in_the_lineup(zoo, levels):
+    """The games of two networks play without the scripted kinds (faster: the cook's rollout would run in
+    every env of every call); they are the games a line-up without the cook plays, and the cook's games
+    are played too, in both seats."""
+    from cec.agents.policy import scripted_policy
+
+    cook = scripted_policy("cook", "cook", env=zoo[0].env, algorithm="cook")
+    with_cook = crossplay([*zoo[:2], cook], levels, CFG)
+    alone = crossplay(zoo[:2], levels, CFG)
+    for a, b, seat in (("a0", "a0", 0), ("a0", "a1", 0), ("a0", "a1", 1)):
+        assert _rows(with_cook, a, b, seat) == _rows(alone, a, b, seat)
+    cooked = [shaped for seat in (0, 1) for _, shaped, _ in _rows(with_cook, "a0", "cook", seat).values()]
+    assert len(cooked) == 2 * 2 * EPISODES and max(cooked) > 0  # the cook plays its part (in 24 steps)
+
+
 def test_dual_destination_greedy_and_deliveries():
     pols = [_policy("p", 0, env=DD_ENV), _policy("q", 1, env=DD_ENV, algorithm="b")]
     table = crossplay(pols, eval_levels("dual_destination", "fixed"), EvalConfig(episodes=3, greedy=True))
