@@ -327,6 +327,12 @@ def build_zoo(
                 say(k, f"waits for {blocker.config.run_name} (not finished)")
                 deferred.append(k)
                 continue
+            try:  # announced only when this process can take it (a waiting process said it resumed)
+                checkpoints.RunLock(run.run_dir).acquire().release()
+            except checkpoints.RunBusyError as err:
+                say(k, f"is trained elsewhere ({err}); going on with the others")
+                deferred.append(k)
+                continue
             latest = checkpoints.CheckpointStore(run.run_dir, keep_last=1).latest()
             what = f"training {cfg.num_updates} updates"
             if latest is not None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import re
 import shutil
 from pathlib import Path
 
@@ -151,6 +152,7 @@ def test_builds_side_by_side_share_the_runs(zoo, tmp_path, monkeypatch):
     result = build_zoo(spec, out, log=log, poll_s=7)
     text = log.getvalue()
     assert "ippo-dual_destination-fixed-s0 is trained elsewhere" in text
+    assert not re.search(r"ippo-dual_destination-fixed-s0 \(.*\): (training|resuming)", text)  # not its own
     assert "fcp-dual_destination-fixed-s0 waits for ippo-dual_destination-fixed-s0" in text
     assert waits == [7] and trained == [fcp.name]
     assert result.manifest == out / "zoo.yaml" and result.skipped == (ippo.name,)
