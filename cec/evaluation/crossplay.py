@@ -402,7 +402,8 @@ def crossplay(
     is scripted). Policies that cannot join (another game, network or observation settings, or none of
     their levels in the set) are added to the table's skipped entries with the reason, like the `skipped`
     entries passed in (zoo entries that failed to load). Scripted policies (`cec.agents.scripted`)
-    play in the same jitted calls as the networks, in both seats.
+    play in both seats, in jitted calls of the games with a scripted partner; the games of two networks
+    play in calls without the scripted kinds (the same episodes, faster).
     """
     skipped_out = list(skipped)
     if not policies:
