@@ -17,8 +17,6 @@ each layout (median over `--repeats`) and their ratio.
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import statistics
 import time
 from pathlib import Path
@@ -45,12 +43,11 @@ from cec.evaluation.results import EpisodeTable
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
     from crossplay_throughput import policies  # type: ignore[import-not-found]
-    from env_throughput import git_rev, machine  # type: ignore[import-not-found]
+    from env_throughput import save_result  # type: ignore[import-not-found]
 except ImportError:
     from benchmarks.crossplay_throughput import policies
-    from benchmarks.env_throughput import git_rev, machine
+    from benchmarks.env_throughput import save_result
 
-RESULTS = Path(__file__).parent / "results"
 TWENTY = ",".join(f"generated_{i:03d}" for i in range(20))
 
 
@@ -111,12 +108,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{name:8s} {rate:9.1f} episodes/s", flush=True)
     ratio = rates["apart"] / rates["one_call"]
     print(f"apart / one call: {ratio:.2f}x", flush=True)
-    info = machine()
-    result = {
-        "benchmark": "crossplay_cook",
-        "date": datetime.date.today().isoformat(),
-        "git": git_rev(),
-        "machine": info,
+    fields = {
         "preset": args.preset,
         "policies": args.policies,
         "levels": args.levels,
@@ -127,11 +119,7 @@ def main(argv: list[str] | None = None) -> int:
         "episodes_per_s": rates,
         "apart_over_one_call": ratio,
     }
-    RESULTS.mkdir(exist_ok=True)
-    device = info["device"].split(":")[0]
-    out = args.out or RESULTS / f"crossplay_cook_{args.preset}_{device}_{info['cpu_count']}cpu.json"
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {out}")
+    save_result("crossplay_cook", fields, args.out, tag=args.preset)
     return 0
 
 

@@ -18,8 +18,6 @@ matrix that includes compilation), and their ratio. `--games-per-call` adds othe
 from __future__ import annotations
 
 import argparse
-import datetime
-import json
 import statistics
 import time
 from pathlib import Path
@@ -34,11 +32,9 @@ from cec.envs.task import EnvConfig
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels, plan_games
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
-    from env_throughput import git_rev, machine  # type: ignore[import-not-found]
+    from env_throughput import save_result  # type: ignore[import-not-found]
 except ImportError:
-    from benchmarks.env_throughput import git_rev, machine
-
-RESULTS = Path(__file__).parent / "results"
+    from benchmarks.env_throughput import save_result
 
 
 def policies(preset: str, n: int, max_steps: int) -> list[Policy]:
@@ -117,12 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     if "per_game" in rows and "batched" in rows:
         ratio = rows["batched"]["episodes_per_s"] / rows["per_game"]["episodes_per_s"]
         print(f"batched / per game: {ratio:.2f}x", flush=True)
-    info = machine()
-    result = {
-        "benchmark": "crossplay_throughput",
-        "date": datetime.date.today().isoformat(),
-        "git": git_rev(),
-        "machine": info,
+    fields = {
         "preset": args.preset,
         "policies": args.policies,
         "levels": args.levels,
@@ -133,11 +124,7 @@ def main(argv: list[str] | None = None) -> int:
         "rows": rows,
         "batched_over_per_game": ratio,
     }
-    RESULTS.mkdir(exist_ok=True)
-    device = info["device"].split(":")[0]
-    out = args.out or RESULTS / f"crossplay_throughput_{args.preset}_{device}_{info['cpu_count']}cpu.json"
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {out}")
+    save_result("crossplay_throughput", fields, args.out, tag=args.preset)
     return 0
 
 

@@ -162,6 +162,19 @@ def git_rev() -> str:
     return code_version(short=True)
 
 
+def save_result(name: str, fields: dict[str, Any], out: Path | None, tag: str = "") -> Path:
+    """Writes a benchmark's result JSON: its name, today's date, the commit and the machine, then `fields`,
+    to `out` or to `results/<name>[_<tag>]_<device>_<cores>cpu.json`; prints and returns the path."""
+    info = machine()
+    result = {"benchmark": name, "date": datetime.date.today().isoformat(), "git": git_rev(), "machine": info}
+    device = info["device"].split(":")[0]
+    out = out or RESULTS / f"{name}{'_' + tag if tag else ''}_{device}_{info['cpu_count']}cpu.json"
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({**result, **fields}, indent=2) + "\n")
+    print(f"wrote {out}")
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--n", type=int, nargs="+", default=[256, 1024, 4096], help="numbers of envs")

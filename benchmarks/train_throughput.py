@@ -24,7 +24,6 @@ batch; the ratio is printed. Their CEC program takes about 20+ minutes to compil
 from __future__ import annotations
 
 import argparse
-import datetime
 import json
 import statistics
 import subprocess
@@ -42,11 +41,10 @@ from cec.training.ppo import Batch, ppo_loss
 from cec.training.trainer import Trainer
 
 try:  # run as a script (benchmarks/ on sys.path) or as a module
-    from env_throughput import git_rev, machine  # type: ignore[import-not-found]
+    from env_throughput import save_result  # type: ignore[import-not-found]
 except ImportError:
-    from benchmarks.env_throughput import git_rev, machine
+    from benchmarks.env_throughput import save_result
 
-RESULTS = Path(__file__).parent / "results"
 PEER = Path(__file__).parent / "peers" / "reference_train.py"
 
 
@@ -211,21 +209,12 @@ def main(argv: list[str] | None = None) -> int:
         )
     else:
         print("authors' script not measured (give --reference-repo and --reference-python)", flush=True)
-    info = machine()
-    result = {
-        "benchmark": "train_throughput",
-        "date": datetime.date.today().isoformat(),
-        "git": git_rev(),
-        "machine": info,
+    fields = {
         "peak_matmul_flops_per_s": peak,
         "rows": rows,
         "reference": peer,
     }
-    RESULTS.mkdir(exist_ok=True)
-    device = info["device"].split(":")[0]
-    out = args.out or RESULTS / f"train_throughput_{device}_{info['cpu_count']}cpu.json"
-    out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {out}")
+    save_result("train_throughput", fields, args.out)
     return 0
 
 
