@@ -126,21 +126,32 @@ def level_sets(names: Sequence[str]) -> dict[str, list[str]]:
 
 
 def policies_of(table: EpisodeTable) -> tuple[PolicyId, ...]:
-    """Every (algorithm, seed) in the table, sorted; checks that each plays a level under one name only."""
-    owner: dict[tuple[str, int, str], str] = {}
-    ids = set()
-    for side in ("a", "b"):
-        names = getattr(table, f"policy_{side}")
-        algos = getattr(table, f"algorithm_{side}")
-        seeds = getattr(table, f"seed_{side}")
-        for name, algo, seed, level in set(zip(names, algos, seeds.tolist(), table.level, strict=True)):
-            key = (algo, seed, level)
-            if owner.setdefault(key, name) != name:
-                raise ResultsError(
-                    f"zoo entries {owner[key]!r} and {name!r} are both {algo} seed {seed} on level "
-                    f"{level!r}; give them different seeds or algorithm labels"
-                )
-            ids.add(PolicyId(algo, int(seed)))
+    """Every (algorithm, seed) in the table, sorted. A policy may play a level under several names (a
+    seed of a single-kitchen algorithm is its agents of every kitchen, each on the held-out kitchens; its
+    pair scores then average them), but two names of one (algorithm, seed) that play each other are two
+    policies labelled alike: refused."""
+    ids = {
+        PolicyId(algo, int(seed))
+        for algo, seed in set(
+            zip(
+                [*table.algorithm_a, *table.algorithm_b],
+                [*table.seed_a.tolist(), *table.seed_b.tolist()],
+                strict=True,
+            )
+        )
+    }
+    same = (
+        (table.algorithm_a == table.algorithm_b)
+        & (table.seed_a == table.seed_b)
+        & (table.policy_a != table.policy_b)
+    )
+    if same.any():
+        i = int(np.flatnonzero(same)[0])
+        raise ResultsError(
+            f"zoo entries {table.policy_a[i]!r} and {table.policy_b[i]!r} are both {table.algorithm_a[i]} "
+            f"seed {int(table.seed_a[i])} and play each other on level {table.level[i]!r}; give them "
+            "different seeds or algorithm labels"
+        )
     return tuple(sorted(ids))
 
 
@@ -149,22 +160,23 @@ def pair_level_scores(
 ) -> PairLevel:
     """Mean `metric` (see `scores`) per unordered policy pair and level (over episodes and seat orders),
     on `levels` (None: all)."""
+    if levels is not None:  # the policies are those that play these levels
+        table = table.select(np.isin(table.level, list(levels)))
     policies = policies_of(table)
     index = {p: i for i, p in enumerate(policies)}
     value = scores(table, metric)
-    keep = np.ones(len(table), bool) if levels is None else np.isin(table.level, list(levels))
     ia = np.asarray(
         [index[PolicyId(a, int(s))] for a, s in zip(table.algorithm_a, table.seed_a, strict=True)]
     )
     ib = np.asarray(
         [index[PolicyId(a, int(s))] for a, s in zip(table.algorithm_b, table.seed_b, strict=True)]
     )
-    lo, hi = np.minimum(ia, ib)[keep], np.maximum(ia, ib)[keep]
-    level_names, level_code = np.unique(table.level[keep].astype(str), return_inverse=True)
+    lo, hi = np.minimum(ia, ib), np.maximum(ia, ib)
+    level_names, level_code = np.unique(table.level.astype(str), return_inverse=True)
     # Average episodes within each seat order (who sits in seat 0) first, then the seat orders.
-    seat0 = np.where(table.seat == 0, ia, ib)[keep]
+    seat0 = np.where(table.seat == 0, ia, ib)
     orders, order_of = np.unique(np.stack([lo, hi, level_code, seat0], 1), axis=0, return_inverse=True)
-    order_mean = _group_mean(order_of.reshape(-1), value[keep], len(orders))
+    order_mean = _group_mean(order_of.reshape(-1), value, len(orders))
     pairs, pair_of = np.unique(orders[:, :3], axis=0, return_inverse=True)
     return PairLevel(
         policies,

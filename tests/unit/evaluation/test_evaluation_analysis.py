@@ -273,6 +273,20 @@ def test_results_file_round_trip_and_errors(tmp_path: Path):
     clash2 = make_table({**{f: getattr(clash, f) for f in an_fields()}, "policy_a": ["other"] * len(clash)})
     with pytest.raises(ResultsError, match="both cec seed 0"):
         an.policies_of(type(t).concat([clash, clash2]))
+    # one seed of a single-kitchen algorithm under two names (its agents of two kitchens, each with the
+    # generalists on the held-out kitchens): they never meet, and its pair scores average them
+    one = _table([("cec", 0), ("ippo", 0)], lambda *_: 10.0)
+    two = _table([("cec", 0), ("ippo", 0)], lambda *_: 30.0)
+    renamed = {
+        f"policy_{s}": [n.replace("ippo0", "ippo_k0") for n in getattr(two, f"policy_{s}")] for s in "ab"
+    }
+    two = make_table({**{f: getattr(two, f) for f in an_fields()}, **renamed})
+    merged = an.pair_level_scores(type(t).concat([one, two]))
+    assert merged.policies == (an.PolicyId("cec", 0), an.PolicyId("ippo", 0))
+    assert np.allclose(merged.score, 20.0) and len(merged.score) == 3 * 2  # 3 pairs on 2 levels
+    alone = _table([("human_proxy", 0)], lambda *_: 0.0, levels=("coord_ring",))  # plays one level
+    on_one = an.pair_level_scores(type(t).concat([one, alone]), ["cramped_room"])
+    assert on_one.policies == merged.policies  # the policies of a level set are those that play it
 
 
 def an_fields():
