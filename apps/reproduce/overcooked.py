@@ -720,8 +720,15 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
                     continue
                 out.append({"level_set": level_set, "measure": measure, "better": "cec", "worse": other,
                             "diff": c.diff, "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
-                            "significant": bool(c.diff > 0 and c.p < ALPHA)})  # fmt: skip
+                            "significant": bool(c.p < ALPHA)})  # fmt: skip
     return out
+
+
+def _reading(test: dict[str, Any]) -> str:
+    """What a comparison of `comparisons` shows: CEC ahead, CEC behind, or neither at the 5% level."""
+    if not test["significant"]:
+        return "no difference shown"
+    return "CEC ahead" if test["diff"] > 0 else "CEC behind"
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -798,13 +805,13 @@ def write_report(
     if not tests:
         lines += ["No test: too few seeds, or no spread between them.", ""]
     else:
-        lines += ["| level set | score | CEC − | difference | 95% CI | p | CEC ahead (p < 0.05) |",
+        lines += ["| level set | score | CEC − | difference | 95% CI | p | reading (p < 0.05) |",
                   "|---|---|---|---|---|---|---|"]  # fmt: skip
         for t in tests:
             lines.append(
                 f"| {t['level_set']} | {MEASURES[t['measure']]} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
                 f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | "
-                f"{'yes' if t['significant'] else 'no'} |"
+                f"{_reading(t)} |"
             )
         lines.append("")
     lines += sections

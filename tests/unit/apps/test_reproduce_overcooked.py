@@ -99,6 +99,27 @@ def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
     assert scores.cook[0] == 20.0 and np.isnan(scores.cook[1])
 
 
+def test_a_baseline_significantly_ahead_of_cec_reads_cec_behind() -> None:
+    """The comparison names the direction it found; a significant loss is not printed as a mere 'no'."""
+    rng = np.random.default_rng(0)
+    base = {"cec": 10.0, "ippo": 80.0, "fcp": 11.0}
+    rows = [
+        (algo, a, b, base[algo] + rng.normal(0, 1)) for algo in base for a in range(4) for b in range(a, 4)
+    ]
+    n = len(rows)
+    table = make_table({
+        "policy_a": [f"{r[0]}{r[1]}" for r in rows], "algorithm_a": [r[0] for r in rows],
+        "seed_a": [r[1] for r in rows], "policy_b": [f"{r[0]}{r[2]}" for r in rows],
+        "algorithm_b": [r[0] for r in rows], "seed_b": [r[2] for r in rows], "level": ["generated_000"] * n,
+        "seat": [0] * n, "episode": [0] * n, "returns": [r[3] for r in rows], "deliveries": [0] * n,
+        "collisions": [0] * n, "shaped_return": [0.0] * n, "env": ["overcooked"] * n,
+        "episode_steps": [400] * n, "actions": ["sampled"] * n,
+    })  # fmt: skip
+    tests = ro.comparisons({"heldout": ro.seed_scores(table, ["generated_000"])})
+    reading = {t["worse"]: ro._reading(t) for t in tests if t["measure"] == "xp"}
+    assert reading == {"ippo": "CEC behind", "fcp": "no difference shown"}
+
+
 def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() -> None:
     from cec.agents.policy import scripted_policy
 
