@@ -14,7 +14,7 @@ import numpy as np
 
 from apps.machine import log_line
 from cec.evaluation.curves import metrics_file, read_metrics_csv
-from cec.evaluation.results import read_csv, stored, write_csv
+from cec.evaluation.results import COMPRESSED, read_csv, stored, write_csv
 
 
 def cached_table(
@@ -30,7 +30,8 @@ def cached_table(
         return read_csv(results)
     log_line(log, "reproduce", f"{label}cross-play")
     key_file.unlink(missing_ok=True)
-    (folder / "results.csv.gz").unlink(missing_ok=True)
+    for suffix in COMPRESSED:  # a committed table the new one replaces
+        (folder / f"results.csv{suffix}").unlink(missing_ok=True)
     t0 = time.perf_counter()
     table = play()
     write_csv(table, folder / "results.csv")
@@ -40,8 +41,8 @@ def cached_table(
 
 
 def results_file(folder: Path) -> Path:
-    """`folder`'s cross-play table: `results.csv`, or `results.csv.gz` where only that is there (a work
-    folder committed with its tables gzipped; read as it is)."""
+    """`folder`'s cross-play table: `results.csv`, or `results.csv.gz` or `.bz2` where only that is there (a
+    work folder committed with its tables compressed; read as it is)."""
     return stored(folder / "results.csv")
 
 

@@ -17,11 +17,12 @@ Every analysis (`cec report`) is derived from this table. Columns, in file order
 
 A pairing of two different policies is played in both seat orders (`seat` 0 and 1); self-play (A = B) is
 one game, recorded with `seat` 0 (with common random numbers the swapped order is the same game).
-A table committed gzipped (`results.csv.gz`) is read as it is (`stored` finds it).
+A table committed compressed (`results.csv.gz` or `.bz2`) is read as it is (`stored` finds it).
 """
 
 from __future__ import annotations
 
+import bz2
 import csv
 import gzip
 import math
@@ -167,24 +168,30 @@ def _fmt(x: object) -> object:
     return x
 
 
+COMPRESSED = {".gz": gzip.open, ".bz2": bz2.open}  # how a file committed compressed is opened, by suffix
+
+
 def stored(path: str | Path) -> Path:
-    """`path`, or `path` + `.gz` where only that is there: a file committed gzipped (a large table, a long
-    run's metrics) is read as it is."""
+    """`path`, or `path` + `.gz` or `.bz2` where only that is there: a file committed compressed (a large
+    table, a long run's metrics) is read as it is."""
     plain = Path(path)
-    gz = plain.with_name(plain.name + ".gz")
-    return gz if gz.is_file() and not plain.is_file() else plain
+    if plain.is_file():
+        return plain
+    packed = (plain.with_name(plain.name + suffix) for suffix in COMPRESSED)
+    return next((p for p in packed if p.is_file()), plain)
 
 
 def open_text(path: Path) -> TextIO:
-    """`path` opened for reading text, through gzip where its name ends `.gz`."""
-    return gzip.open(path, "rt", newline="") if path.suffix == ".gz" else open(path, newline="")
+    """`path` opened for reading text, decompressed where its name ends `.gz` or `.bz2`."""
+    unpack = COMPRESSED.get(path.suffix)
+    return unpack(path, "rt", newline="") if unpack else open(path, newline="")
 
 
 def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
-    """Reads one or more results files (as written by `write_csv`, or gzipped: `.gz`) into one table.
+    """Reads one or more results files (as `write_csv` writes them, or as `.gz`, `.bz2`) into one table.
 
-    Raises `ResultsError` naming the file and the problem when a file is missing, is not valid gzip, lacks
-    a column or holds a value of the wrong type.
+    Raises `ResultsError` naming the file and the problem when a file is missing, cannot be decompressed,
+    lacks a column or holds a value of the wrong type.
     """
     if isinstance(paths, str | Path):
         paths = [paths]
@@ -198,7 +205,7 @@ def _read_one(path: Path) -> EpisodeTable:
     try:
         with open_text(path) as f:
             return _parse(path, csv.DictReader(f))
-    except (OSError, EOFError) as err:  # gzip.BadGzipFile is an OSError; a cut-off stream an EOFError
+    except (OSError, EOFError) as err:  # gzip.BadGzipFile, bz2's bad data: OSError; a cut-off stream EOFError
         raise ResultsError(f"{path} cannot be read as a results file: {err}") from err
 
 

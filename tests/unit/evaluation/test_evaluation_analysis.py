@@ -1,6 +1,7 @@
 """Analyses of the result table: statistics against scipy, replicator dynamics of textbook games, matrices,
 BR-normalised scores, the results file and the report. Pure NumPy on hand-made tables (no rollouts)."""
 
+import bz2
 import gzip
 import math
 from pathlib import Path
@@ -12,7 +13,7 @@ from scipy import stats as sps
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
 from cec.evaluation.report import write_report
-from cec.evaluation.results import ResultsError, SkippedEntry, make_table, read_csv, write_csv
+from cec.evaluation.results import ResultsError, SkippedEntry, make_table, read_csv, stored, write_csv
 from cec.evaluation.stats import (
     bootstrap_diff_ci,
     compare,
@@ -261,9 +262,15 @@ def test_results_file_round_trip_and_errors(tmp_path: Path):
     (tmp_path / "r.csv.gz").write_bytes(gzip.compress((tmp_path / "r.csv").read_bytes()))
     zipped = read_csv(tmp_path / "r.csv.gz")  # a table committed gzipped reads as it is
     assert [list(getattr(zipped, f)) for f in an_fields()] == [list(getattr(back, f)) for f in an_fields()]
+    (tmp_path / "packed").mkdir()
+    (tmp_path / "packed" / "results.csv.bz2").write_bytes(bz2.compress((tmp_path / "r.csv").read_bytes()))
+    packed = read_csv(stored(tmp_path / "packed" / "results.csv"))  # or bzip2ed, the smaller for large ones
+    assert [list(getattr(packed, f)) for f in an_fields()] == [list(getattr(back, f)) for f in an_fields()]
     (tmp_path / "cut.csv.gz").write_bytes((tmp_path / "r.csv.gz").read_bytes()[:-20])
+    (tmp_path / "cut.csv.bz2").write_bytes((tmp_path / "packed" / "results.csv.bz2").read_bytes()[:-20])
     (tmp_path / "plain.csv.gz").write_bytes((tmp_path / "r.csv").read_bytes())
-    for corrupt in ("cut.csv.gz", "plain.csv.gz"):
+    (tmp_path / "plain.csv.bz2").write_bytes((tmp_path / "r.csv").read_bytes())
+    for corrupt in ("cut.csv.gz", "plain.csv.gz", "cut.csv.bz2", "plain.csv.bz2"):
         with pytest.raises(ResultsError, match=f"{corrupt} cannot be read as a results file"):
             read_csv(tmp_path / corrupt)
     mixed = type(t).concat([t, _table(POLICIES[:1], _value, env="dual_destination", steps=100)])
