@@ -550,22 +550,42 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
     return cached_table(folder, key, play, label="controls: ", log=log)
 
 
-def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO) -> Any:
+def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str) -> Any:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
-    SHA-256) nor the settings changed (`apps.reproduce.common.cached_table`)."""
+    SHA-256) nor the settings changed (`apps.reproduce.common.cached_table`). The invocation that plays it
+    writes `work/machine.json`: this machine, `commit` and the commits that wrote the agents' checkpoints
+    (a zoo trained over several invocations)."""
     from apps.reproduce.common import cached_table
     from cec.agents.zoo import load_zoo
+    from cec.checkpoints import read_meta
 
     entries = sorted(pipeline.zoo_entries(manifest))
     proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
     # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
     key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
     parts = work / PARTS
-    table = cached_table(
-        work, key, lambda: evaluate(mode, manifest, log=log, parts=parts, key=key), label="", log=log
-    )
+
+    def play() -> Any:
+        table = evaluate(mode, manifest, log=log, parts=parts, key=key)
+        trained = sorted(
+            {
+                _short(read_meta(e.checkpoint)["metadata"].get("code_version", "unknown"))
+                for e in load_zoo(manifest)
+            }
+        )
+        ran_on = {"machine": machine_info(), "commit": commit, "trained_at": trained}
+        (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
+        return table
+
+    table = cached_table(work, key, play, label="", log=log)
     shutil.rmtree(parts, ignore_errors=True)  # all in the table now
     return table
+
+
+def _short(version: str) -> str:
+    """A commit as `code_version()` records it (40 hex digits, `+dirty` for a changed tree), abbreviated."""
+    sha, dirty, rest = version.partition("+")
+    return sha[:7] + dirty + rest
 
 
 PARTS = "parts"  # in the work folder: each line-up's games until the whole table is written (`evaluate`)
@@ -756,7 +776,9 @@ def write_report(
     lines = [
         f"# CEC on Overcooked: `{command}`",
         "",
-        f"Trained and played on: {_machine_text(ran)}; commit {ran_on['commit']}.",
+        f"Trained and played on: {_machine_text(ran)}; cross-play finished at commit {ran_on['commit']}"
+        + _trained_at(ran_on)
+        + ".",
         "",
         *_controls_machine_lines(ran_on),
         f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
@@ -1205,6 +1227,15 @@ def _controls_machine_lines(ran_on: dict[str, Any]) -> list[str]:
     return [f"Controls played on: {_machine_text(controls['machine'])}; commit {controls['commit']}.", ""]
 
 
+def _trained_at(ran_on: dict[str, Any]) -> str:
+    """The commits that wrote the agents' checkpoints, where the folder's `machine.json` records them."""
+    commits = ran_on.get("trained_at")
+    if not commits:
+        return ""
+    many = "s" if len(commits) > 1 else ""
+    return f"; the agents' last checkpoints written at {len(commits)} commit{many} ({', '.join(commits)})"
+
+
 def _machine_text(m: dict[str, Any]) -> str:
     return f"{m['device']} (JAX {m['jax']}), {m['cpu']} ({m['cpu_count']} cores), host {m['host']}"
 
@@ -1265,9 +1296,8 @@ def reproduce_overcooked(
         if result.interrupted or result.manifest is None:
             pipeline.note(log, "training interrupted; run the same command again to continue")
             return None
-        table = cached_evaluation(mode, result.manifest, work, log=log)
-        ran_on = {"machine": machine_info(), "commit": commit}
-        (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
+        table = cached_evaluation(mode, result.manifest, work, log=log, commit=commit)
+        ran_on = json.loads((work / MACHINE_FILE).read_text())
     from cec.evaluation.results import EpisodeTable
 
     with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log, commit=commit)])

@@ -22,6 +22,7 @@ from apps.reproduce import overcooked as ro
 from apps.reproduce.common import read_metrics, train_seconds
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
+from cec.checkpoints import code_version
 from cec.config import ConfigError, load_config
 from cec.evaluation.curves import metrics_file, read_curve
 from cec.evaluation.results import make_table, read_csv
@@ -281,10 +282,10 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
 
     monkeypatch.setattr(ro, "_play_lineup", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        ro.cached_evaluation(mode, manifest, work, log=io.StringIO())
+        ro.cached_evaluation(mode, manifest, work, log=io.StringIO(), commit="abc1234")
     monkeypatch.undo()
     log = io.StringIO()
-    ro.cached_evaluation(mode, manifest, work, log=log)
+    ro.cached_evaluation(mode, manifest, work, log=log, commit="abc1234")
     assert "classic line-up 1 of 1: cross-play results found" in log.getvalue(), log.getvalue()
     assert log.getvalue().count("not played again") == 1 and (work / "results.csv").read_bytes() == first
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
@@ -317,7 +318,12 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training",
                     "## Cross-play learning curves"):  # fmt: skip
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
+    assert ran_on["commit"] == "abc1234"  # the invocation that finished the table, not one that read it
+    assert ran_on["trained_at"] == [ro._short(code_version())]  # as the agents' checkpoints record it
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
+    assert "cross-play finished at commit abc1234; the agents' last checkpoints written at 1 commit (" in (
+        again.read_text()
+    )
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time (from metrics.csv.gz)
     assert (tmp_path / "again" / "curves_cec.png").exists()
     assert "| cec_e3t-s400 |" not in again.read_text() and "Not in this work folder" in again.read_text()
