@@ -338,6 +338,8 @@ class _Report:
 
     def meta_game(self, pl: an.PairLevel, set_name: str, slug: str) -> None:
         m = an.algorithm_matrix(pl)
+        strategies = [i for i, a in enumerate(m.labels) if a != HUMAN_PROXY]  # partners, not a strategy
+        m = an.Matrix(tuple(m.labels[i] for i in strategies), m.values[np.ix_(strategies, strategies)])
         self.md.append("### Meta-game: replicator dynamics on the cross-algorithm game\n")
         k = len(m.labels)
         if k < 2 or np.isnan(m.values).any():

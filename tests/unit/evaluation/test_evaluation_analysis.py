@@ -341,6 +341,8 @@ def test_human_proxies_are_their_own_column_not_ad_hoc_partners(tmp_path: Path):
     assert "| cec | 3 | 105.0 ± 0.0 | 107.0 ± 0.0 | 77.0 ± 0.0 | 87.0 ± 0.0 |" in text
     assert "**with human proxies**" in text and "| cec vs ippo | 87.0 vs 57.0 |" in text
     assert "vs human_proxy" not in text  # the proxies are partners, not an algorithm under test
+    assert "| human_proxy |" not in text.split("### Meta-game")[1]  # nor a strategy of the meta-game
+    assert (tmp_path / "rep" / "replicator_classic.png").is_file()
     assert "E3T ahead, CEC and CEC-Finetune next" in text
     plain = write_report(_table(POLICIES, value), tmp_path / "plain").read_text()
     assert "with human proxies" not in plain
