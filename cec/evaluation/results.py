@@ -26,10 +26,10 @@ import bz2
 import csv
 import gzip
 import math
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -168,7 +168,8 @@ def _fmt(x: object) -> object:
     return x
 
 
-COMPRESSED = {".gz": gzip.open, ".bz2": bz2.open}  # how a file committed compressed is opened, by suffix
+# how a file committed compressed is opened, by its suffix
+COMPRESSED: dict[str, Callable[..., Any]] = {".gz": gzip.open, ".bz2": bz2.open}
 
 
 def stored(path: str | Path) -> Path:
