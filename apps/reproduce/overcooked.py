@@ -1297,7 +1297,12 @@ def reproduce_overcooked(
             pipeline.note(log, "training interrupted; run the same command again to continue")
             return None
         table = cached_evaluation(mode, result.manifest, work, log=log, commit=commit)
-        ran_on = json.loads((work / MACHINE_FILE).read_text())
+        record = work / MACHINE_FILE  # where someone removed it: this machine, unknown training commits
+        ran_on = (
+            json.loads(record.read_text())
+            if record.is_file()
+            else {"machine": machine_info(), "commit": commit}
+        )
     from cec.evaluation.results import EpisodeTable
 
     with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log, commit=commit)])
