@@ -115,8 +115,9 @@ class Mode:
         seconds_per_update: per algorithm, measured seconds of one update of one seed (the basis of
             `--plan`).
         measured_on: where and how they were measured.
-        episodes_per_s: measured evaluation episodes (`EVAL_STEPS` steps) per second of one core (the basis
-            of `--plan`'s cross-play estimate, `planned_episodes`); `eval_measured_on`: where and how.
+        episodes_per_s: measured evaluation episodes (`EVAL_STEPS` steps) per second, per part of
+            `planned_episodes` (each level set, the controls, the curves; the basis of `--plan`'s
+            cross-play estimate); `eval_measured_on`: where and how.
         overrides: applied to every run (a tiny network in tests).
         generated_levels: held-out generated kitchens played (fewer only in tests).
         proxies: a zoo manifest (or `shipped`) whose `human_proxy` entries play every agent on the classic
@@ -133,7 +134,7 @@ class Mode:
     tuned: dict[str, tuple[str, ...]] = field(default_factory=dict)
     seconds_per_update: dict[str, float] = field(default_factory=dict)
     measured_on: str = ""
-    episodes_per_s: float = math.nan
+    episodes_per_s: dict[str, float] = field(default_factory=dict)
     eval_measured_on: str = ""
     overrides: tuple[str, ...] = ()
     generated_levels: int = 100
@@ -204,11 +205,11 @@ CPU = Mode(
         "e3t": 0.92,
     },
     measured_on=TTS_MEASURED_ON,
-    episodes_per_s=90.0,
-    eval_measured_on=(
-        "`cec eval` of four radius-6 seeds on the 100 held-out kitchens, 8 games per call (800 episodes in "
-        "8.8 s once compiled), 2-core Intel Xeon, the other core training, 2026-11-28"
-    ),
+    # the CPU zoo's own evaluation (logs in benchmarks/results/overcooked/cpu/work/logs): classic 13,520
+    # episodes in 509 s (before the cook's games were split off, 92a0115), held-out 280,100 in 1,933 s,
+    # controls 4,200 in 100 s, curves 16,000 in 136 s
+    episodes_per_s={"classic": 26.6, "heldout": 145.0, "controls": 42.0, "curves": 118.0},
+    eval_measured_on="the CPU zoo's own evaluation on the 2-vCPU Intel Xeon, both cores, 2026-11-28",
 )
 
 PAPER = Mode(
@@ -555,7 +556,7 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, co
     SHA-256) nor the settings changed (`apps.reproduce.common.cached_table`). The invocation that plays it
     writes `work/machine.json`: this machine, `commit` and the commits that wrote the agents' checkpoints
     (a zoo trained over several invocations)."""
-    from apps.reproduce.common import cached_table
+    from apps.reproduce.common import PLAY_TIME_FILE, cached_table
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
 
@@ -564,9 +565,11 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, co
     # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
     key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
     parts = work / PARTS
+    played: list[float] = []
 
     def play() -> Any:
         table = evaluate(mode, manifest, log=log, parts=parts, key=key)
+        played.append(sum(play_seconds(part) for part in parts.iterdir()))
         trained = sorted(
             {
                 _short(read_meta(e.checkpoint)["metadata"].get("code_version", "unknown"))
@@ -578,6 +581,8 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, co
         return table
 
     table = cached_table(work, key, play, label="", log=log)
+    if played:  # the line-ups' own times, also those an interrupted invocation played
+        (work / PLAY_TIME_FILE).write_text(json.dumps({"seconds": played[0]}) + "\n")
     shutil.rmtree(parts, ignore_errors=True)  # all in the table now
     return table
 
@@ -1346,9 +1351,10 @@ def _cmd(args: argparse.Namespace) -> int:
         parts = ", ".join(f"{part} {n:,}" for part, n in counts.items())
         played = sum(counts.values())
         rate = "time not measured"
-        if mode.episodes_per_s > 0:
-            rate = (f"~{duration(played / mode.episodes_per_s)} on one core ({mode.episodes_per_s:g} "
-                    f"episodes/s; measured with {mode.eval_measured_on})")  # fmt: skip
+        if set(counts) <= set(mode.episodes_per_s):
+            seconds = sum(n / mode.episodes_per_s[part] for part, n in counts.items())
+            rates = ", ".join(f"{part} {r:g}" for part, r in mode.episodes_per_s.items())
+            rate = f"~{duration(seconds)} (episodes/s: {rates}; measured in {mode.eval_measured_on})"
         print(
             f"then cross-play: {played:,} episodes of {EVAL_STEPS} steps ({parts}), {rate}; then the "
             "report (cached games are not played again)"

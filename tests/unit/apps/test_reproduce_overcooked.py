@@ -9,6 +9,7 @@ import json
 import math
 import re
 import shutil
+import time
 from pathlib import Path
 from typing import Any
 
@@ -19,7 +20,7 @@ import yaml
 from apps import humans
 from apps.cli import main
 from apps.reproduce import overcooked as ro
-from apps.reproduce.common import read_metrics, train_seconds
+from apps.reproduce.common import play_seconds, read_metrics, train_seconds
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
 from cec.checkpoints import code_version
@@ -272,22 +273,29 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     # an evaluation interrupted after its first line-up plays the others again, not that one: the same table
     first, manifest, real = (work / "results.csv").read_bytes(), work / "zoo" / "zoo.yaml", ro._play_lineup
     (work / "results.key.json").unlink()
-    calls: list[int] = []
+    calls: list[float] = []  # how long each line-up played
+
+    def timed(*args: Any, **kwargs: Any) -> Any:
+        t0 = time.perf_counter()
+        out = real(*args, **kwargs)
+        calls.append(time.perf_counter() - t0)
+        return out
 
     def interrupted(*args: Any, **kwargs: Any) -> Any:  # the first line-up plays, then Ctrl-C
         if calls:
             raise KeyboardInterrupt
-        calls.append(1)
-        return real(*args, **kwargs)
+        return timed(*args, **kwargs)
 
     monkeypatch.setattr(ro, "_play_lineup", interrupted)
     with pytest.raises(KeyboardInterrupt):
         ro.cached_evaluation(mode, manifest, work, log=io.StringIO(), commit="abc1234")
-    monkeypatch.undo()
+    monkeypatch.setattr(ro, "_play_lineup", timed)
     log = io.StringIO()
     ro.cached_evaluation(mode, manifest, work, log=log, commit="abc1234")
+    monkeypatch.undo()
     assert "classic line-up 1 of 1: cross-play results found" in log.getvalue(), log.getvalue()
     assert log.getvalue().count("not played again") == 1 and (work / "results.csv").read_bytes() == first
+    assert len(calls) == 2 and play_seconds(work) >= sum(calls)  # the time includes the interrupted one's
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
     # the GIF from the exported CEC seeds, the machine that trained and played named
     export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
