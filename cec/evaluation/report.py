@@ -231,11 +231,11 @@ class _Report:
 
     def per_level(self, pl: an.PairLevel, levels: list[str], set_name: str, slug: str) -> None:
         plt = pyplot()
-        algos = an.algorithms_of(pl.policies)
         stats = an.per_level(pl, "xp")
         if not stats:
             self.md.append("### Per level\n\nNo algorithm has two seeds on these levels: no XP per level.\n")
             return
+        algos = sorted({s.algorithm for s in stats})  # an algorithm with one seed has no XP
         self.md.append("### XP per level\n")
         if len(levels) <= MAX_BARS:
             lv_names = sorted({s.level for s in stats})

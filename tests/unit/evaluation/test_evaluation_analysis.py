@@ -322,6 +322,15 @@ def test_report_for_dual_destination_uses_oracle_normalised_scores(tmp_path: Pat
         assert (tmp_path / "rep" / f"{name}.png").stat().st_size > 1000
 
 
+def test_an_algorithm_with_one_seed_has_no_xp_per_level_row(tmp_path: Path):
+    """Above `MAX_BARS` levels the XP per level is one row per algorithm: only those with two seeds."""
+    levels = tuple(f"generated_{i:03d}" for i in range(13))
+    t = _table([*POLICIES, ("fcp", 0)], lambda p, q, *_: 40.0, levels=levels, episodes=1)
+    text = write_report(t, tmp_path / "rep").read_text()
+    per_level = text.split("### XP per level")[1].split("###")[0]
+    assert "| cec | 13 |" in per_level and "| ippo | 13 |" in per_level and "| fcp |" not in per_level
+
+
 def test_human_proxies_are_their_own_column_not_ad_hoc_partners(tmp_path: Path):
     """`cec report` scores agents with human proxies (`cec humans bc`) beside their cross-play; the proxies
     do not count as ad-hoc partners."""
