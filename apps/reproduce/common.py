@@ -21,8 +21,9 @@ def cached_table(
     folder: Path, key: dict[str, Any], play: Callable[[], Any], *, label: str, log: TextIO
 ) -> Any:
     """The result table `folder/results.csv` an earlier invocation wrote when `key` (what it depends on,
-    stored beside it in `results.key.json`) is unchanged, else `play()`'s table, written there. The key is
-    written last, so an invocation interrupted while playing plays again."""
+    stored beside it in `results.key.json`) is unchanged, else `play()`'s table, written there with the time
+    `play()` took (`PLAY_TIME_FILE`) unless it recorded its own (a table of cached parts: the parts' times).
+    The key is written last, so an invocation interrupted while playing plays again."""
     results, key_file = results_file(folder), folder / "results.key.json"
     key = json.loads(json.dumps(key))  # as stored: tuples as lists
     if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
@@ -32,10 +33,13 @@ def cached_table(
     key_file.unlink(missing_ok=True)
     for suffix in COMPRESSED:  # a committed table the new one replaces
         (folder / f"results.csv{suffix}").unlink(missing_ok=True)
+    time_file = folder / PLAY_TIME_FILE
+    time_file.unlink(missing_ok=True)
     t0 = time.perf_counter()
     table = play()
     write_csv(table, folder / "results.csv")
-    (folder / PLAY_TIME_FILE).write_text(json.dumps({"seconds": time.perf_counter() - t0}) + "\n")
+    if not time_file.exists():
+        time_file.write_text(json.dumps({"seconds": time.perf_counter() - t0}) + "\n")
     key_file.write_text(json.dumps(key, indent=1) + "\n")
     return table
 

@@ -565,24 +565,21 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, co
     # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
     key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
     parts = work / PARTS
-    played: list[float] = []
 
     def play() -> Any:
         table = evaluate(mode, manifest, log=log, parts=parts, key=key)
-        played.append(sum(play_seconds(part) for part in parts.iterdir()))
-        trained = sorted(
-            {
-                _short(read_meta(e.checkpoint)["metadata"].get("code_version", "unknown"))
-                for e in load_zoo(manifest)
-            }
-        )
-        ran_on = {"machine": machine_info(), "commit": commit, "trained_at": trained}
+        # the line-ups' own times, also those an interrupted invocation played
+        seconds = sum(play_seconds(part) for part in parts.iterdir())
+        (work / PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
+        trained = {
+            _short(read_meta(checkpoint)["metadata"].get("code_version", "unknown"))
+            for _, _, checkpoint, _ in entries
+        }
+        ran_on = {"machine": machine_info(), "commit": commit, "trained_at": sorted(trained)}
         (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
         return table
 
     table = cached_table(work, key, play, label="", log=log)
-    if played:  # the line-ups' own times, also those an interrupted invocation played
-        (work / PLAY_TIME_FILE).write_text(json.dumps({"seconds": played[0]}) + "\n")
     shutil.rmtree(parts, ignore_errors=True)  # all in the table now
     return table
 
