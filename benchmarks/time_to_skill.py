@@ -40,8 +40,10 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cec.evaluation.crossplay import EvalConfig, eval_levels
+from cec.evaluation.crossplay import EvalConfig, EvalLevels, eval_levels
 from cec.evaluation.milestones import checkpoints_by_update, milestone_points, play_milestone
+from cec.levels.kinds import subsets
+from cec.levels.level import unstack_levels
 
 STALL = 5.0  # an update at under 1/STALL of the run's median env-steps/s was stalled, not slow
 
@@ -70,6 +72,20 @@ def training_seconds(run: Path) -> tuple[dict[int, float], int]:
     return out, stalled
 
 
+def validation_parts(levels: EvalLevels) -> dict[str, list[str]]:
+    """{part: level names} of the validation set: its 100 generated kitchens (the headline, as before the
+    split), the generated ones by kind (`cec.levels.kinds.subsets`), the classic five together and each."""
+    named = dict(zip(levels.names, unstack_levels(levels.levels), strict=True))
+    generated = [n for n in levels.names if n.startswith("generated_")]
+    classic = [n for n in levels.names if not n.startswith("generated_")]
+    return {
+        "generated": generated,
+        **subsets({n: named[n] for n in generated}),
+        "classic": classic,
+        **{n: [n] for n in classic},
+    }
+
+
 def _recipe(run: Path) -> dict[str, Any]:
     """The run's training config without what tells its processes apart (seed, name)."""
     config = yaml.safe_load((run / "config.yaml").read_text())
@@ -96,13 +112,19 @@ def evaluate(
             print(
                 f"{run.name}: {run_stalled} stalled update(s) counted at its median env-steps/s", flush=True
             )
-    levels = eval_levels("overcooked", "generated")
+    levels = eval_levels("overcooked", "validation")
+    parts = validation_parts(levels)
     config = EvalConfig(episodes=episodes, max_steps=400)
     rows = []
     for update, checkpoints in checkpoints_by_update(runs).items():
         if (name, update) in done:
             continue
-        [point] = milestone_points(play_milestone(name, checkpoints, levels, config))
+        table = play_milestone(name, checkpoints, levels, config)
+        [point] = milestone_points(table, parts["generated"])
+        by_part = {}
+        for part, names in parts.items():
+            [p] = milestone_points(table, names)
+            by_part[part] = {"levels": len(names), "xp": p.xp, "xp_se": p.xp_se, "sp": p.sp, "sp_se": p.sp_se}
         cost = sum(s.get(update, float("nan")) for s in seconds) / len(point.seeds) / 3600
         rows.append(
             {
@@ -117,12 +139,16 @@ def evaluate(
                 "sp_se": point.sp_se,
                 "seeds": list(point.seeds),
                 "stalled_updates_at_median_rate": stalled,
+                "parts": by_part,
             }  # fmt: skip
         )
         se = "" if np.isnan(point.xp_se) else f" +- {point.xp_se:.1f}"
+        split = ", ".join(
+            f"{k} XP {v['xp']:.1f} SP {v['sp']:.1f}" for k, v in by_part.items() if k != "generated"
+        )
         print(
             f"{name} update {update}: {point.env_steps:,} steps/seed, {cost:.3f} core-h/seed | "
-            f"XP {point.xp:.1f}{se} | SP {point.sp:.1f} ({len(point.seeds)} seeds)",
+            f"XP {point.xp:.1f}{se} | SP {point.sp:.1f} ({len(point.seeds)} seeds) | " + split,
             flush=True,
         )
     return rows

@@ -89,10 +89,10 @@ def play_milestone(name: str, checkpoints: Sequence[Path], levels: Any, config: 
     return crossplay(policies, levels, dataclasses.replace(config, pairs="all"))
 
 
-def milestone_points(table: EpisodeTable) -> list[MilestonePoint]:
+def milestone_points(table: EpisodeTable, levels: Sequence[str] | None = None) -> list[MilestonePoint]:
     """The cross-play and self-play of every checkpoint in a table of `play_milestone` games, by name and
-    env steps."""
-    pl = an.pair_level_scores(table)
+    env steps, on `levels` (None: every level of the table)."""
+    pl = an.pair_level_scores(table, levels)
     points = []
     for label in an.algorithms_of(pl.policies):
         name, _, steps = label.rpartition(SEPARATOR)

@@ -11,7 +11,11 @@ Recipe (the paper's Algorithm 1, extended; docs/generator.md has the details and
    on the remaining reachable counters (or anywhere inside the kitchen, if decoys are allowed);
 4. place the agents on distinct floor cells (one in each region of a split kitchen, seats in random order);
 5. transform, place in the top-left of the 9x9 frame, and resample while the result is unsolvable
-   (never, by construction; the check guards it) or equals a held-out level.
+   (never, by construction; the check guards it) or equals a validation or test kitchen.
+
+Coverage: with `handover_share` > 0 a kitchen is, with that probability, redrawn until neither seat can
+finish a soup alone (`cec.levels.kinds`: a hand-over is needed; about 19% of the default draws), so that
+training meets the skill the hard kitchens ask for more often. The set of possible kitchens is unchanged.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import numpy as np
 from cec.config import ConfigError
 from cec.levels.fingerprint import fingerprint
 from cec.levels.heldout import heldout_fingerprints
+from cec.levels.kinds import Kind, classify
 from cec.levels.level import Level, Tile
 from cec.levels.solvability import check
 from cec.levels.structures import CELLS, NUM_TRANSFORMS, StructureTables, base_structures, build_tables
@@ -59,7 +64,10 @@ class GeneratorConfig:
             (0.5: on average ~1.8 of each kind, near the paper's two; 1.0: uniform over the count vectors
             that fit the kitchen). The set of possible kitchens does not depend on it.
         allow_decoys: let supplemental objects stand on counters no agent can reach.
-        exclude_heldout: never emit a level of the held-out evaluation set (`cec.levels.heldout`).
+        exclude_heldout: never emit a kitchen of the validation or test sets (`cec.levels.heldout`).
+        handover_share: the probability that a kitchen is drawn among those that need a hand-over (neither
+            seat can finish a soup alone; `cec.levels.kinds`); 0 draws kitchens as they come (about 19%
+            need one), 1 draws only such kitchens.
     """
 
     structures: tuple[str, ...] = STRUCTURE_NAMES
@@ -70,6 +78,7 @@ class GeneratorConfig:
     count_decay: float = 0.5
     allow_decoys: bool = False
     exclude_heldout: bool = True
+    handover_share: float = 0.0
 
     def __post_init__(self) -> None:
         if not self.structures:
@@ -79,6 +88,15 @@ class GeneratorConfig:
             raise ConfigError(f"unknown structures {unknown}; choose from {', '.join(STRUCTURE_NAMES)}")
         if len(set(self.structures)) != len(self.structures):
             raise ConfigError(f"structures lists a name twice: {list(self.structures)}")
+        by_name = {st.name: st for st in base_structures()}
+        if not 0.0 <= self.handover_share <= 1.0:
+            raise ConfigError(f"handover_share is a probability in [0, 1], got {self.handover_share}")
+        if self.handover_share > 0 and not any(by_name[n].n_regions == 2 for n in self.structures):
+            raise ConfigError(
+                f"handover_share={self.handover_share} asks for kitchens that need a hand-over, but none of "
+                f"the structures {list(self.structures)} is split in two; add forced_coord or "
+                "asymm_advantages"
+            )
         if not 0.0 < self.count_decay <= 1.0:
             raise ConfigError(f"count_decay must lie in (0, 1], got {self.count_decay}")
         for name in ("onion_piles", "plate_piles", "pots", "goals"):
@@ -88,7 +106,6 @@ class GeneratorConfig:
                     f"{name} bounds must satisfy 1 <= min <= max (every kitchen needs one of each "
                     f"object for a soup), got ({lo}, {hi})"
                 )
-        by_name = {st.name: st for st in base_structures()}
         need = sum(lo for lo, _ in self.bounds)
         for name in self.structures:
             st = by_name[name]
@@ -220,14 +237,29 @@ def _exclusions(config: GeneratorConfig, exclude: jax.Array | None) -> jax.Array
     return jnp.asarray(fps)
 
 
-def _rejected(level: Level, config: GeneratorConfig, exclude: jax.Array) -> jax.Array:
-    """Unsolvable (never, by construction) or one of the excluded (held-out) kitchens."""
+_WANT_SALT = 0x6B1D  # folded into a level's key for its coverage draw (distinct from the resample indices)
+
+
+def _wants_handover(key: jax.Array, config: GeneratorConfig) -> jax.Array:
+    """Whether the kitchen of `key` must need a hand-over (`config.handover_share`); False when it is 0."""
+    if config.handover_share <= 0:
+        return jnp.bool_(False)
+    return jax.random.uniform(jax.random.fold_in(key, _WANT_SALT)) < config.handover_share
+
+
+def _rejected(level: Level, config: GeneratorConfig, exclude: jax.Array, want: jax.Array) -> jax.Array:
+    """Unsolvable (never, by construction), one of the excluded (evaluation) kitchens, or wanted to need a
+    hand-over and does not."""
     excluded = jnp.any(jnp.all(fingerprint(level)[None, :] == exclude, axis=-1))
-    return excluded | ~check(level, config.allow_decoys).solvable
+    rejected = excluded | ~check(level, config.allow_decoys).solvable
+    if config.handover_share > 0:
+        rejected = rejected | (want & (classify(level).kind != Kind.HANDOVER))
+    return rejected
 
 
 def _draw(key: jax.Array, config: GeneratorConfig, exclude: jax.Array) -> tuple[Level, GenerationInfo]:
     """Samples from `key`, then resamples from `fold_in(key, i)` while the level is rejected."""
+    want = _wants_handover(key, config)
 
     def body(
         carry: tuple[Level, jax.Array, jax.Array, jax.Array],
@@ -238,7 +270,7 @@ def _draw(key: jax.Array, config: GeneratorConfig, exclude: jax.Array) -> tuple[
 
     level, s, t = _sample(key, config)
     carry = (level, s, t, jnp.int32(0))
-    level, s, t, n = jax.lax.while_loop(lambda c: _rejected(c[0], config, exclude), body, carry)
+    level, s, t, n = jax.lax.while_loop(lambda c: _rejected(c[0], config, exclude, want), body, carry)
     return level, GenerationInfo(structure=s, transform=t, resamples=n)
 
 
@@ -267,11 +299,13 @@ def generate(key: jax.Array, config: GeneratorConfig = GeneratorConfig()) -> Lev
 def generate_batch_with_info(
     key: jax.Array, n: int, config: GeneratorConfig = GeneratorConfig()
 ) -> tuple[Level, jax.Array]:
-    """`generate_batch`, also returning int32[n]: how many draws each level rejected (held-out matches)."""
+    """`generate_batch`, also returning int32[n]: how many draws each level rejected (evaluation kitchens,
+    and with `handover_share` kitchens of another kind)."""
     keys = jax.random.split(key, n)
     exclude = _exclusions(config, None)
     first = jax.vmap(lambda k: _sample(k, config)[0])(keys)
-    any_rejected = jnp.any(jax.vmap(lambda lv: _rejected(lv, config, exclude))(first))
+    wants = jax.vmap(lambda k: _wants_handover(k, config))(keys)
+    any_rejected = jnp.any(jax.vmap(lambda lv, w: _rejected(lv, config, exclude, w))(first, wants))
 
     def redraw() -> tuple[Level, jax.Array]:
         levels, info = jax.vmap(lambda k: _draw(k, config, exclude))(keys)

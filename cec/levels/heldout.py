@@ -1,10 +1,18 @@
-"""The held-out evaluation set: the 5 classic kitchens and 100 generated ones, defined once, here.
+"""The kitchens kept out of training, defined once, here: the validation set and the test set.
 
-The 100 generated kitchens were drawn by `generate` (default config, the classic kitchens excluded) from
-the keys `PRNGKey(HELDOUT_SEED_BASE + i)`, i = 0..99, and are frozen in `data/heldout.txt`, so the set
-never changes when the generator does (`python -m cec.levels.heldout_build --write` rebuilds the file;
-`tests/unit/levels/test_heldout.py` checks the file still matches its seeds). Kitchens are identified by
-content (`cec.levels.fingerprint`).
+* **Validation** (`heldout_levels`, the level set `heldout`, historically "the held-out set"): the 5
+  classic kitchens and 100 generated ones (`generated_000..099`). Recipes and checkpoints are chosen on it.
+* **Test** (`test_levels`, the level set `test`): 100 more generated kitchens (`test_000..099`) and the
+  kitchens drawn by people for other Overcooked work that fit the 9x9 frame (overcooked-ai 1.1.0's layouts
+  other than the classic five and their variants, named `drawn_<layout>`). Nothing is chosen on it: a
+  release is evaluated there once, after it was chosen on validation (DESIGN.md rule 13).
+
+The generated kitchens were drawn by `generate` (default config) from the keys `PRNGKey(SEED_BASE + i)`,
+the validation ones with the classic kitchens excluded, the test ones with the whole validation set
+excluded, and both are frozen in `data/heldout.txt` and `data/test.txt`, so the sets never change when the
+generator does (`python -m cec.levels.heldout_build --write` rebuilds the files; `tests/unit/levels/
+test_heldout.py` checks they still match their seeds). The generator excludes both sets (`excluded_
+fingerprints`). Kitchens are identified by content (`cec.levels.fingerprint`).
 """
 
 from __future__ import annotations
@@ -21,8 +29,11 @@ from cec.levels.fingerprint import content_hash, fingerprint_host
 from cec.levels.level import Level, stack_levels
 
 DATA = Path(__file__).with_name("data") / "heldout.txt"
+TEST_DATA = Path(__file__).with_name("data") / "test.txt"
 HELDOUT_SEED_BASE = 1_000_000
+TEST_SEED_BASE = 2_000_000
 NUM_GENERATED = 100
+DRAWN_PREFIX = "drawn_"
 
 
 def _parse(text: str) -> list[tuple[str, str, Level]]:
@@ -34,19 +45,31 @@ def _parse(text: str) -> list[tuple[str, str, Level]]:
     return out
 
 
+def _frozen(path: Path) -> list[tuple[str, Level]]:
+    """The kitchens of a frozen set file, each checked against its recorded hash."""
+    levels = []
+    if path.exists():
+        for name, digest, level in _parse(path.read_text()):
+            if content_hash(level) != digest:
+                raise ValueError(
+                    f"{path}: {name} does not match its recorded hash {digest}; the file is corrupt"
+                )
+            levels.append((name, level))
+    return levels
+
+
 @cache
 def heldout_levels() -> tuple[tuple[str, Level], ...]:
-    """The 105 held-out kitchens as (name, level): the 5 classic ones, then generated_000..099."""
+    """The 105 validation kitchens as (name, level): the 5 classic ones, then generated_000..099."""
     with jax.ensure_compile_time_eval():  # may first run while the generator is being traced
-        levels = list(classic_levels().items())
-        if DATA.exists():
-            for name, digest, level in _parse(DATA.read_text()):
-                if content_hash(level) != digest:
-                    raise ValueError(
-                        f"{DATA}: {name} does not match its recorded hash {digest}; the file is corrupt"
-                    )
-                levels.append((name, level))
-    return tuple(levels)
+        return tuple([*classic_levels().items(), *_frozen(DATA)])
+
+
+@cache
+def test_levels() -> tuple[tuple[str, Level], ...]:
+    """The test kitchens as (name, level): test_000..099, then the drawn ones (`drawn_<layout>`)."""
+    with jax.ensure_compile_time_eval():
+        return tuple(_frozen(TEST_DATA))
 
 
 def heldout_batch() -> Level:
@@ -56,5 +79,6 @@ def heldout_batch() -> Level:
 
 @cache
 def heldout_fingerprints() -> np.ndarray:
-    """uint32[105, 2] fingerprints of the held-out set (what the generator excludes)."""
-    return np.stack([fingerprint_host(lv) for _, lv in heldout_levels()])
+    """uint32[E, 2] fingerprints of every kitchen kept out of training, validation and test (what the
+    generator excludes and the level server refuses)."""
+    return np.stack([fingerprint_host(lv) for _, lv in (*heldout_levels(), *test_levels())])

@@ -2,9 +2,12 @@
 
 A level spec is a comma-separated list of tokens, each one of
 
-    heldout            the held-out evaluation set (5 classic + 100 generated kitchens)
+    heldout            the validation set, once called the held-out set (5 classic + 100 generated kitchens);
+                       `validation` is the same set
     classic            the 5 classic kitchens;  cramped_room, ... one of them
-    generated          the 100 held-out generated kitchens;  generated_000 .. generated_099 one of them
+    generated          the 100 generated validation kitchens;  generated_000 .. generated_099 one of them
+    test               the test set (100 generated kitchens test_000 .. test_099 and the kitchens people
+                       drew for overcooked-ai, drawn_<layout>; `cec.levels.heldout`); one of them by name
     generated:SEED     the procedural generator's kitchen for SEED (`generated:random` where one kitchen is
                        asked for: a seed drawn per use, see `resolve_level`)
     path/to/file.txt   an ASCII kitchen file (`cec.levels.ascii`), named by its stem
@@ -32,7 +35,7 @@ from cec.levels.level import Level, LevelError
 
 MAX_KITCHEN_FILE_BYTES = 64 * 1024
 KITCHEN_SUFFIX = ".txt"
-SET_NAMES = ("heldout", "classic", "generated")
+SET_NAMES = ("heldout", "validation", "classic", "generated", "test")
 GENERATED_PREFIX = "generated:"
 RANDOM_SEED = "random"
 
@@ -113,17 +116,21 @@ def load_kitchens(path: Path, allow_decoys: bool = False) -> dict[str, Level]:
 def resolve_levels(spec: str, base_dir: Path | None = None) -> dict[str, Level]:
     """{name: level} for a level spec (see the module docstring), in the order the tokens name them;
     `ConfigError` naming the bad token or file."""
-    from cec.levels.heldout import heldout_levels
+    from cec.levels.heldout import heldout_levels, test_levels
 
     tokens = _tokens(spec)
     if not tokens:
         raise ConfigError("levels is empty; give e.g. `heldout`, `classic`, level names or kitchen files")
-    heldout = dict(heldout_levels())
+    heldout, test = dict(heldout_levels()), dict(test_levels())
     base = base_dir or Path()
     out: dict[str, Level] = {}
     for tok in tokens:
-        if tok == "heldout":
+        if tok in ("heldout", "validation"):
             out.update(heldout)
+        elif tok == "test":
+            out.update(test)
+        elif tok in test:
+            out[tok] = test[tok]
         elif tok == "classic":
             out.update({n: classic_level(n) for n in CLASSIC_ASCII})
         elif tok == "generated":
@@ -138,7 +145,7 @@ def resolve_levels(spec: str, base_dir: Path | None = None) -> dict[str, Level]:
                     raise ConfigError(f"two kitchens are named {name!r} in levels {spec!r}; rename one file")
                 out[name] = level
         else:
-            raise _unknown(tok, "heldout, classic, generated, ")
+            raise _unknown(tok, "heldout (validation), test, classic, generated, ")
     return out
 
 
@@ -146,7 +153,8 @@ def _unknown(token: str, sets: str = "") -> ConfigError:
     classic = ", ".join(sorted(CLASSIC_ASCII))
     return ConfigError(
         f"unknown Overcooked level {token!r}; use {sets}a classic kitchen ({classic}), generated_000.."
-        f"generated_099, generated:SEED, an ASCII kitchen file or a folder of {KITCHEN_SUFFIX} kitchen files"
+        f"generated_099, test_000..test_099, drawn_<layout>, generated:SEED, an ASCII kitchen file or a "
+        f"folder of {KITCHEN_SUFFIX} kitchen files"
     )
 
 
@@ -177,9 +185,9 @@ def generated_level(seed: int) -> Level:
 def _kitchen_file(token: str, base_dir: Path | None) -> Path | None:
     """The ASCII kitchen file a one-kitchen token names (None for a classic or held-out name);
     `ConfigError` if it names neither (a set, a folder, nothing)."""
-    from cec.levels.heldout import heldout_levels
+    from cec.levels.heldout import heldout_levels, test_levels
 
-    if token in CLASSIC_ASCII or token in dict(heldout_levels()):
+    if token in CLASSIC_ASCII or token in dict(heldout_levels()) or token in dict(test_levels()):
         return None
     path = (base_dir or Path()) / Path(token).expanduser()
     if not path.is_file():

@@ -1,4 +1,5 @@
-"""The held-out evaluation set: defined once, stable, solvable, and reproducible from its seeds."""
+"""The evaluation sets (validation, once called held-out, and test): defined once, stable, solvable,
+disjoint, reproducible from their seeds and sources, and never drawn by the generator."""
 
 from __future__ import annotations
 
@@ -26,13 +27,51 @@ def test_set_has_the_classics_then_100_generated_distinct_solvable_levels() -> N
 
 
 def test_file_matches_its_seeds() -> None:
-    assert heldout_build.render_file(heldout_build.build_generated()) == heldout.DATA.read_text()
+    assert heldout_build.render_file(heldout_build.build_validation()) == heldout.DATA.read_text()
+
+
+def test_test_set_is_100_generated_then_the_drawn_kitchens_disjoint_from_validation() -> None:
+    levels = heldout.test_levels()
+    names = [n for n, _ in levels]
+    assert names[:100] == [f"test_{i:03d}" for i in range(100)]
+    drawn = names[100:]
+    assert len(drawn) >= 10 and all(n.startswith(heldout.DRAWN_PREFIX) for n in drawn)
+    assert "drawn_bottleneck" in drawn and not any("cramped_room" in n for n in drawn)
+    validation = {content_hash(lv) for _, lv in heldout.heldout_levels()}
+    test = {content_hash(lv) for _, lv in levels}
+    assert len(test) == len(levels) and not validation & test
+    for _, lv in levels:
+        assert validate_solvable(lv) == []
+
+
+def test_test_file_matches_its_seeds_and_the_overcooked_ai_layouts() -> None:
+    layouts = heldout_build.overcooked_ai_layouts()
+    test, skipped = heldout_build.build_test(layouts)
+    recorded = heldout.TEST_DATA.read_text()
+    if layouts is None:  # without the peers extra only the generated kitchens can be rebuilt
+        recorded = "\n\n".join(b for b in recorded.split("\n\n")[:100]) + "\n"
+    else:
+        assert skipped["forced_coordination"] == "a classic kitchen or a variant of one"
+        assert "tomato" in skipped["cramped_room_tomato"]
+    assert heldout_build.render_file(test) == recorded
+
+
+def test_a_drawn_layout_converts_and_one_that_cannot_be_a_kitchen_says_why() -> None:
+    text = '{\n "grid": """XXPXX\n   O  2O\n   X1  X\n   XDXSX""",\n "start_all_orders": []\n}'
+    level = heldout_build.convert_drawn(text)
+    assert level.agent_pos.tolist() == [[2, 1], [1, 3]]  # overcooked-ai's 1 and 2 are seats 0 and 1
+    with pytest.raises(heldout_build.LevelError, match="T: a tomato pile"):
+        heldout_build.convert_drawn(text.replace("D", "T"))
+    with pytest.raises(heldout_build.LevelError, match="does not fit the 9x9 frame"):
+        heldout_build.convert_drawn(text.replace("XXPXX", "XXPXXXXXXX"))
 
 
 def test_host_and_jax_fingerprints_agree() -> None:
     batch = heldout.heldout_batch()
-    np.testing.assert_array_equal(np.asarray(jax.vmap(fingerprint)(batch)), heldout.heldout_fingerprints())
-    assert len({tuple(r) for r in heldout.heldout_fingerprints().tolist()}) == 105
+    every = heldout.heldout_fingerprints()  # validation, then test: what the generator excludes
+    np.testing.assert_array_equal(np.asarray(jax.vmap(fingerprint)(batch)), every[:105])
+    assert len(every) == 105 + len(heldout.test_levels())
+    assert len({tuple(r) for r in every.tolist()}) == len(every)
 
 
 def test_a_corrupt_file_is_detected(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
