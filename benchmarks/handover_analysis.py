@@ -1,0 +1,138 @@
+"""Where the agents stall in kitchens that need a hand-over: do they put items on a shared counter, does the
+partner take them, do soups follow? (`cec.evaluation.handovers`; docs/reproduce_overcooked.md, "Why the
+hard kitchens fail").
+
+Every seed plays every seed, itself included (self-play beside cross-play), in both seat orders, one
+400-step episode with sampled actions per pairing and kitchen (the evaluation's keys: `episode_states`), on
+the validation kitchens of the kinds asked (`cec.levels.kinds`). Per kind and for self-play and cross-play
+separately: the share of episodes that put anything on a shared counter, in which the partner took an item,
+in which a seat served a pot the partner had filled, and that delivered; and the mean counts per episode.
+
+    python benchmarks/handover_analysis.py --out docs/reproduce_overcooked/handovers_shipped   # shipped seeds
+    python benchmarks/handover_analysis.py --runs runs/levers/cov35-s400 runs/levers/cov35-s402 \\
+        --out docs/reproduce_overcooked/handovers_cov35      # the latest checkpoints of runs, their seeds
+
+Writes OUT.json and OUT.png: the frames of one cross-play episode in Forced Coordination (the pair of the
+first two seeds, seat order as listed, episode 0: chosen by that rule, not by what it shows), every 25th
+step.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+from pathlib import Path
+from typing import Any
+
+from cec.agents.policy import Policy, load_policies
+from cec.agents.zoo import ZooEntry, load_zoo, shipped_entries
+from cec.checkpoints import read_meta
+from cec.evaluation.crossplay import episode_states, eval_levels
+from cec.evaluation.handovers import Handovers, count_handovers
+from cec.evaluation.milestones import checkpoints_by_update
+from cec.levels.kinds import subsets
+from cec.levels.level import unstack_levels
+
+SHOW_LEVEL, SHOW_EVERY = "forced_coord", 25
+
+
+def _entries(args: argparse.Namespace) -> list[ZooEntry]:
+    if args.runs:
+        entries = []
+        for run in args.runs:
+            update, [path] = list(checkpoints_by_update([run]).items())[-1]
+            meta = read_meta(path)
+            entries += [
+                ZooEntry(f"{run.name}-s{seed}", str(path), algorithm="cec", seed=int(seed))
+                for seed in meta["metadata"]["seeds"]
+            ]
+        return entries
+    zoo = shipped_entries() if args.zoo == "shipped" else load_zoo(args.zoo)
+    return [e for e in zoo if e.algorithm == args.algorithm]
+
+
+def _summary(per_episode: list[Handovers]) -> dict[str, float]:
+    n = len(per_episode)
+
+    def share(test: Any) -> float:
+        return sum(bool(test(h)) for h in per_episode) / max(n, 1)
+
+    total = sum(per_episode, Handovers.zero())
+    return {
+        "episodes": n,
+        "share_put_on_shared_counter": share(lambda h: h.puts.sum() > 0),
+        "share_partner_took": share(lambda h: h.taken.sum() > 0),
+        "share_served_partners_pot": share(lambda h: h.pot_serves.sum() > 0),
+        "share_delivered": share(lambda h: h.soups > 0),
+        "puts_per_episode": float(total.puts.sum()) / max(n, 1),
+        "taken_per_episode": float(total.taken.sum()) / max(n, 1),
+        "taken_back_per_episode": float(total.taken_back.sum()) / max(n, 1),
+        "pot_serves_per_episode": float(total.pot_serves.sum()) / max(n, 1),
+        "soups_per_episode": float(total.soups) / max(n, 1),
+    }
+
+
+def analyse(policies: list[Policy], kinds: list[str], max_steps: int) -> dict[str, Any]:
+    levels = eval_levels("overcooked", "validation")
+    named = dict(zip(levels.names, unstack_levels(levels.levels), strict=True))
+    parts = {k: v for k, v in subsets(named).items() if k in kinds}
+    out: dict[str, Any] = {}
+    for part, names in parts.items():
+        games: dict[str, list[Handovers]] = {"sp": [], "xp": []}
+        for i, a in enumerate(policies):
+            for j, b in enumerate(policies):
+                for name in names:
+                    states, _ = episode_states(a, b, named[name], name, max_steps=max_steps)
+                    games["sp" if i == j else "xp"].append(count_handovers(states))
+        out[part] = {"levels": len(names), **{k: _summary(v) for k, v in games.items()}}
+        print(f"{part} ({len(names)} kitchens): " + json.dumps(out[part]), flush=True)
+    return out
+
+
+def picture(policies: list[Policy], path: Path, max_steps: int) -> None:
+    from cec.envs.overcooked.render import contact_sheet, rollout_frames, save_png
+
+    levels = eval_levels("overcooked", SHOW_LEVEL)
+    states, team_return = episode_states(
+        policies[0], policies[1], unstack_levels(levels.levels)[0], SHOW_LEVEL, max_steps=max_steps
+    )
+    frames = rollout_frames(states, tile_size=24)[::SHOW_EVERY]
+    save_png(contact_sheet(frames, columns=8), path)
+    pair = f"{policies[0].name} + {policies[1].name}"
+    print(f"{SHOW_LEVEL}: {pair} returned {team_return:.0f}; frames in {path}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--zoo", default="shipped", help="a zoo manifest, or `shipped` (default)")
+    ap.add_argument("--algorithm", default="cec", help="the zoo's entries of this algorithm play")
+    ap.add_argument("--runs", nargs="+", type=Path, default=[], help="run directories instead of a zoo")
+    ap.add_argument(
+        "--kinds", nargs="+", default=["hand-over needed", "one seat alone"], help="kitchen kinds to read"
+    )
+    ap.add_argument("--max-steps", type=int, default=400)
+    ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
+    args = ap.parse_args(argv)
+    policies, skipped = load_policies(_entries(args))
+    if skipped or len(policies) < 2:
+        raise SystemExit(f"need two or more loadable policies; skipped: {skipped}")
+    from apps.machine import machine_info
+
+    result = {
+        "benchmark": "handover_analysis",
+        "date": datetime.date.today().isoformat(),
+        "machine": machine_info(),
+        "policies": [p.name for p in policies],
+        "max_steps": args.max_steps,
+        "kinds": analyse(policies, args.kinds, args.max_steps),
+    }
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
+    picture(policies, args.out.with_suffix(".png"), args.max_steps)
+    print(f"wrote {args.out.with_suffix('.json')}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,109 @@
+"""Hand-overs in an episode: what each seat put where its partner could reach it, and what became of it.
+
+Where neither seat can finish a soup alone (`cec.levels.kinds.Kind.HANDOVER`) a soup needs a hand-over:
+an item put on a *shared counter* (a counter next to both seats' floor regions) and picked up by the
+partner, or a pot that one seat fills and the other serves. Read from a played episode's states (`cec.
+evaluation.crossplay.episode_states`), host-side:
+
+    puts        items a seat put down on a shared counter
+    taken       such items picked up by the partner (a hand-over across a counter)
+    taken_back  such items picked up again by the seat that put them there
+    pot_serves  soups served by a seat from a pot the partner put onions in (a hand-over through a pot)
+    soups       soups delivered
+
+An episode that puts nothing on a shared counter never tried a hand-over; one whose items are never taken
+has a partner that does not look at the counter; one whose items are taken and still delivers nothing
+stalls after the hand-over.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Any
+
+import numpy as np
+
+from cec.envs.overcooked.state import POT_EMPTY, POT_READY
+from cec.levels import DIR_VEC, Item, Tile
+
+_NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1))
+
+
+@dataclass
+class Handovers:
+    """Counts of one episode (or summed over several); each per seat where a seat acts."""
+
+    puts: np.ndarray
+    taken: np.ndarray
+    taken_back: np.ndarray
+    pot_serves: np.ndarray
+    soups: int = 0
+
+    @staticmethod
+    def zero() -> Handovers:
+        z = np.zeros(2, np.int64)
+        return Handovers(puts=z.copy(), taken=z.copy(), taken_back=z.copy(), pot_serves=z.copy(), soups=0)
+
+    def __add__(self, other: Handovers) -> Handovers:
+        return Handovers(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+
+def _region(floor: np.ndarray, start: tuple[int, int]) -> np.ndarray:
+    region = np.zeros_like(floor)
+    stack = [start]
+    while stack:
+        r, c = stack.pop()
+        if region[r, c] or not floor[r, c]:
+            continue
+        region[r, c] = True
+        stack += [(r + dr, c + dc) for dr, dc in _NEIGHBOURS if 0 <= r + dr < 9 and 0 <= c + dc < 9]
+    return region
+
+
+def _next_to(mask: np.ndarray) -> np.ndarray:
+    p = np.pad(mask, 1)
+    return p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
+
+
+def shared_counters(grid: np.ndarray, agent_pos: np.ndarray) -> np.ndarray:
+    """bool[9, 9]: bare counters next to both seats' floor regions (where one can leave an item for the
+    other); in a kitchen whose seats share a region, every counter they can reach."""
+    floor = grid == Tile.FLOOR
+    near = [_next_to(_region(floor, (int(r), int(c)))) for r, c in np.asarray(agent_pos)]
+    return (grid == Tile.COUNTER) & near[0] & near[1]
+
+
+def count_handovers(states: Any) -> Handovers:
+    """The hand-overs of one episode from its states (leading axis T, host arrays, each with its level)."""
+    grid = np.asarray(states.level.grid[0])
+    shared = shared_counters(grid, np.asarray(states.level.agent_pos[0]))
+    pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
+    inv, items, pot = np.asarray(states.agent_inv), np.asarray(states.items), np.asarray(states.pot)
+    out = Handovers.zero()
+    owner: dict[tuple[int, int], int] = {}  # shared cell -> the seat whose item lies there
+    filled_by: dict[tuple[int, int], set[int]] = {}  # pot cell -> the seats that put onions in it
+    for t in range(len(inv) - 1):
+        for seat in (0, 1):
+            r, c = (int(v) for v in pos[t + 1, seat] + DIR_VEC[int(facing[t + 1, seat])])
+            if not (0 <= r < 9 and 0 <= c < 9):
+                continue
+            before, after = int(inv[t, seat]), int(inv[t + 1, seat])
+            cell = (r, c)
+            if shared[r, c] and before != Item.NONE and after == Item.NONE and items[t + 1, r, c] == before:
+                out.puts[seat] += 1
+                owner[cell] = seat
+            elif shared[r, c] and before == Item.NONE and after != Item.NONE and items[t, r, c] == after:
+                who = owner.pop(cell, None)
+                if who is not None:
+                    (out.taken if who != seat else out.taken_back)[seat] += 1
+            elif grid[r, c] == Tile.POT:
+                if before == Item.ONION and after == Item.NONE and pot[t + 1, r, c] < pot[t, r, c]:
+                    filled_by.setdefault(cell, set()).add(seat)
+                elif before == Item.PLATE and after == Item.DISH and pot[t, r, c] == POT_READY:
+                    if filled_by.pop(cell, set()) - {seat}:
+                        out.pot_serves[seat] += 1
+                elif pot[t + 1, r, c] == POT_EMPTY:
+                    filled_by.pop(cell, None)
+            if before == Item.DISH and after == Item.NONE and grid[r, c] == Tile.GOAL:
+                out.soups += 1
+    return out

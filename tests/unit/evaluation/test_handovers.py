@@ -1,0 +1,47 @@
+"""Hand-over counting: an item put on the shared counter of Forced Coordination and taken by the partner
+is one hand-over; taken back by the seat that put it, none."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from cec.envs.overcooked.dynamics import reset, step
+from cec.envs.overcooked.state import Action, EnvParams
+from cec.evaluation.handovers import count_handovers, shared_counters
+from cec.levels.classic import classic_level
+
+A = Action
+
+
+def _episode(actions: list[tuple[Action, Action]]) -> object:
+    level = classic_level("forced_coord")
+    params = EnvParams(random_start_facing=False)
+    _, state = reset(jax.random.PRNGKey(0), level, params)
+    states = [state]
+    for a in actions:
+        state = step(jax.random.PRNGKey(1), state, np.asarray(a, np.int32), params).state
+        states.append(state)
+    return jax.tree.map(lambda *x: np.stack([np.asarray(v) for v in x]), *states)
+
+
+ONION_ON_COUNTER = [(A.LEFT, A.DOWN), (A.INTERACT, A.LEFT), (A.RIGHT, A.STAY), (A.INTERACT, A.STAY)]
+
+
+def test_the_shared_counters_of_forced_coordination_are_the_middle_column() -> None:
+    level = classic_level("forced_coord")
+    shared = shared_counters(np.asarray(level.grid), np.asarray(level.agent_pos))
+    assert sorted(zip(*np.nonzero(shared), strict=True)) == [(1, 2), (2, 2), (3, 2)]
+
+
+def test_an_onion_put_on_the_counter_and_taken_by_the_partner_is_a_handover() -> None:
+    states = _episode([*ONION_ON_COUNTER, (A.STAY, A.INTERACT), (A.STAY, A.UP), (A.STAY, A.RIGHT)])
+    counts = count_handovers(states)
+    assert counts.puts.tolist() == [1, 0] and counts.taken.tolist() == [0, 1]
+    assert counts.taken_back.tolist() == [0, 0] and counts.soups == 0
+
+
+def test_an_onion_taken_back_is_no_handover() -> None:
+    counts = count_handovers(_episode([*ONION_ON_COUNTER, (A.INTERACT, A.STAY)]))
+    assert counts.puts.tolist() == [1, 0] and counts.taken.tolist() == [0, 0]
+    assert counts.taken_back.tolist() == [1, 0]
