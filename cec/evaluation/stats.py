@@ -233,7 +233,7 @@ def permutation_crossplay(pooled: np.ndarray, n_a: int, max_relabellings: int = 
     m = np.array(pooled, np.float64)
     n = m.shape[0]
     if m.ndim != 2 or m.shape[1] != n or not 2 <= n_a <= n - 2:
-        raise ValueError(f"need a square pooled matrix with >= 2 seeds per algorithm; got {m.shape}, n_a={n_a}")
+        raise ValueError(f"need a square pooled matrix with >= 2 seeds per algorithm; got {m.shape}, {n_a=}")
     splits = math.comb(n, n_a)
     if splits > max_relabellings:
         raise ValueError(f"{splits} relabellings exceed max_relabellings={max_relabellings}; raise it")
