@@ -5,10 +5,11 @@ BIN := $(VENV)/bin
 
 .PHONY: install up demo test test-fast lint typecheck unit bench clean
 
+# Not quiet: the install takes minutes on a fresh machine, and pip's lines show that it is moving.
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e '.[services,dev,peers]'
+	$(BIN)/python -m pip install -e '.[services,dev,peers]'
 	touch $@
 
 install: $(VENV)/.installed
@@ -18,7 +19,9 @@ install: $(VENV)/.installed
 up: install
 	@command -v redis-server >/dev/null || { SUDO=$$([ "$$(id -u)" = 0 ] || echo sudo); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq redis-server; }
-	$(BIN)/cec up $(ARGS)
+# `cec up` exits 130 after a clean Ctrl-C (checkpointed, everything stopped): that is success here, not make's
+# "Error 130"; CEC_UP_VIA makes its resume hint read `make up ARGS=--resume`.
+	CEC_UP_VIA=make $(BIN)/cec up $(ARGS) || [ $$? -eq 130 ]
 
 ## Random agents in every classic kitchen, side by side, written to out/demo.gif
 demo: install

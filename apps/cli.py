@@ -1,8 +1,8 @@
 """The `cec` command line.
 
 cec demo [--out FILE]                        random (or scripted) play in every classic kitchen -> GIF
-cec render LAYOUT --png FILE                 a kitchen (classic name or ASCII file) -> PNG
-cec render LAYOUT --gif FILE [--steps N]     an episode on that kitchen -> GIF
+cec render LEVEL --png FILE                  any kitchen (a name, generated:SEED, an ASCII file) -> PNG
+cec render LEVEL --gif FILE [--steps N]      an episode on that kitchen -> GIF
 cec layouts                                  list the classic kitchens with their ASCII
 cec levels sample --n 16 --out levels.png     a contact sheet of generated kitchens
 cec levels validate FILE                      is an ASCII kitchen well-formed and solvable? why not?
@@ -313,7 +313,12 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=_cmd_demo)
 
     render = sub.add_parser("render", help="render a kitchen to PNG or an episode to GIF")
-    render.add_argument("layout", help="classic layout name or path to an ASCII kitchen file")
+    render.add_argument(
+        "layout",
+        metavar="LEVEL",
+        help="any kitchen: a classic, held-out or test kitchen's name (e.g. cramped_room, generated_006), "
+        "generated:SEED (the generator's kitchen of that seed), or an ASCII kitchen file (docs/kitchens.md)",
+    )
     render.add_argument("--png", help="write the kitchen's start state to this PNG")
     render.add_argument("--gif", help="write an episode to this GIF")
     _add_env_options(render)

@@ -32,6 +32,18 @@ def test_render_png_and_gif_from_an_ascii_file(tmp_path: Path) -> None:
     assert gif.stat().st_size > 0
 
 
+def test_render_takes_any_kitchen_and_its_help_says_so(tmp_path: Path, capsys) -> None:
+    """Not only the classic ones: a held-out kitchen's name and `generated:SEED` render as well."""
+    with pytest.raises(SystemExit):
+        main(["render", "--help"])
+    helptext = " ".join(capsys.readouterr().out.split())
+    assert "any kitchen" in helptext and "generated:SEED" in helptext and "ASCII kitchen file" in helptext
+    for name in ("generated_006", "generated:7"):
+        png = tmp_path / f"{name.replace(':', '_')}.png"
+        assert main(["render", name, "--png", str(png)]) == 0
+        assert png.stat().st_size > 0
+
+
 def test_render_rejects_a_malformed_kitchen(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     kitchen = tmp_path / "bad.txt"
     kitchen.write_text("WWPWW\nO0 1Q\nW   W\nWBWXW\n")
