@@ -48,6 +48,7 @@ import yaml
 
 from cec.agents.zoo import ZOO_MAX_BYTES
 from cec.config import CONFIG_MAX_BYTES, ConfigError, read_user_yaml
+from cec.paths import named_path, safe_name
 
 if TYPE_CHECKING:
     from cec.training.config import TrainConfig
@@ -146,9 +147,10 @@ def load_spec(path: str | Path) -> list[dict[str, Any]]:
                 if key == "run_dir":
                     fix = "--out (runs go to ZOO_DIR/runs)"
                 raise ConfigError(f"{at}: override {o!r} is set by the zoo; use {fix} instead")
-        name = item.get("name")
-        if name is not None and (not isinstance(name, str) or not name or "/" in name):
-            raise ConfigError(f"{at}: `name` must be a non-empty string without '/', got {name!r}")
+        if item.get("name") is not None:  # a run folder's name stem: one plain path component
+            safe_name(
+                item["name"], f"{at}: `name`", fix="give the entry a plain name (letters, digits, '_', '-')"
+            )
         label = item.get("label")
         if label is not None and (not isinstance(label, str) or not label):
             raise ConfigError(f"{at}: `label` must be a non-empty string, got {label!r}")
@@ -465,13 +467,22 @@ def export_zoo(
     chosen = [e for e in entries if e.scripted is None and (not names or e.name in names)]
     if not chosen:
         raise ConfigError(f"{manifest}: no checkpoint entries to export")
+    if prefix:
+        safe_name(prefix, "--prefix", fix="give a plain prefix (letters, digits, '_', '-')")
+    fix = "rename the entry in the manifest (or export the others with --name)"
+    for e in chosen:  # each becomes a folder of out_dir: checked before anything is loaded or written
+        if safe_name(prefix + e.name, f"{manifest}: exported policy name", fix=fix) == MANIFEST:
+            raise ConfigError(
+                f"{manifest}: an exported policy cannot be named {MANIFEST} (the manifest); {fix}"
+            )
     loaded = [(load_policy(e), checkpoints.read_meta(resolve_checkpoint(e.checkpoint))) for e in chosen]
     out = Path(out_dir)
     written = []
     for policy, meta in loaded:
         name = prefix + policy.name
+        path = named_path(out, name, "exported policy name")
         saved = save_policy(
-            policy, out / name, config=meta["config"], env_steps=meta["env_steps"], update=meta["update"]
+            policy, path, config=meta["config"], env_steps=meta["env_steps"], update=meta["update"]
         )
         env = meta["config"].get("env", {})
         written.append(

@@ -133,7 +133,9 @@ def save(
     metadata: dict,
     milestone: bool = False,
 ) -> Path:
-    """Writes `state` (a pytree of arrays) and its metadata to the checkpoint directory `path`, atomically."""
+    """Writes `state` (a pytree of arrays) and its metadata to the checkpoint directory `path`, atomically.
+    An existing checkpoint there is replaced; any other folder there is refused (`CheckpointError`), never
+    removed."""
     path = Path(path)
     data = serialization.to_bytes(jax.device_get(state))
     meta = {
@@ -146,6 +148,8 @@ def save(
         "metadata": metadata,
     }
     tmp = path.with_name(path.name + ".tmp")
+    _check_replaceable(path)  # before any write: a folder that is not a checkpoint is never removed
+    _check_replaceable(tmp)
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     (tmp / STATE_FILE).write_bytes(data)
@@ -157,6 +161,26 @@ def save(
         shutil.rmtree(path)
     tmp.rename(path)
     return path
+
+
+def _check_replaceable(path: Path) -> None:
+    """`CheckpointError` unless `path` is absent, an empty folder, or a folder holding nothing but a
+    checkpoint's files (`save` replaces it): anything else there is not ours to remove."""
+    if not os.path.lexists(path):
+        return
+    if path.is_symlink() or not path.is_dir():
+        found = "a link" if path.is_symlink() else "a file"
+        raise CheckpointError(
+            f"{path} is {found}, not a checkpoint folder; nothing was written or removed. Move it away or "
+            "write the checkpoint under another name"
+        )
+    entries = {p.name for p in path.iterdir()}
+    if entries - {STATE_FILE, META_FILE} or (entries and META_FILE not in entries and path.suffix != ".tmp"):
+        shown = ", ".join(sorted(entries)[:5]) + (", ..." if len(entries) > 5 else "")
+        raise CheckpointError(
+            f"{path} exists and is not a checkpoint (it holds {shown}); nothing was written or removed. "
+            "Move it away or write the checkpoint under another name"
+        )
 
 
 def read_meta(path: str | Path) -> dict:

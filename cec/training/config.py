@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from cec.agents.network import NETWORK_PRESETS, NetworkConfig, network_of
 from cec.config import ConfigError
 from cec.envs.task import EnvConfig
+from cec.paths import safe_name
 from cec.training.partners import PartnerConfig
 from cec.training.ppo import PPOConfig
 from cec.training.tracking import TrackingConfig
@@ -110,11 +111,8 @@ class TrainConfig:
     name: str = ""
 
     def __post_init__(self) -> None:
-        if self.name and (self.name in (".", "..") or any(c in self.name for c in "/\\\0")):
-            raise ConfigError(
-                f"name {self.name!r} must be a plain directory name (no path separators or '..'); "
-                "put the folder in run_dir instead"
-            )
+        if self.name:  # the run's folder under run_dir
+            safe_name(self.name, "run name", fix="give name= a plain name and put the folder in run_dir")
         if self.algorithm not in ALGORITHMS:
             raise ConfigError(f"algorithm {self.algorithm!r} is unknown; choose one of {list(ALGORITHMS)}")
         kind, procedural = ALGORITHMS[self.algorithm]

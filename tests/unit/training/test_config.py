@@ -83,9 +83,9 @@ def test_bad_files(tmp_path: Path) -> None:
         (["env.overcooked.delivery_reward=-.inf"], "delivery_reward must be a finite number"),
         (["ppo.max_grad_norm=-1"], "need max_grad_norm > 0"),
         (["ppo.ent_coef=-0.1"], "ent_coef, vf_coef, partner_coef, adam_eps >= 0"),
-        (["name=../../etc"], "must be a plain directory name"),
-        (["name=runs/x"], "must be a plain directory name"),
-        (["name=.."], "must be a plain directory name"),
+        (["name=../../etc"], "cannot be a file or folder name"),
+        (["name=runs/x"], "cannot be a file or folder name"),
+        (["name=.."], "cannot be a file or folder name"),
     ],
 )
 def test_training_values_that_would_be_silently_wrong_are_refused(overrides: list[str], message: str) -> None:
