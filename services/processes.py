@@ -229,32 +229,59 @@ class Recorded(NamedTuple):
     owner_alive: bool
 
 
+class RecordError(ConfigError):
+    """A child record that cannot be read or is not one `ChildRecord.add` writes."""
+
+
+def _is_cec_up(cmdline: str) -> bool:
+    """Whether a command line (NUL-separated, as /proc has it) is a `cec up` (`cec up ...`, `python -m
+    apps.cli up ...`): the only kind of process the advice of `ChildRecord.check` may name."""
+    return "up" in cmdline.split("\0")[1:]
+
+
+def _pid(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value > 0
+
+
 class ChildRecord:
-    """The children one process started, in `path` (JSON: the owner's pid, each child's name, pid and
-    command line); `check()` before starting any refuses while a recorded one still runs."""
+    """The children one process started, in `path` (JSON: the owner's pid and command line, each child's
+    name, pid and command line); `check()` before starting any refuses while a recorded one still runs,
+    and refuses too while the record cannot be read: a guard that cannot tell fails closed."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
         self.children: list[dict] = []
 
-    def recorded(self) -> Recorded | None:
+    def read(self) -> Recorded | None:
         """The owner and the recorded children, each with whether it still runs (the same pid and command
-        line; an owner recorded without its command line: the pid alone), or None when there is no
-        readable record."""
-        try:
-            old = read_user_json(
-                self.path, "child record", RECORD_MAX_BYTES, "services.processes.RECORD_MAX_BYTES"
-            )
-            owner = int(old["owner"])
-            children = [
-                {**c, "alive": bool(c.get("cmd")) and _cmdline(int(c["pid"])) == c["cmd"]}
-                for c in old["children"]
-            ]
-            owner_cmd = _cmdline(owner) if owner != os.getpid() else None
-            owner_alive = owner_cmd is not None and old.get("owner_cmd") in (None, owner_cmd)
-        except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        line), or None when there is no record. The owner counts as running only when its recorded command
+        line is a `cec up` and the process with its pid still has it (a record without it names no one).
+        `RecordError` naming the file and the cause when it is unreadable or malformed."""
+        if not os.path.lexists(self.path):
             return None
+        setting = f"{__name__}.RECORD_MAX_BYTES"
+        old = read_user_json(self.path, "child record", RECORD_MAX_BYTES, setting, error=RecordError)
+        problem = _record_problem(old)
+        if problem is not None:
+            raise RecordError(f"child record {str(self.path)!r} is malformed: {problem}")
+        children = [
+            {**c, "alive": bool(c.get("cmd")) and _cmdline(c["pid"]) == c["cmd"]} for c in old["children"]
+        ]
+        owner, owner_cmd = old["owner"], old.get("owner_cmd")
+        owner_alive = (
+            owner != os.getpid()
+            and isinstance(owner_cmd, str)
+            and _is_cec_up(owner_cmd)
+            and _cmdline(owner) == owner_cmd
+        )
         return Recorded(owner, children, owner_alive)
+
+    def recorded(self) -> Recorded | None:
+        """`read()`, or None when there is no readable record (for displays: `cec status`)."""
+        try:
+            return self.read()
+        except RecordError:
+            return None
 
     @staticmethod
     def running(pid: int) -> bool:
@@ -262,10 +289,18 @@ class ChildRecord:
         return _cmdline(pid) is not None
 
     def check(self) -> None:
-        """`ConfigError` naming the recorded processes that still run (same pid and command line)."""
-        record = self.recorded()
+        """`ConfigError` naming the recorded processes that still run (same pid and command line), or the
+        record itself when it cannot be read (the start is refused: it could be a live run's)."""
+        try:
+            record = self.read()
+        except RecordError as err:
+            raise ConfigError(
+                f"{err}; it lists the processes of a `cec up` of this run, so nothing was started. If no "
+                f"`cec up` of this run still runs (`cec status {self.path.parent.parent}`, or `ps -ef | grep "
+                f"'cec up'`), delete {self.path} and start again"
+            ) from None
         if record is None:
-            return  # missing or unreadable: nothing to go by (`add` writes a new one)
+            return  # no record: no `cec up` of this run started children (`add` writes a new one)
         owner, children, owner_alive = record
         alive = [c for c in children if c["alive"]]
         names = ", ".join(f"{c.get('name')} (pid {c['pid']})" for c in alive)
@@ -298,3 +333,22 @@ class ChildRecord:
         self.children = []
         with contextlib.suppress(FileNotFoundError):
             self.path.unlink()
+
+
+def _record_problem(record: object) -> str | None:
+    """What makes `record` other than what `ChildRecord.add` writes, or None."""
+    if not isinstance(record, dict):
+        return f"it holds a JSON {type(record).__name__}, not an object"
+    if not _pid(record.get("owner")):
+        return f"owner must be a process id (an integer > 0), got {str(record.get('owner'))[:80]!r}"
+    if not isinstance(record.get("owner_cmd"), str | None):
+        return "owner_cmd must be a command line (a string)"
+    children = record.get("children")
+    if not isinstance(children, list):
+        return f"children must be a list, got {type(children).__name__}"
+    for i, child in enumerate(children):
+        if not (isinstance(child, dict) and _pid(child.get("pid"))):
+            return f"children[{i}] must be an object with a pid (an integer > 0), got {str(child)[:80]!r}"
+        if not isinstance(child.get("cmd"), str | None) or not isinstance(child.get("name", ""), str):
+            return f"children[{i}]'s name and cmd must be strings"
+    return None

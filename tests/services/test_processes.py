@@ -48,7 +48,8 @@ def _parent_with_child(tmp_path: Path, *, parent_death: bool) -> tuple[subproces
         "print(child.pid, flush=True)\n"
         "time.sleep(600)\n"
     )
-    parent = subprocess.Popen([sys.executable, "-c", script], cwd=REPO, stdout=subprocess.PIPE, text=True)
+    argv = [sys.executable, "-c", script, "up"]  # a stand-in for a `cec up`: the advice names only those
+    parent = subprocess.Popen(argv, cwd=REPO, stdout=subprocess.PIPE, text=True)
     assert parent.stdout is not None
     return parent, int(parent.stdout.readline())
 

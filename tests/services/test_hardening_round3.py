@@ -1,0 +1,84 @@
+"""Third hardening round (issue 63) for `cec up`: the live-run guard fails closed (a child record it cannot
+read refuses the start, and its advice names only a `cec up`), and every port is checked for range and
+for clashes among the stack's own services before anything starts."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from services.processes import RECORD_MAX_BYTES, ChildRecord
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def _up(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "apps.cli", "up", *args, f"train.run_dir={tmp_path}", "train.name=up"]
+    return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=120)
+
+
+def _record(tmp_path: Path) -> Path:
+    path = tmp_path / "up" / "logs" / "children.json"
+    path.parent.mkdir(parents=True)
+    return path
+
+
+LIVE = {"owner": 12, "owner_cmd": "python\0-m\0apps.cli\0up\0", "children": []}
+MALFORMED = {
+    "truncated": (
+        '{"owner": 4242, "owner_cmd": "python\\u0000cec\\u0000up", "children": [',
+        "not valid JSON",
+    ),
+    "nan": ('{"owner": NaN, "children": []}', "NaN is not a JSON number"),
+    "owner_not_an_int": (json.dumps({**LIVE, "owner": "12x"}), "owner must be a process id"),
+    "owner_a_string_number": (json.dumps({**LIVE, "owner": "12"}), "owner must be a process id"),
+    "children_not_a_list": (json.dumps({**LIVE, "children": {"pid": 5}}), "children must be a list"),
+    "child_without_pid": (json.dumps({**LIVE, "children": [{"name": "x"}]}), r"children\[0\] must be"),
+    "not_an_object": ("[1, 2]", "not an object"),
+    "over_the_cap": (" " * (RECORD_MAX_BYTES + 1) + "{}", "larger than 1,048,576 bytes"),
+}
+
+
+@pytest.mark.parametrize("kind", sorted(MALFORMED))
+def test_an_unreadable_child_record_refuses_the_start_naming_it_and_the_safe_way_to_clear_it(kind, tmp_path):
+    text, cause = MALFORMED[kind]
+    path = _record(tmp_path)
+    path.write_text(text)
+    with pytest.raises(ValueError, match=cause) as info:
+        ChildRecord(path).check()
+    message = str(info.value)
+    assert str(path) in message and "nothing was started" in message
+    assert f"delete {path}" in message and "If no `cec up` of this run still runs" in message
+    assert ChildRecord(path).recorded() is None, "`cec status` shows no services, without an error"
+
+
+def test_cec_up_resume_refuses_a_truncated_child_record_before_starting_anything(tmp_path):
+    """A truncated `logs/children.json` let a second `cec up --resume` start beside the live one."""
+    path = _record(tmp_path)
+    path.write_text(MALFORMED["truncated"][0])
+    proc = _up(tmp_path, "--resume")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"child record {str(path)!r} is not valid JSON" in proc.stderr and f"delete {path}" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "up" / "redis").exists(), "nothing was started"
+
+
+def test_the_advice_never_names_a_process_that_is_not_a_cec_up(tmp_path):
+    """A record from before the owner's command line was kept, or one naming a reused pid (here pid 1):
+    not a live `cec up`, so no `kill -INT 1`."""
+    path = _record(tmp_path)
+    for record in (
+        {"owner": 1, "children": []},  # the old format: no owner command line
+        {
+            "owner": 1,
+            "owner_cmd": Path("/proc/1/cmdline").read_bytes().decode(errors="replace"),
+            "children": [],
+        },
+        {"owner": 1, "owner_cmd": "python\0cec\0up\0", "children": []},  # pid 1 runs something else
+    ):
+        path.write_text(json.dumps(record))
+        ChildRecord(path).check()  # no live run, no leftovers: the start goes on
