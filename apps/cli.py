@@ -26,6 +26,7 @@ import argparse
 import functools
 import importlib
 import logging
+import shlex
 import sys
 import time
 from collections.abc import Callable
@@ -286,11 +287,15 @@ def _train_distributed(args: argparse.Namespace, service_overrides: list[str]) -
     store = load_config(
         StoreConfig, None, [o.removeprefix("store.") for o in service_overrides if o.startswith("store.")]
     )
+    run_dir = Path(config.run_dir) / config.run_name
+    hint = shlex.join(["cec", "train", "--distributed", "--resume", str(run_dir), *service_overrides])
     on_ray = dist.pool == "ray"  # `local`: the learner and its actors in this process, no Ray
     if on_ray:
         connect_ray(dist.ray_address or "auto")
     try:
-        return run_distributed(config, dist, store, resume=bool(args.resume), max_updates=args.max_updates)
+        return run_distributed(
+            config, dist, store, resume=bool(args.resume), max_updates=args.max_updates, resume_hint=hint
+        )
     finally:
         if on_ray:
             disconnect_ray()

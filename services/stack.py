@@ -12,7 +12,10 @@ Start-up (each step checked before the next; a failure stops everything started 
 5. With `monitoring`: Prometheus (and Grafana when installed) scraping all of the above.
 
 The URLs of everything are printed; Ctrl-C (or SIGTERM) makes the learner checkpoint, then the evaluator,
-level server, Ray, Redis and Prometheus are stopped in reverse order.
+level server, Ray, Redis and Prometheus are stopped in reverse order. The learner's last line names the
+command that continues the run (`cec up --resume ...`, or `make up ARGS=--resume ...` under `make up`), also
+recorded in the run (`logs/resume_command`) for `cec status` and for the refusal of a second start. Runs
+are named `up-<preset's run name>` unless `train.name=` is given, apart from `cec train`'s.
 """
 
 from __future__ import annotations
@@ -22,8 +25,11 @@ import contextlib
 import dataclasses
 import logging
 import os
+import shlex
+import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -81,7 +87,10 @@ class UpConfig:
     start_timeout_s: float = 120.0
 
     def train_config(self, extra: tuple[str, ...] = ()) -> TrainConfig:
-        return load_config(TrainConfig, preset_path(self.train), [*self.train_overrides, *extra])
+        """The training preset with its overrides; unless it is named (`train.name=...`), the run is named
+        `up-<the preset's run name>`, so that `cec train` of the same preset never meets a `cec up` run."""
+        train = load_config(TrainConfig, preset_path(self.train), [*self.train_overrides, *extra])
+        return train if train.name else dataclasses.replace(train, name=f"up-{train.run_name}")
 
 
 def preset_path(path: str) -> Path:
@@ -173,10 +182,13 @@ class ServiceProcess:
 class Stack:
     """The services of `cec up` (see the module docstring); `start()` then `train()`, `stop()` always."""
 
-    def __init__(self, config: UpConfig, train: TrainConfig, out: TextIO = sys.stderr) -> None:
+    def __init__(
+        self, config: UpConfig, train: TrainConfig, out: TextIO = sys.stderr, resume_hint: str = ""
+    ) -> None:
         self.config = config
         self.train_config = train
         self.out = out
+        self.resume_hint = resume_hint  # the command that continues this run (`resume_hint`)
         self.run_dir = Path(train.run_dir) / train.run_name
         self.services: list[ServiceProcess] = []
         self.redis: Any = None
@@ -197,7 +209,7 @@ class Stack:
 
         cfg = self.config
         self.dist.check(self.train_config)
-        check_run(self.train_config, resume)  # before anything starts
+        check_run(self.train_config, resume, self.resume_hint)  # before anything starts
         self.children.check()  # leftovers of an earlier `cec up` of this run: named, not collided with
         self.check_ports()
         logs = self.run_dir / "logs"
@@ -395,10 +407,17 @@ class Stack:
             f"{self.dist.num_actors} actors ({self.dist.mode}); Ctrl-C stops with a checkpoint"
         )
         return run_distributed(
-            self.train_config, self.dist, self.store, resume=resume, max_updates=max_updates, log_to=self.out
+            self.train_config,
+            self.dist,
+            self.store,
+            resume=resume,
+            max_updates=max_updates,
+            log_to=self.out,
+            resume_hint=self.resume_hint,
         )
 
     def stop(self) -> None:
+        started = bool(self.services or self.ray_started or self.monitoring or self.redis)
         if self.ray_started:
             from services.learner.driver import disconnect_ray
 
@@ -415,7 +434,8 @@ class Stack:
         self.children.clear()
         if self.stack_file is not None:
             self.stack_file.unlink(missing_ok=True)
-        self.say("stack stopped")
+        if started:  # a start refused before anything started says only why
+            self.say("stack stopped")
 
 
 # ---- command line ---------------------------------------------------------------------------------------
@@ -441,18 +461,62 @@ def split_overrides(overrides: list[str]) -> tuple[list[str], tuple[str, ...]]:
     return stack, train
 
 
+def resume_hint(args: argparse.Namespace) -> str:
+    """The command that continues the run `cec up args` trains: `cec up --resume` with the same options, or
+    `make up ARGS=--resume ...` when `make up` started it (which sets CEC_UP_VIA=make)."""
+    options = ["--resume"]
+    if args.config != DEFAULT_CONFIG:
+        options += ["--config", args.config]
+    if args.monitoring:
+        options.append("--monitoring")
+    options += args.overrides
+    if os.environ.get("CEC_UP_VIA") == "make":
+        return "make up ARGS=" + shlex.quote(shlex.join(options))
+    return shlex.join(["cec", "up", *options])
+
+
+@contextlib.contextmanager
+def terminal_of_our_own() -> Iterator[None]:
+    """While inside, this process's own process group is the terminal's foreground one, when it shared
+    that group with a parent (`make up`): a Ctrl-C then reaches `cec up`, which stops with a checkpoint,
+    and not make, which would die of it ("make: *** [up] Interrupt"). Without a terminal, or as the
+    leader of its group already (run from a shell), nothing changes."""
+    try:
+        tty = os.open("/dev/tty", os.O_RDWR | os.O_NOCTTY)
+    except OSError:
+        yield
+        return
+    try:
+        shared = os.getpgrp()
+        if os.tcgetpgrp(tty) != shared or shared == os.getpid():
+            yield
+            return
+        quiet = signal.signal(signal.SIGTTOU, signal.SIG_IGN)  # a background group may then take the terminal
+        try:
+            os.setpgid(0, 0)
+            os.tcsetpgrp(tty, os.getpgrp())
+            yield
+        finally:
+            with contextlib.suppress(OSError):
+                os.tcsetpgrp(tty, shared)  # back to make, before it reads our exit status
+            signal.signal(signal.SIGTTOU, quiet)
+    finally:
+        os.close(tty)
+
+
 def cmd_up(args: argparse.Namespace) -> int:
     stack_overrides, train_overrides = split_overrides(list(args.overrides))
     if args.monitoring:
         stack_overrides.append("monitoring=true")
     config = load_config(UpConfig, preset_path(args.config), stack_overrides)
     train = config.train_config(train_overrides)
-    stack = Stack(config, train)
-    try:
-        stack.start(resume=args.resume)
-        return stack.train(resume=args.resume, max_updates=args.max_updates)
-    except KeyboardInterrupt:
-        print("stopped", file=sys.stderr)
-        return 130
-    finally:
-        stack.stop()
+    stack = Stack(config, train, resume_hint=resume_hint(args))
+    with terminal_of_our_own():
+        try:
+            stack.start(resume=args.resume)
+            return stack.train(resume=args.resume, max_updates=args.max_updates)
+        except KeyboardInterrupt:
+            print(f"stopped; continue with: {stack.resume_hint}", file=sys.stderr)
+            return 130
+        finally:
+            stack.stop()

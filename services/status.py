@@ -91,6 +91,7 @@ def collect(run_dir: Path, redis_url: str = "", now: float | None = None) -> dic
     out["checkpoint"] = _checkpoint(run_dir, now)
     stack = _stack(run_dir, now)
     out["stack"] = stack
+    out["trainer"] = _trainer(run_dir, stack)
     urls = stack.get("urls", {})
     masked = stack.get("redis_password") and not redis_url  # the recorded URL has its password masked
     out["control_plane"] = _control_plane(run_dir.name, redis_url or urls.get("redis", ""), bool(masked), now)
@@ -184,6 +185,22 @@ def _checkpoint(run_dir: Path, now: float) -> dict[str, Any]:
         return {}
     newest = dirs[-1]
     return {"name": newest.name, "count": len(dirs), "age_s": now - newest.stat().st_mtime}
+
+
+def _trainer(run_dir: Path, stack: dict[str, Any]) -> dict[str, Any]:
+    """Whether a process trains the run now (the pid its lock file names runs, or its `cec up` does), and
+    the command that continues it (`cec.training.run.resume_command`)."""
+    from cec.checkpoints import LOCK_FILE
+    from cec.training.run import resume_command
+
+    try:
+        with open_user_file(run_dir / LOCK_FILE, "lock file") as f:
+            text = f.read(32).decode(errors="replace").strip()
+    except (ConfigError, OSError):
+        text = ""
+    pid = int(text) if text.isdigit() else 0
+    running = stack.get("state") == "running" or (pid > 0 and ChildRecord.running(pid))
+    return {"pid": pid, "running": running, "continue_with": resume_command(run_dir)}
 
 
 def _stack(run_dir: Path, now: float) -> dict[str, Any]:
@@ -357,14 +374,29 @@ def _training_lines(s: dict[str, Any]) -> Lines:
     if total:
         progress += f" / {total:,} ({100 * steps / total:.1f}%)"
     progress += f"  {sps:,.0f} steps/s"
-    if total and sps > 0 and steps < total:
+    running = s["trainer"]["running"]
+    if running and total and sps > 0 and steps < total:
         progress += f"  ETA {_age((total - steps) / sps)}"
     training = [f"return {_num(row.get('mean_return'))}", f"shaped {_num(row.get('mean_shaped_return'))}"]
     training.append(f"entropy {_num(row.get('entropy'))}")
     if "policy_lag_mean" in row:
         training.append(f"policy lag {_num(row['policy_lag_mean'])} (max {_num(row.get('policy_lag_max'))})")
     training.append(f"last row {_age(s['at'] - row['written_at'])} ago")
-    return [("progress", progress), ("training", "  ".join(training)), ("checkpoint", ckpt_text)]
+    lines = [("progress", progress), ("training", "  ".join(training)), ("checkpoint", ckpt_text)]
+    if not running:
+        lines.insert(0, ("state", _stopped(s, finished=bool(total) and steps >= total)))
+    return lines
+
+
+def _stopped(s: dict[str, Any], finished: bool) -> str:
+    """What a run no process trains is: finished, or stopped at its newest checkpoint (and how to go on)."""
+    if finished:
+        return "finished"
+    name = s["checkpoint"].get("name", "")
+    update = name.rpartition("_")[2]
+    if not update.isdigit():
+        return "stopped before its first checkpoint; nothing to continue (start it again)"
+    return f"interrupted at update {int(update)}; continue with: {s['trainer']['continue_with']}"
 
 
 def _evaluator_lines(s: dict[str, Any]) -> Lines:

@@ -179,6 +179,30 @@ def _duration(seconds: float) -> str:
     return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
 
 
+#: A distributed run's launcher (`cec up`, `cec train --distributed`) records here the command that continues
+#: the run; a run without it is a `cec train` run (`resume_command`).
+RESUME_FILE = "logs/resume_command"
+RESUME_FILE_MAX_BYTES = 4096
+
+
+def resume_command(run_dir: str | Path) -> str:
+    """The command that continues the run in `run_dir`: the one its launcher recorded (`RESUME_FILE`), else
+    the single-process trainer's `cec train --resume RUN_DIR`."""
+    try:
+        with open(Path(run_dir) / RESUME_FILE, "rb") as f:
+            recorded = f.read(RESUME_FILE_MAX_BYTES).decode(errors="replace").strip().splitlines()
+    except OSError:
+        recorded = []
+    return recorded[0] if recorded else f"cec train --resume {run_dir}"
+
+
+def record_resume_command(run_dir: str | Path, command: str) -> None:
+    """Records `command` as the way to continue the run in `run_dir` (see `resume_command`)."""
+    path = Path(run_dir) / RESUME_FILE
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(command + "\n")
+
+
 class RunFiles:
     """A run directory's files: config, metrics rows, checkpoints (shared by the trainer and the learner).
 
@@ -221,8 +245,8 @@ class RunFiles:
     def _open(self, template: TrainState, resume: bool, log: TextIO) -> tuple[TrainState | None, int]:
         if self.store.directories() and not resume:
             raise checkpoints.CheckpointError(
-                f"{self.run_dir} already has checkpoints; resume it with --resume {self.run_dir} "
-                "or give it another name: name=NEW (or run_dir=DIR)"
+                f"{self.run_dir} already has checkpoints; continue it with `{resume_command(self.run_dir)}`, "
+                "or give this run another name: name=NEW (or run_dir=DIR)"
             )
         latest = self.store.load_latest(template, log)
         if latest is None:

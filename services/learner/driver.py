@@ -23,7 +23,7 @@ from cec import checkpoints
 from cec.config import ConfigError
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
-from cec.training.run import RunFiles, trains_as
+from cec.training.run import RunFiles, record_resume_command, resume_command, trains_as
 from cec.training.tracking import describe
 from services.learner.config import DistributedConfig, xla_flags
 from services.store import StoreConfig
@@ -33,11 +33,17 @@ log = logging.getLogger("cec.driver")
 EXIT_INTERRUPTED = 130
 
 
-def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig | None, resume: bool) -> None:
+def check_start(
+    train: TrainConfig,
+    dist: DistributedConfig,
+    store: StoreConfig | None,
+    resume: bool,
+    resume_hint: str = "",
+) -> None:
     """Everything that can be checked before a process starts: the config pair, the run directory and the
     checkpoint to resume, Redis and the level server (each failure a `ConfigError` naming the fix)."""
     dist.check(train)
-    check_run(train, resume)
+    check_run(train, resume, resume_hint)
     if store is not None and dist.publish_checkpoints:
         from services.store import ControlPlane, StoreError
 
@@ -49,17 +55,18 @@ def check_start(train: TrainConfig, dist: DistributedConfig, store: StoreConfig 
         check_level_server(dist.level_server, dist.level_token)
 
 
-def check_run(train: TrainConfig, resume: bool) -> None:
+def check_run(train: TrainConfig, resume: bool, resume_hint: str = "") -> None:
     """The run directory: a run with checkpoints continues only with `resume`, and then only with the
     config its latest checkpoint was written with; the run's tracking: W&B installed when asked for
-    (`ConfigError` naming the fix)."""
+    (`ConfigError` naming the fix: `resume_hint`, this command continuing the run, when given)."""
     train.tracking.check()
     files = RunFiles(train)
     latest = files.store.latest()
     if files.store.directories() and not resume:
+        hint = resume_hint or resume_command(files.run_dir)
         raise ConfigError(
-            f"{files.run_dir} already has checkpoints; continue it with --resume, or give it another name: "
-            "name=NEW (under `cec up`: train.name=NEW)"
+            f"{files.run_dir} already has checkpoints; continue it with `{hint}`, or give this run another "
+            "name: name=NEW (under `cec up`: train.name=NEW)"
         )
     if latest is not None:
         try:
@@ -153,11 +160,16 @@ def run_distributed(
     resume: bool = False,
     max_updates: int | None = None,
     log_to: TextIO = sys.stderr,
+    resume_hint: str = "",
 ) -> int:
     """Runs the learner until the run ends: in this process with its actors when `dist.pool` is `local`,
-    else as a Ray actor (Ray must be initialised). 0, or 130 when interrupted."""
-    check_start(train, dist, store, resume)
-    for line in describe(Path(train.run_dir) / train.run_name, train.tracking):
+    else as a Ray actor (Ray must be initialised). 0, or 130 when interrupted. `resume_hint`: the command
+    that continues this run, recorded in the run (`resume_command`) and printed when it stops early."""
+    check_start(train, dist, store, resume, resume_hint)
+    run_dir = Path(train.run_dir) / train.run_name
+    if resume_hint:
+        record_resume_command(run_dir, resume_hint)
+    for line in describe(run_dir, train.tracking):
         print(line, file=log_to, flush=True)
     if dist.pool == "local":
         summary: dict | None = _run_here(train, dist, store, resume, max_updates)
@@ -165,9 +177,10 @@ def run_distributed(
         summary = _run_on_ray(train, dist, store, resume, max_updates, log_to)
     if summary is None:
         return 1
-    print(
-        f"learner: {summary['status']} after {summary['updates']} updates ({summary['run_dir']})", file=log_to
-    )
+    line = f"learner: {summary['status']} after {summary['updates']} updates ({summary['run_dir']})"
+    if summary["status"] == "interrupted":
+        line += f"; continue with: {resume_command(run_dir)}"
+    print(line, file=log_to, flush=True)
     return EXIT_INTERRUPTED if summary["status"] == "interrupted" else 0
 
 

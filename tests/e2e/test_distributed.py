@@ -8,7 +8,6 @@ import dataclasses
 import json
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -30,6 +29,7 @@ from services.learner.pool import LocalPool  # noqa: E402
 from services.learner.ray_pool import RayPool  # noqa: E402
 from services.processes import free_port  # noqa: E402
 from services.store import StoreConfig  # noqa: E402
+from tests.terminal import Terminal  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)
 REPO = Path(__file__).resolve().parents[2]
@@ -107,53 +107,6 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: 
     # task some 7 updates later than sync (docs/distributed.md); how much later depends on the machine's load
     early = float(np.mean([r["normalised_return"] for r in asyn[:3]]))
     assert late(asyn) > early + 0.02, "async learns too"
-
-
-class Terminal:
-    """A command run as a newcomer runs it: in a pseudo-terminal that is its controlling terminal, in the
-    terminal's foreground process group (`setsid --ctty`), its output drained to a log file. `ctrl_c()`
-    types ^C: the terminal sends SIGINT to the whole foreground group, as a real one does."""
-
-    def __init__(self, cmd: list[str], log: Path) -> None:
-        import os
-        import pty
-
-        self.master, slave = pty.openpty()
-        self.log = log
-        self.proc = subprocess.Popen(
-            ["setsid", "--ctty", *cmd], stdin=slave, stdout=slave, stderr=slave, cwd=REPO, close_fds=True
-        )
-        os.close(slave)
-        self._pump = threading.Thread(target=self._drain, daemon=True)
-        self._pump.start()
-
-    def _drain(self) -> None:
-        import os
-
-        with self.log.open("ab") as out:
-            while True:
-                try:
-                    data = os.read(self.master, 65536)
-                except OSError:
-                    return  # the terminal closed
-                if not data:
-                    return
-                out.write(data)
-                out.flush()
-
-    def ctrl_c(self) -> None:
-        import os
-
-        os.write(self.master, b"\x03")
-
-    def close(self) -> None:
-        import os
-
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
-        os.close(self.master)
-        self._pump.join(timeout=5)
 
 
 def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_resumes(tmp_path: Path) -> None:

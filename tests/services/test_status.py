@@ -32,6 +32,7 @@ def _run(root: Path, name: str = "r") -> Path:
 
 def test_status_reads_progress_checkpoints_and_eta_from_the_run_files(tmp_path: Path, capsys) -> None:
     run = _run(tmp_path)
+    (run / ".lock").write_text(str(os.getpid()))  # a live process trains it
     s = collect(run)
     assert s["progress"]["update"] == 20 and s["checkpoint"]["name"] == "update_000000020"
     assert s["stack"]["state"] == "none" and s["control_plane"] == {}
@@ -48,6 +49,25 @@ def test_status_reads_progress_checkpoints_and_eta_from_the_run_files(tmp_path: 
     assert main(["status", str(run)]) == 0 and "no `cec up` running" in capsys.readouterr().out
     assert main(["status", str(tmp_path / "gone")]) == 2
     assert "does not exist" in capsys.readouterr().err
+
+
+def test_a_stopped_run_says_where_it_stopped_and_how_to_continue_without_an_eta(tmp_path: Path) -> None:
+    """No process holds the run (its lock names a process that is gone): no ETA, but the update it stopped
+    at and the command that continues it: `cec train --resume` for a `cec train` run, the recorded command
+    for a distributed one (`cec up` records its own)."""
+    run = _run(tmp_path)
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True)
+    (run / ".lock").write_text(gone.stdout.decode().strip())
+    screen = render(collect(run))
+    assert "ETA" not in screen and "env steps 500 / 1,000 (50.0%)" in screen
+    assert f"interrupted at update 20; continue with: cec train --resume {run}" in screen
+    (run / "logs").mkdir()
+    (run / "logs" / "resume_command").write_text("make up ARGS=--resume\n")
+    assert "interrupted at update 20; continue with: make up ARGS=--resume" in render(collect(run))
+    with (run / "metrics.jsonl").open("a") as f:  # the last row's budget reached: finished
+        f.write('\n{"update": 40, "env_steps": 1000, "env_steps_per_s": 50.0}\n')
+    screen = render(collect(run))
+    assert "finished" in screen and "continue" not in screen and "ETA" not in screen
 
 
 def test_a_dead_stack_and_its_down_services_are_named(tmp_path: Path) -> None:

@@ -1,0 +1,87 @@
+"""How a stopped run is continued, as a newcomer meets it: the refusal of a second start names the command
+that continues the run and says nothing else, `cec up` and `cec train` of one preset name their runs
+apart, and a clash never proposes the single-process trainer for a distributed run (the `make up` Ctrl-C
+itself: tests/e2e/test_make_up.py)."""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cec.config import load_config
+from cec.training.config import TrainConfig
+from cec.training.run import RESUME_FILE, record_resume_command, resume_command
+from services.stack import DEFAULT_CONFIG, UpConfig, preset_path, resume_hint
+
+REPO = Path(__file__).resolve().parents[2]
+PRESET = "configs/train/cramped_room_ci.yaml"
+
+
+def _cec(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "apps.cli", *args], cwd=REPO, capture_output=True, text=True, timeout=300
+    )
+
+
+def _with_checkpoint(run: Path) -> Path:
+    (run / "checkpoints" / "update_000000022").mkdir(parents=True)
+    return run
+
+
+def test_cec_up_and_cec_train_name_their_runs_apart() -> None:
+    up = load_config(UpConfig, preset_path(DEFAULT_CONFIG)).train_config()
+    single = load_config(TrainConfig, REPO / PRESET)
+    assert up.run_name == f"up-{single.run_name}"
+    named = load_config(UpConfig, preset_path(DEFAULT_CONFIG)).train_config(("name=mine",))
+    assert named.run_name == "mine", "a name given is kept"
+
+
+def test_the_resume_hint_repeats_the_options_under_cec_up_or_make(monkeypatch: pytest.MonkeyPatch) -> None:
+    args = argparse.Namespace(config=DEFAULT_CONFIG, monitoring=False, overrides=[])
+    monkeypatch.delenv("CEC_UP_VIA", raising=False)
+    assert resume_hint(args) == "cec up --resume"
+    args = argparse.Namespace(config="my up.yaml", monitoring=True, overrides=["train.seed=3"])
+    assert resume_hint(args) == "cec up --resume --config 'my up.yaml' --monitoring train.seed=3"
+    monkeypatch.setenv("CEC_UP_VIA", "make")
+    assert resume_hint(argparse.Namespace(config=DEFAULT_CONFIG, monitoring=False, overrides=[])) == (
+        "make up ARGS=--resume"
+    )
+    make, up, value = shlex.split(resume_hint(args))  # as the shell reads it, then make's recipe
+    assert (make, up) == ("make", "up") and value.startswith("ARGS=")
+    assert shlex.split(value.removeprefix("ARGS=")) == [
+        "--resume",
+        "--config",
+        "my up.yaml",
+        "--monitoring",
+        "train.seed=3",
+    ]
+
+
+def test_a_refused_cec_up_prints_only_the_refusal_with_the_command_that_continues(tmp_path: Path) -> None:
+    run = _with_checkpoint(tmp_path / "up-ippo-overcooked-cramped_room-s0")
+    proc = _cec("up", f"train.run_dir={tmp_path}", "evaluator=false")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"{run} already has checkpoints; continue it with `cec up --resume train.run_dir={tmp_path} " in (
+        proc.stderr
+    )
+    assert "stack stopped" not in proc.stderr and "redis" not in proc.stderr.lower(), proc.stderr
+    assert proc.stderr.count("\n") == 1, proc.stderr
+
+
+def test_cec_train_meets_a_distributed_run_and_names_its_own_command(tmp_path: Path) -> None:
+    """The README's `cec train --config ...` after `make up`: another run, so no clash; and where a name is
+    shared on purpose, the hint is the distributed run's own command, never `cec train --resume`."""
+    up_run = _with_checkpoint(tmp_path / "up-ippo-overcooked-cramped_room-s0")
+    record_resume_command(up_run, "make up ARGS=--resume")
+    assert (up_run / RESUME_FILE).is_file() and resume_command(up_run) == "make up ARGS=--resume"
+    mine = tmp_path / "ippo-overcooked-cramped_room-s0"
+    assert resume_command(mine) == f"cec train --resume {mine}"
+    proc = _cec("train", "--config", PRESET, f"run_dir={tmp_path}", "name=up-ippo-overcooked-cramped_room-s0")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "continue it with `make up ARGS=--resume`" in proc.stderr
+    assert "cec train --resume" not in proc.stderr
