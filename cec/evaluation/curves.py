@@ -37,7 +37,7 @@ def read_metrics_csv(run_dir: str | Path) -> list[dict[str, Any]]:
     path = metrics_file(run_dir)
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: give a training run directory")
-    with open_text(path) as f:
+    with open_text(path, "metrics file") as f:
         return [{k: _value(v) for k, v in row.items()} for row in csv.DictReader(f)]
 
 

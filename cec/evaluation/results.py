@@ -25,15 +25,17 @@ from __future__ import annotations
 import bz2
 import csv
 import gzip
+import io
 import math
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, BinaryIO, TextIO, cast
 
 import numpy as np
 
 from cec.agents.zoo import SkippedEntry
+from cec.config import open_user_file
 
 COLUMNS = (
     "policy_a",
@@ -168,8 +170,19 @@ def _fmt(x: object) -> object:
     return x
 
 
-# how a file committed compressed is opened, by its suffix
-COMPRESSED: dict[str, Callable[..., Any]] = {".gz": gzip.open, ".bz2": bz2.open}
+# how a file committed compressed is decompressed while read, by its suffix
+COMPRESSED: dict[str, Callable[[BinaryIO], io.BufferedIOBase]] = {
+    ".gz": lambda raw: gzip.GzipFile(fileobj=raw, mode="rb"),
+    ".bz2": lambda raw: bz2.BZ2File(raw, "rb"),
+}
+# the first bytes of each format, to refuse compressed bytes under a plain name
+_MAGIC = {".gz": b"\x1f\x8b", ".bz2": b"BZh"}
+
+#: The most bytes of one table read, after decompression (the largest committed table, the CPU
+#: reproduction's, holds 34 MB in 294,000 rows): a larger one is refused, not read until memory runs out.
+RESULTS_MAX_BYTES = 128 << 20
+#: The most rows of one table read (each costs a few hundred bytes parsed).
+RESULTS_MAX_ROWS = 1_000_000
 
 
 def stored(path: str | Path) -> Path:
@@ -182,17 +195,68 @@ def stored(path: str | Path) -> Path:
     return next((p for p in packed if p.is_file()), plain)
 
 
-def open_text(path: Path) -> TextIO:
-    """`path` opened for reading text, decompressed where its name ends `.gz` or `.bz2`."""
-    unpack = COMPRESSED.get(path.suffix)
-    return unpack(path, "rt", newline="") if unpack else open(path, newline="")
+class _Capped(io.RawIOBase):
+    """The bytes of `inner` (the file `raw`, or a decompressor over it) until `RESULTS_MAX_BYTES`; one more
+    is a `ResultsError` naming the file, the cap and its setting, raised before the excess is read on."""
+
+    def __init__(self, inner: io.BufferedIOBase, raw: BinaryIO, path: Path, kind: str) -> None:
+        self.inner, self.raw, self.path, self.kind = inner, raw, path, kind
+        self.max_bytes, self.total = RESULTS_MAX_BYTES, 0
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer: Any) -> int:
+        view = memoryview(buffer).cast("B")
+        n = self.inner.readinto(view[: max(1, min(len(view), self.max_bytes + 1 - self.total))]) or 0
+        self.total += n
+        if self.total > self.max_bytes:
+            packed = " decompressed" if self.path.suffix in COMPRESSED else ""
+            raise ResultsError(
+                f"{self.kind} {str(self.path)!r} holds more than {self.max_bytes:,} bytes{packed}, the "
+                f"most read ({__name__}.RESULTS_MAX_BYTES); split the table, or raise that setting if it is "
+                "genuine"
+            )
+        return n
+
+    def close(self) -> None:
+        if not self.closed:
+            self.inner.close()  # a decompressor leaves the file it reads open
+            self.raw.close()
+        super().close()
+
+
+def open_text(path: Path, kind: str = "results file") -> TextIO:
+    """`path` opened for reading UTF-8 text, decompressed where its name ends `.gz` or `.bz2`, in bounded
+    memory: a regular file only, at most `RESULTS_MAX_BYTES` after decompression.
+    `ResultsError` naming the file when it is not a regular file, holds compressed bytes under a plain name,
+    or, while it is read, grows past the cap."""
+    raw = open_user_file(path, kind, error=ResultsError)
+    try:
+        head = raw.read(3)
+        raw.seek(0)
+        unpack = COMPRESSED.get(path.suffix)
+        packed = next((s for s, magic in _MAGIC.items() if head.startswith(magic)), None)
+        if unpack is None and packed is not None:
+            raise ResultsError(
+                f"{kind} {str(path)!r} holds {packed[1:]}-compressed bytes but its name does not end "
+                f"{packed}; rename it {path.name}{packed} (it is read decompressed then)"
+            )
+        inner = unpack(raw) if unpack else cast(io.BufferedIOBase, raw)
+        capped = _Capped(inner, raw, path, kind)
+        return io.TextIOWrapper(io.BufferedReader(capped), encoding="utf-8", newline="")
+    except BaseException:
+        raw.close()
+        raise
 
 
 def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
     """Reads one or more results files (as `write_csv` writes them, or as `.gz`, `.bz2`) into one table.
 
     Raises `ResultsError` naming the file and the problem when a file is missing, cannot be decompressed,
-    lacks a column or holds a value of the wrong type.
+    holds more than `RESULTS_MAX_BYTES` (decompressed) or `RESULTS_MAX_ROWS` rows, lacks a column, or holds
+    a row that is not a played episode: a value of the wrong type, a non-finite outcome, a seat other than
+    0 or 1, a negative episode or length (with its line).
     """
     if isinstance(paths, str | Path):
         paths = [paths]
@@ -205,13 +269,21 @@ def _read_one(path: Path) -> EpisodeTable:
         raise ResultsError(f"results file {str(path)!r} does not exist; write one with `cec eval`")
     try:
         with open_text(path) as f:
-            return _parse(path, csv.DictReader(f))
+            reader = csv.DictReader(f)
+            try:
+                return _parse(path, reader)
+            except (csv.Error, UnicodeDecodeError) as err:  # a field over csv's limit, bytes not UTF-8
+                raise ResultsError(
+                    f"{path}, line {reader.line_num + 1}: {err}; a results file holds short text fields in "
+                    "UTF-8 (write it with `cec eval`)"
+                ) from None
     except (OSError, EOFError) as err:  # gzip.BadGzipFile, bz2's bad data: OSError; a cut-off stream EOFError
         raise ResultsError(f"{path} cannot be read as a results file: {err}") from err
 
 
 def _parse(path: Path, reader: csv.DictReader) -> EpisodeTable:
     cols: dict[str, list] = {f: [] for f in ARRAY_FIELDS}
+    strings: dict[str, str] = {}  # each distinct name once in memory, however many rows repeat it
     skipped: list[SkippedEntry] = []
     missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
     if missing:
@@ -219,26 +291,48 @@ def _parse(path: Path, reader: csv.DictReader) -> EpisodeTable:
             f"{path} is not a cross-play results file: missing column(s) {missing} "
             f"(expected the columns of `cec eval`: {', '.join(COLUMNS)})"
         )
-    for line, row in enumerate(reader, start=2):
+    for rows, row in enumerate(reader, start=1):
+        line = reader.line_num
+        if rows > RESULTS_MAX_ROWS:
+            raise ResultsError(
+                f"{path} holds more than {RESULTS_MAX_ROWS:,} rows, the most read of one results file "
+                f"({__name__}.RESULTS_MAX_ROWS); split the table, or raise that setting if it is genuine"
+            )
         try:
+            if None in row or None in row.values():  # DictReader's filler for a short row, key of a long one
+                fields = sum(v is not None for k, v in row.items() if k is not None) + len(
+                    row.get(None) or ()
+                )
+                raise ValueError(
+                    f"the row has {fields} fields, a results file {len(reader.fieldnames or ())}"
+                )
             if row["status"] == "skipped":
                 seed = int(row["seed_a"]) if row["seed_a"] else -1
                 skipped.append(SkippedEntry(row["policy_a"], row["algorithm_a"], seed, row["reason"]))
                 continue
             if row["status"] != "ok":
-                raise ValueError(f"status must be ok or skipped, got {row['status']!r}")
+                raise ValueError(f"status must be ok or skipped, got {str(row['status'])[:80]!r}")
             for field in ARRAY_FIELDS:
                 col = _column_of(field)
                 raw = row[col]
                 if col in _STR:
-                    cols[field].append(raw)
+                    cols[field].append(strings.setdefault(raw, raw))
                 elif col in _INT:
-                    cols[field].append(int(raw))
+                    cols[field].append(_integer(col, raw))
                 else:
                     v = float(raw)
-                    if math.isnan(v) and col == "return":
-                        raise ValueError("return is NaN")
+                    if not math.isfinite(v):
+                        raise ValueError(f"{col} must be a finite number, got {raw[:80]!r}")
                     cols[field].append(v)
         except (ValueError, TypeError) as err:
             raise ResultsError(f"{path}, line {line}: {err}") from err
     return make_table(cols, skipped)
+
+
+def _integer(col: str, raw: str) -> int:
+    value = int(raw)
+    if col == "seat" and value not in (0, 1):
+        raise ValueError(f"seat must be 0 or 1 (the seat policy A played), got {value}")
+    if col in ("episode", "episode_steps") and value < 0:
+        raise ValueError(f"{col} must be >= 0, got {value}")
+    return value

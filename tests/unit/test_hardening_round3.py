@@ -5,8 +5,11 @@ decompressing reader with strict rows, and overrides are bounded in depth like f
 
 from __future__ import annotations
 
+import bz2
+import gzip
 import subprocess
 import sys
+import tracemalloc
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +19,7 @@ import yaml
 
 from cec import checkpoints
 from cec.config import ConfigError, load_config
+from cec.evaluation import results
 from cec.paths import UnsafeNameError, named_path, safe_name
 
 REPO = Path(__file__).resolve().parents[2]
@@ -142,3 +146,86 @@ def test_cec_zoo_export_refuses_to_replace_a_folder_that_is_not_a_checkpoint(sav
     assert "victim exists and is not a checkpoint (it holds precious.txt)" in proc.stderr
     assert "nothing was written or removed" in proc.stderr
     assert (out / "victim" / "precious.txt").read_text() == "mine"
+
+
+# ---- result tables: one bounded decompressing reader, strict rows ----------------------------------------
+
+HEADER = ",".join(results.COLUMNS) + "\n"
+
+
+def _row(episode: int = 0, ret: str = "20", seat: str = "0", policy: str = "cec0") -> str:
+    return (
+        f"{policy},cec,0,cec1,cec,1,cramped_room,{seat},{episode},{ret},1,0,3.5,overcooked,400,sampled,ok,\n"
+    )
+
+
+def test_a_bz2_bomb_of_valid_rows_is_refused_at_the_cap_without_reading_it_all(tmp_path, monkeypatch, capsys):
+    """A few KB that expand to 64 MB of valid rows (the probe's 427 KB expanded to 1.5 GB and took `cec
+    report` to a MemoryError): refused once the decompressed bytes pass the cap, which the error names."""
+    from apps.cli import main
+
+    rows = "".join(_row(i % 1000) for i in range(10_000))  # ~0.8 MB of rows, compressed once
+    stream = bz2.compress((HEADER + rows).encode())
+    more = bz2.compress(rows.encode())
+    bomb = tmp_path / "results.csv.bz2"
+    bomb.write_bytes(stream + more * 80)  # bzip2 streams one after another: one file, 64 MB of rows
+    assert bomb.stat().st_size < 400_000
+    monkeypatch.setattr(results, "RESULTS_MAX_BYTES", 1 << 20, raising=False)
+    assert main(["report", str(tmp_path / "none.csv")]) == 2  # every module imported before memory is traced
+    tracemalloc.start()
+    try:
+        status = main(["report", str(bomb), "--out", str(tmp_path / "report")])
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    err = capsys.readouterr().err
+    assert status == 2, err
+    assert f"{str(bomb)!r} holds more than 1,048,576 bytes decompressed" in err
+    assert "cec.evaluation.results.RESULTS_MAX_BYTES" in err and "Traceback" not in err
+    assert peak < 20 << 20, f"{peak:,} bytes traced: the bomb was read past its cap"
+
+
+def test_a_table_of_more_rows_than_the_cap_is_refused_naming_the_setting(tmp_path, monkeypatch):
+    path = tmp_path / "r.csv"
+    path.write_text(HEADER + "".join(_row(i) for i in range(11)))
+    monkeypatch.setattr(results, "RESULTS_MAX_ROWS", 10, raising=False)
+    with pytest.raises(
+        results.ResultsError, match=r"more than 10 rows, .*\(cec.evaluation.results.RESULTS_MAX_ROWS\)"
+    ):
+        results.read_csv(path)
+
+
+@pytest.mark.parametrize(
+    ("row", "cause"),
+    [
+        (_row(ret="inf"), "return must be a finite number, got 'inf'"),
+        (_row(ret="-Infinity"), "return must be a finite number"),
+        (_row(ret="nan"), "return must be a finite number"),
+        (_row(seat="7"), "seat must be 0 or 1"),
+        (_row(episode=-1), "episode must be >= 0, got -1"),
+        ("cec0,cec,0,cec1\n", "the row has 4 fields, a results file 18"),
+    ],
+)
+def test_a_row_that_is_no_played_episode_is_refused_with_its_file_and_line(row, cause, tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_text(HEADER + _row() + row)
+    with pytest.raises(results.ResultsError, match=cause) as info:
+        results.read_csv(path)
+    assert str(info.value).startswith(f"{path}, line 3: ")
+
+
+def test_cec_report_names_the_file_and_line_of_a_field_over_the_csv_limit(tmp_path):
+    path = tmp_path / "r.csv"
+    path.write_text(HEADER + _row() + _row(policy="x" * 200_000))
+    proc = _cec("report", str(path), "--out", str(tmp_path / "report"))
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"{path}, line 3: field larger than field limit" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_cec_report_refuses_compressed_bytes_under_a_plain_name_naming_the_file(tmp_path):
+    path = tmp_path / "results.csv"
+    path.write_bytes(gzip.compress((HEADER + _row()).encode()))
+    proc = _cec("report", str(path), "--out", str(tmp_path / "report"))
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"{str(path)!r} holds gz-compressed bytes but its name does not end .gz" in proc.stderr
+    assert "rename it results.csv.gz" in proc.stderr and "Traceback" not in proc.stderr
