@@ -26,6 +26,7 @@ from cec.envs.overcooked.state import (
     StepOutput,
 )
 from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, cell_mask, validate_level
+from cec.levels.solvability import adjacent, flood
 
 _DIR_VEC = jnp.asarray(DIR_VEC)
 
@@ -97,10 +98,13 @@ def _interact(
     front: jax.Array,
     acts: jax.Array,
     params: EnvParams,
-) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
+    reach: jax.Array,
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
     """Resolves one seat's interact on the grids left by the seats before it.
 
-    Returns the updated (items, pot, inventories, sparse reward, shaped reward) of this seat.
+    `reach`: bool[2, 3], whether each seat's region reaches an onion pile, a plate pile, a pot
+    (`_sources`; all True when `handover_reward` is off). Returns the updated (items, pot, inventories,
+    sparse reward, shaped reward, handed-over item used) of this seat.
     """
     grid = state.level.grid
     cell = front[seat]
@@ -149,7 +153,23 @@ def _interact(
         + take_soup * params.soup_pickup_reward
         + plate_bonus * params.plate_pickup_reward
     )
-    return items, pot, inv.at[seat].set(new_held), reward, shaped
+    own = reach[seat]
+    handed = (add_onion & ~own[0]) | (take_soup & ~(own[0] & own[1])) | (deliver & ~own[2])
+    return items, pot, inv.at[seat].set(new_held), reward, shaped, handed
+
+
+def _sources(state: EnvState) -> jax.Array:
+    """bool[2, 3]: whether each seat's floor region (from where it stands) reaches an onion pile, a plate
+    pile and a pot."""
+    grid = state.level.grid
+    floor = grid == Tile.FLOOR
+    out = []
+    for seat in (0, 1):
+        usable = adjacent(flood(floor, state.agent_pos[seat])) & ~floor
+        out.append(
+            jnp.stack([jnp.any((grid == t) & usable) for t in (Tile.ONION_PILE, Tile.PLATE_PILE, Tile.POT)])
+        )
+    return jnp.stack(out)
 
 
 def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Transition:
@@ -173,8 +193,10 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     # INTERACT: the cell in front of the pre-step position and facing; seat 0 resolves first.
     front = pos + _DIR_VEC[state.agent_dir]
     items, pot, inv = state.items, state.pot, state.agent_inv
-    items, pot, inv, r0, s0 = _interact(0, state, items, pot, inv, front, acts, params)
-    items, pot, inv, r1, s1 = _interact(1, state, items, pot, inv, front, acts, params)
+    # only a run that rewards hand-overs pays for the flood fill (params are not batched: a real branch)
+    reach = jax.lax.cond(params.handover_reward != 0, _sources, lambda _: jnp.ones((2, 3), bool), state)
+    items, pot, inv, r0, s0, h0 = _interact(0, state, items, pot, inv, front, acts, params, reach)
+    items, pot, inv, r1, s1, h1 = _interact(1, state, items, pot, inv, front, acts, params, reach)
 
     # COOKING: full pots count down to ready, including on the step the third onion went in.
     cooking = (grid == Tile.POT) & (pot <= POT_FULL) & (pot > POT_READY)
@@ -185,7 +207,8 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
         agent_pos=new_pos, agent_dir=new_dir, agent_inv=inv, items=items, pot=pot, time=time
     )
     reward = (r0 + r1).astype(jnp.float32)
-    shaped = jnp.stack([s0, s1]).astype(jnp.float32)
+    handover_bonus = (h0.astype(jnp.float32) + h1.astype(jnp.float32)) * params.handover_reward
+    shaped = (jnp.stack([s0, s1]) + handover_bonus).astype(jnp.float32)
     return Transition(next_state, reward, shaped, time >= params.max_steps, collision)
 
 

@@ -46,6 +46,12 @@ class EnvParams:
             on a counter and fewer plates are in hands than pots hold onions or soup.
         random_start_facing: if true, `reset` draws each seat's facing uniformly (as the paper's code);
             otherwise it uses the level's `agent_dir`.
+        handover_reward: shaped reward to *both* seats each time a seat uses an item it could not have
+            fetched itself, so the partner must have handed it over: an onion into a pot, or a soup plated,
+            by a seat whose floor region reaches no onion pile; a soup plated by one whose region reaches
+            no plate pile; a soup delivered by one whose region reaches no pot. Each use consumes the item,
+            so it cannot be farmed by passing an item back and forth. 0 (the default, and the paper's):
+            off, and nothing of it is computed. Not in the paper: a lever of docs/reproduce_overcooked.md.
     """
 
     max_steps: int = 400
@@ -54,6 +60,7 @@ class EnvParams:
     soup_pickup_reward: float = 15.0
     plate_pickup_reward: float = 3.0
     random_start_facing: bool = True
+    handover_reward: float = 0.0
 
 
 class EnvState(struct.PyTreeNode):
