@@ -40,9 +40,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from cec.evaluation.crossplay import EvalConfig, EvalLevels, eval_levels
+from cec.evaluation.crossplay import EvalConfig, eval_levels
 from cec.evaluation.milestones import checkpoints_by_update, milestone_points, play_milestone
-from cec.levels.kinds import subsets
+from cec.levels.kinds import validation_parts
 from cec.levels.level import unstack_levels
 
 STALL = 5.0  # an update at under 1/STALL of the run's median env-steps/s was stalled, not slow
@@ -72,20 +72,6 @@ def training_seconds(run: Path) -> tuple[dict[int, float], int]:
     return out, stalled
 
 
-def validation_parts(levels: EvalLevels) -> dict[str, list[str]]:
-    """{part: level names} of the validation set: its 100 generated kitchens (the headline, as before the
-    split), the generated ones by kind (`cec.levels.kinds.subsets`), the classic five together and each."""
-    named = dict(zip(levels.names, unstack_levels(levels.levels), strict=True))
-    generated = [n for n in levels.names if n.startswith("generated_")]
-    classic = [n for n in levels.names if not n.startswith("generated_")]
-    return {
-        "generated": generated,
-        **subsets({n: named[n] for n in generated}),
-        "classic": classic,
-        **{n: [n] for n in classic},
-    }
-
-
 def _recipe(run: Path) -> dict[str, Any]:
     """The run's training config without what tells its processes apart (seed, name)."""
     config = yaml.safe_load((run / "config.yaml").read_text())
@@ -113,7 +99,7 @@ def evaluate(
                 f"{run.name}: {run_stalled} stalled update(s) counted at its median env-steps/s", flush=True
             )
     levels = eval_levels("overcooked", "validation")
-    parts = validation_parts(levels)
+    parts = validation_parts(dict(zip(levels.names, unstack_levels(levels.levels), strict=True)))
     config = EvalConfig(episodes=episodes, max_steps=400)
     rows = []
     for update, checkpoints in checkpoints_by_update(runs).items():

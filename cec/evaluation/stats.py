@@ -170,22 +170,26 @@ def crossplay_estimate(matrix: np.ndarray) -> CrossPlay:
     return CrossPlay(mean, se, n)
 
 
-def compare_crossplay(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95) -> Comparison:
-    """Algorithm A's cross-play against B's, each from its seed x seed matrix: the difference of the means,
-    a t-test with the jackknife standard errors (Welch-Satterthwaite degrees of freedom from each side's
-    seeds - 1) and the matching t interval. Same fields as `compare` (n_a, n_b are seeds)."""
-    ea, eb = crossplay_estimate(a), crossplay_estimate(b)
-    diff = ea.mean - eb.mean
-    var = ea.se**2 + eb.se**2
+def compare_estimates(a: CrossPlay, b: CrossPlay, *, confidence: float = 0.95) -> Comparison:
+    """Two independent cross-play estimates (each a mean with its jackknife standard error over its own
+    seeds): the difference, a t-test with Welch-Satterthwaite degrees of freedom from each side's seeds - 1,
+    and the matching t interval. Same fields as `compare` (n_a, n_b are seeds). What `compare_crossplay`
+    computes from two seed matrices, also for estimates recorded earlier (a time-to-skill row)."""
+    diff = a.mean - b.mean
+    var = a.se**2 + b.se**2
     if not np.isfinite(var) or var == 0:
-        return Comparison(
-            ea.mean, eb.mean, ea.seeds, eb.seeds, diff, math.nan, math.nan, math.nan, math.nan, math.nan
-        )
-    df = var**2 / (ea.se**4 / ea.df + eb.se**4 / eb.df)
+        return Comparison(a.mean, b.mean, a.seeds, b.seeds, diff, *[math.nan] * 5)
+    df = var**2 / (a.se**4 / a.df + b.se**4 / b.df)
     t = diff / math.sqrt(var)
     p = float(2 * sps.t.sf(abs(t), df))
     half = float(sps.t.ppf(0.5 + confidence / 2, df)) * math.sqrt(var)
-    return Comparison(ea.mean, eb.mean, ea.seeds, eb.seeds, diff, diff - half, diff + half, t, df, p)
+    return Comparison(a.mean, b.mean, a.seeds, b.seeds, diff, diff - half, diff + half, t, df, p)
+
+
+def compare_crossplay(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95) -> Comparison:
+    """Algorithm A's cross-play against B's, each from its seed x seed matrix (`compare_estimates` of their
+    `crossplay_estimate`s)."""
+    return compare_estimates(crossplay_estimate(a), crossplay_estimate(b), confidence=confidence)
 
 
 def compare_crossplay_paired(a: np.ndarray, b: np.ndarray, *, confidence: float = 0.95) -> Comparison:

@@ -27,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cec.levels.classic import CLASSIC_ASCII
 from cec.levels.level import REQUIRED_TILES, Level, Tile, stack_levels
 from cec.levels.solvability import adjacent, flood
 
@@ -107,6 +108,22 @@ def subsets(levels: Mapping[str, Level]) -> dict[str, list[str]]:
     out = {k.label: [n for n, (kind, _) in kinds.items() if kind == k] for k in Kind}
     out[LOOP] = [n for n, (_, loop) in kinds.items() if loop]
     return {name: names for name, names in out.items() if names}
+
+
+def validation_parts(levels: Mapping[str, Level]) -> dict[str, list[str]]:
+    """{part: level names} of an evaluation set as every report splits it: its generated kitchens (named
+    `generated_*` or `test_*`; the headline), those by kind (`subsets`), the rest (the classic or drawn
+    kitchens) together and each on its own."""
+    generated = {n: lv for n, lv in levels.items() if n.startswith(("generated_", "test_"))}
+    rest = [n for n in levels if n not in generated]
+    label = (
+        "classic"
+        if set(rest) <= set(CLASSIC_ASCII)
+        else "drawn"
+        if all("drawn_" in n for n in rest)
+        else "named"
+    )
+    return {"generated": list(generated), **subsets(generated), label: rest, **{n: [n] for n in rest}}
 
 
 def kind_of(level: Level) -> tuple[Kind, bool]:

@@ -11,8 +11,8 @@ from cec.config import ConfigError
 from cec.levels import from_ascii
 from cec.levels.classic import classic_levels
 from cec.levels.generator import GeneratorConfig, generate_batch, generate_batch_with_info
-from cec.levels.heldout import heldout_levels
-from cec.levels.kinds import LOOP, Kind, classify, kind_of, kinds_of, subsets
+from cec.levels.heldout import heldout_levels, test_levels
+from cec.levels.kinds import LOOP, Kind, classify, kind_of, kinds_of, subsets, validation_parts
 
 
 def test_the_classic_kitchens_by_kind() -> None:
@@ -74,3 +74,12 @@ def test_handover_share_zero_draws_exactly_the_default_kitchens() -> None:
 def test_a_handover_share_that_cannot_be_met_is_refused(changes: dict[str, object], message: str) -> None:
     with pytest.raises(ConfigError, match=message):
         GeneratorConfig(**changes)  # type: ignore[arg-type]
+
+
+def test_validation_parts_split_generated_by_kind_and_name_the_rest() -> None:
+    parts = validation_parts(dict(heldout_levels()))
+    assert len(parts["generated"]) == 100 and parts["classic"] == list(classic_levels())
+    assert parts["forced_coord"] == ["forced_coord"]
+    assert len(parts[Kind.HANDOVER.label]) == 23  # the generated ones only
+    test = validation_parts(dict(test_levels()))
+    assert len(test["generated"]) == 100 and all(n.startswith("drawn_") for n in test["drawn"])

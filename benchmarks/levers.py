@@ -1,0 +1,135 @@
+"""The levers of the every-kitchen work, each against the recipe it changes, at equal env steps per seed.
+
+A lever is a `benchmarks/time_to_skill.py` output (its seeds' cross-play and self-play on the validation
+kitchens, by kind and per classic kitchen, at every milestone). The recipe without the lever is CEC of the
+CPU reproduction (`cec reproduce overcooked --cpu`: the time-to-skill recipe, 4 seeds x 10.5M env steps,
+its committed table), read by the same parts (`cec.levels.kinds.validation_parts`). Every figure is the
+cross-play over pairs of two different seeds with its jackknife standard error over seeds; the difference
+is tested with `cec.evaluation.stats.compare_estimates` (independent seeds; the t-test's p beside the
+interval: with 4 seeds a side treat p as a reading, not a verdict), Holm-adjusted over the parts shown.
+
+    python benchmarks/levers.py --lever coverage=docs/reproduce_overcooked/levers/cov35.json \\
+        --out docs/reproduce_overcooked/levers/summary
+
+prints a Markdown table and writes OUT.json.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from cec.evaluation import analysis as an
+from cec.evaluation.results import read_csv
+from cec.evaluation.stats import CrossPlay, compare_estimates, crossplay_estimate, holm
+from cec.levels.heldout import heldout_levels
+from cec.levels.kinds import validation_parts
+
+BASELINE_TABLE = Path("benchmarks/results/overcooked/cpu/work/results.csv.bz2")
+BASELINE_STEPS = 10_485_760
+
+
+def baseline(table_path: Path, algorithm: str) -> dict[str, dict[str, float]]:
+    """{part: {xp, xp_se, sp, seeds, levels}} of `algorithm`'s seeds with each other in a result table."""
+    table = read_csv(table_path)
+    table = table.select((table.algorithm_a == algorithm) & (table.algorithm_b == algorithm))
+    out = {}
+    for part, names in validation_parts(dict(heldout_levels())).items():
+        m = an.seed_matrix(an.pair_level_scores(table, names), algorithm)
+        est = crossplay_estimate(m.values)
+        sp = float(np.diag(m.values).mean())
+        out[part] = {"levels": len(names), "xp": est.mean, "xp_se": est.se, "sp": sp, "seeds": est.seeds}
+    return out
+
+
+def lever_row(path: Path, steps: int) -> dict[str, Any]:
+    """The row of a time-to-skill output at `steps` env steps per seed (the closest one at or below)."""
+    rows = [
+        r for r in json.loads(path.read_text())["rows"] if r["env_steps_per_seed"] <= steps and "parts" in r
+    ]
+    if not rows:
+        raise SystemExit(f"{path}: no row with parts at or below {steps:,} env steps per seed")
+    return max(rows, key=lambda r: r["env_steps_per_seed"])
+
+
+def compare(levers: dict[str, Path], base: dict[str, dict[str, float]], steps: int) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for name, path in levers.items():
+        row = lever_row(path, steps)
+        parts = {}
+        for part, b in base.items():
+            a = row["parts"].get(part)
+            if a is None:
+                continue
+            seeds = len(row["seeds"])
+            c = compare_estimates(
+                CrossPlay(a["xp"], a["xp_se"], seeds), CrossPlay(b["xp"], b["xp_se"], int(b["seeds"]))
+            )
+            parts[part] = {"lever": a, "baseline": b, "diff": c.diff, "ci": [c.ci_low, c.ci_high], "p": c.p}
+        for part, p in zip(parts, holm([v["p"] for v in parts.values()]), strict=True):
+            parts[part]["p_holm"] = float(p)
+        out[name] = {
+            "row": {k: row[k] for k in ("run", "update", "env_steps_per_seed", "seeds")},
+            "parts": parts,
+        }
+    return out
+
+
+def markdown(result: dict[str, Any]) -> str:
+    lines = []
+    for name, lever in result.items():
+        steps = lever["row"]["env_steps_per_seed"]
+        lines += [
+            f"**{name}** at {steps / 1e6:.1f}M env steps per seed (seeds {lever['row']['seeds']}) against "
+            "the recipe without it (CPU reproduction's CEC, seeds 200-203, 10.5M):",
+            "",
+            "| part | kitchens | lever XP (SP) | recipe XP (SP) | difference [95% CI] | p (Holm) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for part, v in lever["parts"].items():
+            a, b = v["lever"], v["baseline"]
+            lines.append(
+                f"| {part} | {a['levels']} | {a['xp']:.1f} ± {a['xp_se']:.1f} ({a['sp']:.1f}) | "
+                f"{b['xp']:.1f} ± {b['xp_se']:.1f} ({b['sp']:.1f}) | {v['diff']:+.1f} [{v['ci'][0]:+.1f}, "
+                f"{v['ci'][1]:+.1f}] | {v['p']:.3f} ({v['p_holm']:.3f}) |"
+            )
+        lines.append("")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument(
+        "--lever", action="append", required=True, metavar="NAME=JSON", help="a time-to-skill output"
+    )
+    ap.add_argument("--steps", type=int, default=BASELINE_STEPS, help="env steps per seed to compare at")
+    ap.add_argument("--baseline-table", type=Path, default=BASELINE_TABLE)
+    ap.add_argument("--baseline-algorithm", default="cec")
+    ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.md")
+    args = ap.parse_args(argv)
+    levers = {}
+    for spec in args.lever:
+        name, sep, path = spec.partition("=")
+        if not sep or not Path(path).is_file():
+            ap.error(f"--lever {spec!r}: write NAME=PATH of a time_to_skill output")
+        levers[name] = Path(path)
+    result = compare(levers, baseline(args.baseline_table, args.baseline_algorithm), args.steps)
+    from apps.machine import machine_info
+
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    doc = {"benchmark": "levers", "date": datetime.date.today().isoformat(), "machine": machine_info(),
+           "baseline_table": str(args.baseline_table), "levers": result}  # fmt: skip
+    args.out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
+    text = markdown(result)
+    args.out.with_suffix(".md").write_text(text + "\n")
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

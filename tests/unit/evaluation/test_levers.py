@@ -1,0 +1,44 @@
+"""`benchmarks/levers.py`: a lever's row is compared with the recipe part by part at equal steps."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _module() -> Any:
+    spec = importlib.util.spec_from_file_location("levers", ROOT / "benchmarks" / "levers.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _part(xp: float, se: float) -> dict[str, float]:
+    return {"levels": 5, "xp": xp, "xp_se": se, "sp": xp, "seeds": 4}
+
+
+def test_the_row_at_the_steps_asked_is_compared_and_holm_adjusted(tmp_path: Path) -> None:
+    levers = _module()
+    rows = [
+        {"run": "r", "update": u, "env_steps_per_seed": steps, "seeds": [1, 2, 3, 4],
+         "parts": {"generated": _part(xp, 1.0), "classic": _part(xp / 2, 1.0)}}
+        for u, steps, xp in ((1, 5_000_000, 10.0), (2, 10_485_760, 30.0), (3, 20_000_000, 99.0))
+    ]  # fmt: skip
+    path = tmp_path / "lever.json"
+    path.write_text(json.dumps({"rows": rows}))
+    base = {"generated": _part(20.0, 1.0), "classic": _part(10.0, 1.0)}
+    out = levers.compare({"x": path}, base, 10_485_760)["x"]
+    assert out["row"]["update"] == 2  # the last row at or below the steps, never a later one
+    assert out["parts"]["generated"]["diff"] == pytest.approx(10.0)
+    p = [out["parts"][k]["p"] for k in ("generated", "classic")]
+    assert out["parts"]["generated"]["p_holm"] == pytest.approx(min(1.0, 2 * min(p)))
+    assert "| generated | 5 | 30.0 ± 1.0 (30.0) | 20.0 ± 1.0 (20.0) | +10.0" in levers.markdown({"x": out})
+    with pytest.raises(SystemExit, match="no row with parts"):
+        levers.lever_row(path, 1_000)
