@@ -39,7 +39,7 @@ from cec.training.config import TrainConfig
 from services.entry import override_arguments
 from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
-from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS
+from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS, check_distinct, check_port
 from services.processes import Child, ChildRecord, NotReadyError, free_port
 from services.status import write_stack_file
 from services.store import StoreConfig
@@ -85,6 +85,11 @@ class UpConfig:
     monitoring_config: MonitoringConfig = field(default_factory=MonitoringConfig)
     ray_dashboard: bool = True
     start_timeout_s: float = 120.0
+
+    def __post_init__(self) -> None:
+        check_port("level_server_port", self.level_server_port)
+        check_port("level_server_metrics_port", self.level_server_metrics_port, off=True)
+        check_port("evaluator_metrics_port", self.evaluator_metrics_port, off=True)
 
     def train_config(self, extra: tuple[str, ...] = ()) -> TrainConfig:
         """The training preset with its overrides; unless it is named (`train.name=...`), the run is named
@@ -384,9 +389,14 @@ class Stack:
 
     def check_ports(self) -> None:
         """`ConfigError` naming the port, the service that wants it and the key that moves it, for the first
-        fixed port another process holds: found before anything starts, not after a service's slow start."""
+        fixed port another process holds, or for two of the stack's services given one port: found before
+        anything starts, not after a service's slow start."""
         import socket
 
+        mon = self.config.monitoring_config
+        ours = [("monitoring_config.prometheus_port", "Prometheus", mon.prometheus_port)]
+        ours += [("monitoring_config.grafana_port", "Grafana", mon.grafana_port)] if mon.grafana else []
+        check_distinct(self.fixed_ports() + (ours if self.config.monitoring else []))
         for key, service, port in self.fixed_ports():
             with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
                 sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)

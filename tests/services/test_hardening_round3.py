@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from services.processes import RECORD_MAX_BYTES, ChildRecord
+from services.processes import RECORD_MAX_BYTES, ChildRecord, free_port
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -82,3 +82,36 @@ def test_the_advice_never_names_a_process_that_is_not_a_cec_up(tmp_path):
     ):
         path.write_text(json.dumps(record))
         ChildRecord(path).check()  # no live run, no leftovers: the start goes on
+
+
+@pytest.mark.parametrize("key", ["level_server_port", "level_server_metrics_port", "evaluator_metrics_port"])
+def test_a_port_out_of_range_is_a_config_error_before_anything_starts(key, tmp_path):
+    """`cec up level_server_port=70000` ended in an OverflowError traceback."""
+    proc = _up(tmp_path, f"{key}=70000")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert f"config error: {key} must be a TCP port in 1..65535, 0 (a free one)" in proc.stderr
+    assert "Traceback" not in proc.stderr and not (tmp_path / "up").exists()
+
+
+@pytest.mark.parametrize(
+    ("first", "second"),
+    [
+        (
+            ("level_server_metrics_port", "the level server's metrics"),
+            ("evaluator_metrics_port", "the evaluator's metrics"),
+        ),
+        (
+            ("level_server_port", "the level server's gRPC"),
+            ("monitoring_config.prometheus_port", "Prometheus"),
+        ),
+    ],
+)
+def test_two_of_the_stacks_services_on_one_port_are_refused_before_anything_starts(first, second, tmp_path):
+    """Both passed the check that the port is free, and the second failed two minutes later, after Redis
+    and the level server had started."""
+    port = free_port()
+    proc = _up(tmp_path, "--monitoring", f"{first[0]}={port}", f"{second[0]}={port}")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    both = f"port {port} is given to both {first[1]} ({first[0]}) and {second[1]} ({second[0]})"
+    assert both in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "up" / "redis").exists(), "nothing was started"
