@@ -22,29 +22,19 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from cec.evaluation import analysis as an
+from cec.evaluation.parts import part_scores
 from cec.evaluation.results import read_csv
-from cec.evaluation.stats import CrossPlay, compare_estimates, crossplay_estimate, holm
+from cec.evaluation.stats import CrossPlay, compare_estimates, holm
 from cec.levels.heldout import heldout_levels
-from cec.levels.kinds import validation_parts
 
 BASELINE_TABLE = Path("benchmarks/results/overcooked/cpu/work/results.csv.bz2")
 BASELINE_STEPS = 10_485_760
 
 
 def baseline(table_path: Path, algorithm: str) -> dict[str, dict[str, float]]:
-    """{part: {xp, xp_se, sp, seeds, levels}} of `algorithm`'s seeds with each other in a result table."""
-    table = read_csv(table_path)
-    table = table.select((table.algorithm_a == algorithm) & (table.algorithm_b == algorithm))
-    out = {}
-    for part, names in validation_parts(dict(heldout_levels())).items():
-        m = an.seed_matrix(an.pair_level_scores(table, names), algorithm)
-        est = crossplay_estimate(m.values)
-        sp = float(np.diag(m.values).mean())
-        out[part] = {"levels": len(names), "xp": est.mean, "xp_se": est.se, "sp": sp, "seeds": est.seeds}
-    return out
+    """{part: {levels, xp, xp_se, sp, sp_se, seeds}} of `algorithm`'s seeds with each other in a table."""
+    parts = part_scores(read_csv(table_path), algorithm, dict(heldout_levels()))
+    return {name: part._asdict() for name, part in parts.items()}
 
 
 def lever_row(path: Path, steps: int) -> dict[str, Any]:

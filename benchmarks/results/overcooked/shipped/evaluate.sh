@@ -18,6 +18,21 @@ cec() { .venv/bin/cec "$@"; }
     checkpoint.every_updates=1 run_dir="$W" name=random_init
 cec eval --zoo cec/shipped/zoo.yaml --levels generated --episodes 1 --max-steps 400 --out $S/heldout.csv
 cec eval --zoo cec/shipped/zoo.yaml --levels classic --episodes 4 --max-steps 400 --out $S/classic.csv
+# the test set (cec.levels.heldout.test_levels): played once, after the release was chosen on validation
+cec eval --zoo cec/shipped/zoo.yaml --levels test --episodes 1 --max-steps 400 --out $S/test.csv
+"$PY" - $S > $S/parts.md <<'EOF'
+import sys
+from pathlib import Path
+from cec.evaluation.parts import part_scores, parts_markdown
+from cec.evaluation.results import read_csv
+from cec.levels.heldout import heldout_levels, test_levels
+S = Path(sys.argv[1])
+sets = (("validation (the set that chose the checkpoint)", ("heldout", "classic"), heldout_levels()),
+        ("test (nothing chosen on it)", ("test",), test_levels()))
+for title, tables, levels in sets:
+    table = read_csv([S / f"{t}.csv" for t in tables])
+    print(f"## {title}\n\n{parts_markdown(part_scores(table, 'cec', dict(levels)))}\n")
+EOF
 "$PY" - "$W/controls.yaml" "$W/random_init" <<'EOF'
 import sys, yaml
 from cec.agents.zoo import SHIPPED_ZOO
