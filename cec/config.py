@@ -120,6 +120,11 @@ def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str]) -> dict[s
                 f"override {item!r}: the value is not valid YAML ({err.__class__.__name__}); quote it or fix "
                 "the brackets (lists are written [1, 2])"
             ) from err
+        except RecursionError:  # as a file that nests too deeply (`load_config`)
+            raise ConfigError(
+                f"override {key.strip()[:200]}=...: the value nests too deeply to be read ({len(raw):,} "
+                "characters); a config value nests a few levels at most"
+            ) from None
     return out
 
 

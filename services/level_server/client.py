@@ -32,7 +32,7 @@ from cec.levels.level import Level
 from cec.levels.v1 import level_service_pb2 as pb
 from cec.levels.v1 import level_service_pb2_grpc as pb_grpc
 from cec.levels.wire import config_to_proto, decode, encode
-from services.level_server.config import TOKEN_ENV, is_loopback_address, read_pem
+from services.level_server.config import TOKEN_ENV, check_token, is_loopback_address, read_pem
 from services.level_server.source import Validation, concat, take_rows
 
 log = logging.getLogger("cec.level_client")
@@ -74,7 +74,10 @@ class LevelClient:
 
         self.address = address
         self.timeout = timeout
-        token = token if token is not None else os.environ.get(TOKEN_ENV, "")
+        if token is None:
+            token = os.environ.get(TOKEN_ENV, "")
+            check_token(token, f"the {TOKEN_ENV} environment variable")
+        check_token(token, "the level server's token")
         self.metadata = (("authorization", f"Bearer {token}"),) if token else ()
         self.channel = _channel(address, root_cert)
         if token and root_cert is None and not is_loopback_address(address):

@@ -67,6 +67,16 @@ class CurriculumConfig:
             )
 
 
+def check_token(token: str, source: str) -> None:
+    """`ConfigError` naming `source` (the setting or variable the token came from) unless the token is
+    printable ASCII, the only text gRPC metadata carries."""
+    if token and not (token.isascii() and token.isprintable()):
+        raise ConfigError(
+            f"{source} must be printable ASCII (gRPC metadata cannot carry newlines, control or non-ASCII "
+            "characters: no client could ever authenticate); choose another token"
+        )
+
+
 @dataclass(frozen=True)
 class LevelServerConfig:
     """The level server.
@@ -158,11 +168,8 @@ class LevelServerConfig:
                 f"({self.max_concurrent_streams}), or open streams would leave no room for other calls; "
                 "raise max_concurrent_rpcs or lower max_concurrent_streams"
             )
-        if self.auth_token and not (self.auth_token.isascii() and self.auth_token.isprintable()):
-            raise ConfigError(
-                "auth_token must be printable ASCII (gRPC metadata cannot carry newlines, control or "
-                "non-ASCII characters: no client could ever authenticate); choose another token"
-            )
+        check_token(self.auth_token, "auth_token")
+        check_token(os.environ.get(TOKEN_ENV, ""), f"the {TOKEN_ENV} environment variable")
         if bool(self.tls_cert) != bool(self.tls_key):
             raise ConfigError("TLS needs both tls_cert and tls_key (PEM files); set both or neither")
         if self.tls_cert:

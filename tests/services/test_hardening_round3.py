@@ -115,3 +115,19 @@ def test_two_of_the_stacks_services_on_one_port_are_refused_before_anything_star
     both = f"port {port} is given to both {first[1]} ({first[0]}) and {second[1]} ({second[0]})"
     assert both in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "up" / "redis").exists(), "nothing was started"
+
+
+def test_a_non_ascii_token_in_the_environment_is_refused_like_auth_token(tmp_path, monkeypatch):
+    """`auth_token=` was checked for printable ASCII, `CEC_LEVEL_SERVER_TOKEN` was not: the server started
+    with a token no client can send."""
+    from services.level_server.client import LevelClient
+
+    monkeypatch.setenv("CEC_LEVEL_SERVER_TOKEN", "schlüssel")
+    cmd = [sys.executable, "-m", "apps.cli", "level-server", "port=0", "metrics_port=-1"]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "the CEC_LEVEL_SERVER_TOKEN environment variable must be printable ASCII" in proc.stderr
+    with pytest.raises(
+        ValueError, match="CEC_LEVEL_SERVER_TOKEN environment variable must be printable ASCII"
+    ):
+        LevelClient("127.0.0.1:1")  # a client with it: refused before any call, naming the variable

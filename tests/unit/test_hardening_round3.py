@@ -229,3 +229,16 @@ def test_cec_report_refuses_compressed_bytes_under_a_plain_name_naming_the_file(
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert f"{str(path)!r} holds gz-compressed bytes but its name does not end .gz" in proc.stderr
     assert "rename it results.csv.gz" in proc.stderr and "Traceback" not in proc.stderr
+
+
+# ---- overrides are bounded in depth like files ----------------------------------------------------------
+
+
+def test_a_deeply_nested_override_is_a_config_error_not_a_recursion_error(tmp_path):
+    deep = "[" * 10_000 + "]" * 10_000
+    proc = _cec(
+        "train", "--config", "configs/train/cramped_room_ci.yaml", f"run_dir={tmp_path}", f"seed={deep}"
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "config error: override seed=...: the value nests too deeply to be read" in proc.stderr
+    assert "Traceback" not in proc.stderr and len(proc.stderr) < 2000
