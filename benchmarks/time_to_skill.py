@@ -72,10 +72,48 @@ def training_seconds(run: Path) -> tuple[dict[int, float], int]:
     return out, stalled
 
 
+def _config(run: Path) -> dict[str, Any]:
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    if not isinstance(config, dict):
+        raise SystemExit(f"{run / 'config.yaml'} is not a training config (a mapping); give a run directory")
+    return config
+
+
 def _recipe(run: Path) -> dict[str, Any]:
     """The run's training config without what tells its processes apart (seed, name)."""
-    config = yaml.safe_load((run / "config.yaml").read_text())
-    return {k: v for k, v in config.items() if k not in ("seed", "name")}
+    return {k: v for k, v in _config(run).items() if k not in ("seed", "name")}
+
+
+def _seeds(run: Path) -> set[int]:
+    """The seeds the run trains: `seed` .. `seed + num_seeds - 1` of its config (the defaults 0 and 1)."""
+    config = _config(run)
+    first, count = config.get("seed", 0), config.get("num_seeds", 1)
+    return set(range(int(first), int(first) + int(count)))
+
+
+def check_population(runs: list[Path], name: str) -> None:
+    """`SystemExit` unless `runs` are distinct runs of one recipe with no seed in common: a run given twice,
+    or two runs of one seed, would count a policy playing itself as cross-play."""
+    if len(runs) == 1:
+        return  # one run: its seeds are distinct by construction
+    seen: dict[Path, Path] = {}
+    for run in runs:
+        real = run.resolve()
+        if real in seen:
+            raise SystemExit(f"{name}: {run} is given twice (as {seen[real]} too); give each run once")
+        seen[real] = run
+    if any(_recipe(run) != _recipe(runs[0]) for run in runs[1:]):
+        raise SystemExit(f"{name}: the runs joined differ in more than seed and name: {runs}")
+    owner: dict[int, Path] = {}
+    for run in runs:
+        for seed in sorted(_seeds(run)):
+            if seed in owner:
+                raise SystemExit(
+                    f"{name}: seed {seed} is trained by both {owner[seed]} and {run}: joined runs must be "
+                    "different seeds of one recipe (a seed meeting itself is self-play, not cross-play); "
+                    "leave one of them out"
+                )
+            owner[seed] = run
 
 
 def evaluate(
@@ -87,8 +125,7 @@ def evaluate(
     separate processes (`--join`): their seeds play each other as one population, and a seed's cost is
     their training time over all their seeds."""
     name = name or runs[0].name
-    if any(_recipe(run) != _recipe(runs[0]) for run in runs[1:]):
-        raise SystemExit(f"{name}: the runs joined differ in more than seed and name: {runs}")
+    check_population(runs, name)
     seconds, stalled = [], 0
     for run in runs:
         run_seconds, run_stalled = training_seconds(run)

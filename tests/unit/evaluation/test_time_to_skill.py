@@ -62,3 +62,23 @@ def test_joined_runs_must_be_one_recipe_and_are_evaluated_as_one(
         tts.evaluate(runs, 1, name="ab")
     (runs[1] / "config.yaml").write_text("seed: 6\nname: b\nnum_envs: 64\n")
     assert tts.evaluate(runs, 1, done=frozenset({("ab", 0)}), name="ab") == []  # joined under its name
+
+
+def test_join_refuses_a_run_given_twice_and_runs_that_share_a_seed(tmp_path: Path) -> None:
+    """Two runs of the same seeds, or one run twice, joined as one population would count a seed playing
+    itself as cross-play: refused before anything is played, naming the run or the seed."""
+    tts = _module()
+    runs = {name: tmp_path / name for name in ("a", "b", "c")}
+    for name, (seed, seeds) in zip(runs, ((4, 2), (5, 2), (6, 2)), strict=True):
+        runs[name].mkdir()
+        (runs[name] / "config.yaml").write_text(
+            f"seed: {seed}\nnum_seeds: {seeds}\nname: {name}\nnum_envs: 8\n"
+        )
+    out = ["--out", str(tmp_path / "tts")]
+    twice = [str(runs["a"]), str(tmp_path / "b" / ".." / "a")]  # one run, spelled twice
+    with pytest.raises(SystemExit, match=r"ab: .*a is given twice \(as .*a too\)"):
+        tts.main(["--join", "ab", *twice, *out])
+    with pytest.raises(SystemExit, match=r"ab: seed 5 is trained by both .*a and .*b: joined runs must be"):
+        tts.main(["--join", "ab", str(runs["a"]), str(runs["b"]), *out])
+    tts.check_population([runs["a"], runs["c"]], "ac")  # seeds 4-5 and 6-7: one population of four
+    assert not (tmp_path / "tts.json").exists()
