@@ -714,25 +714,35 @@ def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]],
 MEASURES = {"xp": "cross-play", "human": "with human proxies"}
 
 
-def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any]]:
+def comparisons(
+    summary: dict[str, dict[str, SeedScores]], matrices: dict[str, Any] | None = None
+) -> list[dict[str, Any]]:
     """CEC against each baseline, per level set: cross-play with the jackknife over seeds (seeds partner
     each other, so their per-seed XP are not independent; `compare_crossplay`), the score with the human
-    proxies (the same partners for every seed) with a Welch t-test over seeds and a bootstrap interval."""
-    from cec.evaluation.stats import compare, compare_crossplay
+    proxies (the same partners for every seed) with a Welch t-test over seeds and a bootstrap interval.
+    `matrices`: {level set: `cec.evaluation.seeds.SeedMatrix`} of the same table; with it each cross-play
+    test also gets the exact permutation p over seeds from CEC's and the baseline's pooled seed x seed matrix
+    (`p_exact`, its smallest attainable value `p_min`; NaN where two of their seeds never played). Every
+    p is also Holm-adjusted within its family, one level set and one score (`p_holm`, `p_exact_holm`)."""
+    from cec.evaluation.stats import compare, compare_crossplay, holm
 
     out = []
     for level_set, scores in summary.items():
         if "cec" not in scores:
             continue
         for measure in MEASURES:
+            family: list[dict[str, Any]] = []
             for other in ALGORITHMS[1:]:
                 if other not in scores:
                     continue
+                p_exact = p_min = math.nan
                 if measure == "xp":
                     mine, theirs = (np.asarray(scores[x].xp_matrix, np.float64) for x in ("cec", other))
                     if min(mine.size, theirs.size) == 0:
                         continue
                     c = compare_crossplay(mine, theirs)
+                    if matrices is not None and level_set in matrices:
+                        p_exact, p_min = exact_crossplay(matrices[level_set], "cec", other)
                 else:
                     a, b = _finite(scores["cec"].human), _finite(scores[other].human)
                     if a.size < 2 or b.size < 2:
@@ -740,17 +750,68 @@ def comparisons(summary: dict[str, dict[str, SeedScores]]) -> list[dict[str, Any
                     c = compare(a, b)
                 if math.isnan(c.p):
                     continue
-                out.append({"level_set": level_set, "measure": measure, "better": "cec", "worse": other,
-                            "diff": c.diff, "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
-                            "significant": bool(c.p < ALPHA)})  # fmt: skip
+                family.append({"level_set": level_set, "measure": measure, "better": "cec", "worse": other,
+                               "diff": c.diff, "ci_low": c.ci_low, "ci_high": c.ci_high, "p": c.p,
+                               "significant": bool(c.p < ALPHA), "p_exact": p_exact,
+                               "p_min": p_min})  # fmt: skip
+            for t, h, h_exact in zip(
+                family, holm([t["p"] for t in family]), holm([t["p_exact"] for t in family]), strict=True
+            ):
+                t.update(p_holm=float(h), p_exact_holm=float(h_exact), family=len(family))
+            out += family
     return out
 
 
+def exact_crossplay(matrix: Any, a: str, b: str) -> tuple[float, float]:
+    """The exact permutation p of algorithm `a`'s cross-play against `b`'s over their seeds and its
+    smallest attainable value (`cec.evaluation.stats.permutation_crossplay`), from `matrix` (a
+    `cec.evaluation.seeds.SeedMatrix`): the pooled seed x seed matrix of both algorithms' seeds. NaN, NaN
+    where two of these seeds never played each other (no pooled matrix), or a side has fewer than 2 seeds."""
+    from cec.evaluation.stats import permutation_crossplay
+
+    ia, ib = matrix.indices(a), matrix.indices(b)
+    idx = ia + ib
+    pooled = matrix.scores[np.ix_(idx, idx)]
+    if min(len(ia), len(ib)) < 2 or np.isnan(pooled[~np.eye(len(idx), dtype=bool)]).any():
+        return math.nan, math.nan
+    r = permutation_crossplay(pooled, len(ia))
+    return r.p, r.p_min
+
+
 def _reading(test: dict[str, Any]) -> str:
-    """What a comparison of `comparisons` shows: CEC ahead, CEC behind, or neither at the 5% level."""
+    """What a comparison of `comparisons` shows: CEC ahead, CEC behind, or neither at the 5% level of the
+    t-test; a difference the t-test's Holm-adjusted p does not keep below 5% in its family says so."""
     if not test["significant"]:
         return "no difference shown"
-    return "CEC ahead" if test["diff"] > 0 else "CEC behind"
+    reading = "CEC ahead" if test["diff"] > 0 else "CEC behind"
+    held = test.get("p_holm", test["p"]) < ALPHA
+    return reading if held else f"{reading}; not after Holm"
+
+
+def _p(p: float) -> str:
+    return "—" if math.isnan(p) else f"{p:.3g}"
+
+
+def _floor_lines(tests: Sequence[dict[str, Any]]) -> list[str]:
+    """Per family with exact tests: the smallest Holm-adjusted exact p it could reach (its smallest test's
+    p_min times the family's size), and how many of its tests stay below 5% after Holm, t and exact."""
+    families: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for t in tests:
+        families.setdefault((t["level_set"], t["measure"]), []).append(t)
+    parts = []
+    for (level_set, measure), family in families.items():
+        floors = [t["p_min"] for t in family if not math.isnan(t["p_exact"])]
+        if not floors:
+            continue
+        k = len(family)
+        held_t = sum(t["p_holm"] < ALPHA for t in family)
+        held_exact = sum(t["p_exact_holm"] < ALPHA for t in family)
+        parts.append(
+            f"{level_set} {MEASURES[measure]}: {k} tests, the smallest Holm-adjusted exact p attainable "
+            f"{min(1.0, k * min(floors)):.3g}; below {ALPHA:g} after Holm: {held_t} of {k} by the t-test, "
+            f"{held_exact} by the exact test"
+        )
+    return [f"Families: {'; '.join(parts)}.", ""] if parts else []
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -762,17 +823,18 @@ def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
     skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
-    sections: Sequence[str] = (), missing: Sequence[str] = (),
+    sections: Sequence[str] = (), missing: Sequence[str] = (), matrices: dict[str, Any] | None = None,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
     (proxies that could not play with the agents); `train_s`: the recorded seconds of each training run (by
     run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
     `sections`: the lines after the tests (`analysis_lines`); `missing`: runs of the mode's plan that the
-    work folder does not have (a folder trained before the mode had them)."""
+    work folder does not have (a folder trained before the mode had them); `matrices`: {level set:
+    `cec.evaluation.seeds.SeedMatrix`} of the same table, for the exact tests (`comparisons`)."""
 
     paper, paper_text = paper_values(), paper_values("text")
-    tests = comparisons(summary)
+    tests = comparisons(summary, matrices)
     out.mkdir(parents=True, exist_ok=True)
     machine, ran = machine_info(), ran_on["machine"]
     lines = [
@@ -825,19 +887,31 @@ def write_report(
               "standard errors over seeds (Welch-Satterthwaite degrees of freedom) and its 95% t "
               "interval. With human proxies: a Welch t-test over per-seed scores and a 95% bootstrap "
               "interval. No test is printed where a side has too few seeds to estimate its spread "
-              "(the jackknife needs 3).", ""]  # fmt: skip
+              "(the jackknife needs 3).", "",
+              "The interval is the headline; the p-values come second. Beside the t-test's p, for "
+              "cross-play, the exact permutation test over seeds (`cec.evaluation.stats."
+              "permutation_crossplay`: every split of CEC's and the baseline's seeds into two groups of "
+              "their sizes, from the pooled seed x seed matrix, as every CEC seed played every seed of "
+              "the baseline), valid at any seed count, with the smallest p it can give at these seed "
+              "counts in brackets: with 4 seeds each it cannot go below 0.0286 whatever the difference. "
+              "None with human proxies: the proxies are the same fixed partners for every seed, not seeds "
+              "of either algorithm, so there is no pooled matrix to permute. Holm: each p adjusted for the "
+              "tests of its family, one level set and one score (CEC against each baseline).",
+              ""]  # fmt: skip
     if not tests:
         lines += ["No test: too few seeds, or no spread between them.", ""]
     else:
-        lines += ["| level set | score | CEC − | difference | 95% CI | p | reading (p < 0.05) |",
-                  "|---|---|---|---|---|---|---|"]  # fmt: skip
+        lines += ["| level set | score | CEC − | difference | 95% CI | p | Holm p | "
+                  "exact p (smallest possible) | Holm exact p | reading (p < 0.05) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for t in tests:
+            exact = "—" if math.isnan(t["p_exact"]) else f"{_p(t['p_exact'])} ({_p(t['p_min'])})"
             lines.append(
                 f"| {t['level_set']} | {MEASURES[t['measure']]} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
-                f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | "
-                f"{_reading(t)} |"
+                f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | {_p(t['p_holm'])} | {exact} | "
+                f"{_p(t['p_exact_holm'])} | {_reading(t)} |"
             )
-        lines.append("")
+        lines += ["", *_floor_lines(tests)]
     lines += sections
     lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
               "|---|---|---|---|---|"]  # fmt: skip
@@ -889,11 +963,12 @@ def budget_lines(mode: Mode, plan: Sequence[pipeline.PlanLine]) -> list[str]:
     ]
 
 
-def episode_lines(mode: Mode, table: Any) -> list[str]:
+def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
     """The per-kitchen view the seed-level tables average over: per algorithm, cross-play (two different
     seeds) and self-play in each classic kitchen and over the held-out ones, then per level set the
-    collisions per episode and the share of cross-play episodes without a soup. Means over episodes
-    (descriptive; the seed-level tests are above)."""
+    collisions per episode, the share of cross-play episodes without a soup and the collisions per soup
+    (with the untrained network's cross-play from `controls`, the controls' table, beside them). Means over
+    episodes (descriptive; the seed-level tests are above)."""
     xp, sp = _xp_sp(table)
     held = _held_out(mode, table)
     columns = [(k, table.level == k) for k in mode.kitchens] + [("held-out", held)]
@@ -925,18 +1000,33 @@ def episode_lines(mode: Mode, table: Any) -> list[str]:
     lines += [
         "",
         "Collisions per cross-play episode (steps where the two cooks move to the same cell or try to swap "
-        "cells) and the share of cross-play episodes that deliver no soup:",
+        "cells), the share of cross-play episodes that deliver no soup, and the collisions per soup (every "
+        "collision of those episodes over every soup they delivered; — where none): an agent that cooks "
+        "moves more, so it has more steps to collide on. The untrained CEC network (the control; its seeds "
+        "with each other) is the baseline of an agent that learned nothing:",
         "",
-        "| algorithm | collisions, classic | collisions, held-out | no soup, classic | no soup, held-out |",
-        "|---|---|---|---|---|",
+        "| algorithm | collisions, classic | collisions, held-out | no soup, classic | no soup, held-out "
+        "| per soup, classic | per soup, held-out |",
+        "|---|---|---|---|---|---|---|",
     ]
-    for algo in algos:
-        mine = table.algorithm_a == algo
-        sets = (mine & xp & ~held, mine & xp & held)
-        coll = [mean(table.collisions, m) for m in sets]
-        none = [mean((table.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
-        lines.append(f"| {TITLES[algo]} | {' | '.join(coll)} | {' | '.join(none)} |")
+    rows = [(TITLES[a], table, a) for a in algos]
+    if controls is not None and np.any(controls.algorithm_a == UNTRAINED):
+        rows.append((TITLES[UNTRAINED], controls, UNTRAINED))
+    for title, t, algo in rows:
+        t_xp, t_held = _xp_sp(t)[0], _held_out(mode, t)
+        sets = [(t.algorithm_a == algo) & t_xp & m for m in (~t_held, t_held)]
+        coll = [mean(t.collisions, m) for m in sets]
+        none = [mean((t.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
+        per_soup = [_per_soup(t.collisions[m].sum(), t.deliveries[m].sum()) for m in sets]
+        lines.append(f"| {title} | {' | '.join(coll)} | {' | '.join(none)} | {' | '.join(per_soup)} |")
     return [*lines, ""]
+
+
+def _per_soup(collisions: float, soups: float) -> str:
+    if not soups:
+        return "—"
+    ratio = float(collisions) / float(soups)
+    return f"{ratio:.1f}" if ratio < 1000 else f"{ratio:,.0f}"
 
 
 def _xp_sp(table: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -962,12 +1052,12 @@ def _of_kitchen(names: np.ndarray, algo: str, kitchen: str) -> np.ndarray:
     return np.char.startswith(names.astype(str), f"{_run_name(algo, kitchen)}-s")
 
 
-def analysis_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
-    """The sections after the tests: per kitchen (`episode_lines`), the cross-algorithm matrices, held-out
-    play by training kitchen, whether the single-kitchen runs levelled off, and the baselines without a soup
-    in their own kitchen."""
+def analysis_lines(mode: Mode, table: Any, runs: Path, controls: Any = None) -> list[str]:
+    """The sections after the tests: per kitchen (`episode_lines`, with the `controls`' table), the
+    cross-algorithm matrices, held-out play by training kitchen, whether the single-kitchen runs levelled
+    off, and the baselines without a soup in their own kitchen."""
     return [
-        *episode_lines(mode, table), *cross_algorithm_lines(mode, table),
+        *episode_lines(mode, table, controls), *cross_algorithm_lines(mode, table),
         *heldout_kitchen_lines(mode, table), *plateau_lines(mode, runs), *failing_lines(mode, table, runs),
     ]  # fmt: skip
 
@@ -1307,21 +1397,25 @@ def reproduce_overcooked(
         )
     from cec.evaluation.results import EpisodeTable
 
-    with_controls = EpisodeTable.concat([table, cached_controls(mode, work, log=log, commit=commit)])
+    controls = cached_controls(mode, work, log=log, commit=commit)
+    with_controls = EpisodeTable.concat([table, controls])
     if (work / "controls" / MACHINE_FILE).is_file():
         ran_on = {**ran_on, "controls": json.loads((work / "controls" / MACHINE_FILE).read_text())}
+    from cec.evaluation.seeds import seed_matrix
+
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
+    matrices = {ls: seed_matrix(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     plan, missing = trained_runs(mode, work)
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     points, kitchens = curve_points(cached_curves(mode, work, log=log, report_only=report_only))
     figures = _figures(
         mode, work, out, table, points, log=log, policies=policies or work / "zoo" / "zoo.yaml"
     )  # fmt: skip
-    sections = [*analysis_lines(mode, table, work / "zoo" / "runs"), *curve_lines(points, kitchens)]
+    sections = [*analysis_lines(mode, table, work / "zoo" / "runs", controls), *curve_lines(points, kitchens)]
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work), sections=sections,
-        missing=missing,
+        missing=missing, matrices=matrices,
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report

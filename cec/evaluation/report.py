@@ -22,7 +22,14 @@ from cec.evaluation import analysis as an
 from cec.evaluation import egta
 from cec.evaluation.plotting import colour_range, distinct_colours, pyplot
 from cec.evaluation.results import EpisodeTable
-from cec.evaluation.stats import compare, compare_crossplay, crossplay_estimate, sem
+from cec.evaluation.stats import (
+    compare,
+    compare_crossplay,
+    crossplay_estimate,
+    holm,
+    permutation_crossplay,
+    sem,
+)
 
 MAX_BARS = 12  # level sets with more levels get one aggregate bar per algorithm instead of per-level bars
 
@@ -35,6 +42,10 @@ def _pm(mean: float, err: float, digits: int = 2) -> str:
     if math.isnan(mean):
         return "—"
     return f"{mean:.{digits}f} ± {err:.{digits}f}" if not math.isnan(err) else f"{mean:.{digits}f}"
+
+
+def _p(p: float) -> str:
+    return "—" if math.isnan(p) else f"{p:.2g}"
 
 
 def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
@@ -291,50 +302,87 @@ class _Report:
     def tests(self, pl: an.PairLevel) -> None:
         self.md.append("### Significance between algorithms\n")
         self.md.append(
-            "Seeds are the units. XP: the difference of the algorithms' cross-play, its jackknife standard "
-            "error over seeds (a seed's pairs are shared with the other seeds, so per-seed means are not "
-            "independent), a t-test with Welch-Satterthwaite degrees of freedom and its 95% t interval. The "
-            "other partners (ad hoc, proxies): each seed's mean with the same partners, a two-sided Welch "
-            "t-test over seeds and a 95% percentile bootstrap interval (10,000 resamples).\n"
+            "Seeds are the units; the interval is the headline, the p-values second. XP: the difference of "
+            "the algorithms' cross-play, its jackknife standard error over seeds (a seed's pairs are shared "
+            "with the other seeds, so per-seed means are not independent), a t-test with "
+            "Welch-Satterthwaite degrees of freedom and its 95% t interval; beside it the exact permutation "
+            "test over seeds (`stats.permutation_crossplay`: every split of the two algorithms' seeds, from "
+            "their pooled seed x seed matrix, which needs every seed of one to have played every seed of the "
+            "other) with the smallest p it can give at these seed counts. The other partners (ad hoc, "
+            "proxies): each seed's mean with the same partners, a two-sided Welch t-test over seeds and a "
+            "95% percentile bootstrap interval (10,000 resamples); no permutation p, as these partners are "
+            "not seeds of either algorithm (no pooled matrix). Holm: the p-values adjusted for every test of "
+            "the same table (one family per table and level set).\n"
         )
         algos = [a for a in an.algorithms_of(pl.policies) if a != HUMAN_PROXY]
         matrices = {a: an.seed_matrix(pl, a).values for a in algos}
-        kinds: list[tuple[str, Any]] = [
+        scores = an.pair_scores(pl)
+        index = {a: [i for i, p in enumerate(pl.policies) if p.algorithm == a] for a in algos}
+
+        def exact(a: str, b: str) -> tuple[float, float]:
+            """The permutation p and its smallest attainable value; NaN where the pooled matrix has a hole
+            (two seeds that never played), a side has fewer than 2 seeds or the splits are too many."""
+            idx = index[a] + index[b]
+            pooled = scores[np.ix_(idx, idx)]
+            if min(len(index[a]), len(index[b])) < 2 or np.isnan(pooled[~np.eye(len(idx), dtype=bool)]).any():
+                return math.nan, math.nan
+            try:
+                r = permutation_crossplay(pooled, len(index[a]))
+            except ValueError:  # more splits than it enumerates (many seeds): the t-test only
+                return math.nan, math.nan
+            return r.p, r.p_min
+
+        kinds: list[tuple[str, Any, Any]] = [
             (
                 "XP (other seeds of the same algorithm)",
                 lambda a, b: compare_crossplay(matrices[a], matrices[b]),
+                exact,
             )
         ]
         for kind, label in (("adhoc", "ad hoc"), ("human", "with human proxies")):
             samples = an.seed_samples(pl, kind)
             if any(samples[a].size for a in algos):
-                kinds.append((label, lambda a, b, s=samples: compare(s[a], s[b])))
+                kinds.append((label, lambda a, b, s=samples: compare(s[a], s[b]), None))
         d = self.digits
-        for label, test in kinds:
-            rows = []
+        for label, test, permutation in kinds:
+            found: list[tuple[str, str, Any, tuple[float, float]]] = []
             for i, a in enumerate(algos):
                 for b in algos[i + 1 :]:
                     c = test(a, b)
                     if c.n_a == 0 or c.n_b == 0:
                         continue
-                    rows.append(
-                        [
-                            f"{a} vs {b}",
-                            f"{_fmt(c.mean_a, self.digits)} vs {_fmt(c.mean_b, self.digits)}",
-                            f"{c.n_a} / {c.n_b}",
-                            f"{_fmt(c.diff, d)} [{_fmt(c.ci_low, d)}, {_fmt(c.ci_high, d)}]",
-                            _fmt(c.t, 2),
-                            _fmt(c.df, 1),
-                            "—" if math.isnan(c.p) else f"{c.p:.2g}",
-                        ]
-                    )
+                    found.append((a, b, c, permutation(a, b) if permutation else (math.nan, math.nan)))
             self.md.append(f"**{label}**\n")
-            if rows:
-                self.md.append(
-                    _table(["pair", "means", "seeds", "difference [95% CI]", "t", "df", "p"], rows)
-                )
-            else:
+            if not found:
                 self.md.append("Fewer than two algorithms with samples.\n")
+                continue
+            holm_t = holm([c.p for *_, c, _ in found])
+            holm_exact = holm([e[0] for *_, e in found])
+            rows = []
+            for (a, b, c, (p_exact, p_min)), h_t, h_exact in zip(found, holm_t, holm_exact, strict=True):
+                row = [
+                    f"{a} vs {b}",
+                    f"{_fmt(c.mean_a, self.digits)} vs {_fmt(c.mean_b, self.digits)}",
+                    f"{c.n_a} / {c.n_b}",
+                    f"{_fmt(c.diff, d)} [{_fmt(c.ci_low, d)}, {_fmt(c.ci_high, d)}]",
+                    _fmt(c.t, 2),
+                    _fmt(c.df, 1),
+                    _p(c.p),
+                    _p(h_t),
+                ]
+                if permutation:
+                    row += ["—" if math.isnan(p_exact) else f"{_p(p_exact)} ({_p(p_min)})", _p(h_exact)]
+                rows.append(row)
+            head = ["pair", "means", "seeds", "difference [95% CI]", "t", "df", "p", "Holm p"]
+            if permutation:
+                head += ["exact p (smallest possible)", "Holm exact p"]
+            self.md.append(_table(head, rows))
+            if permutation and any(math.isnan(e[0]) for *_, e in found):
+                self.md.append(
+                    "Exact p '—': the two algorithms' seeds did not all play each other (no pooled seed x "
+                    "seed matrix), a side has fewer than 2 seeds, or the splits of the seeds are too many to "
+                    "enumerate.\n"
+                )
 
     def meta_game(self, pl: an.PairLevel, set_name: str, slug: str) -> None:
         m = an.algorithm_matrix(pl)

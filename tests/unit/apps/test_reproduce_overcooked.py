@@ -122,6 +122,73 @@ def test_a_baseline_significantly_ahead_of_cec_reads_cec_behind() -> None:
     assert reading == {"ippo": "CEC behind", "fcp": "no difference shown"}
 
 
+def _round_robin(base: dict[str, float], seeds: int = 4, *, across: bool = True) -> Any:
+    """Every seed of every algorithm with every other (`across`: also across the algorithms), one
+    held-out kitchen, the pair's return the mean of the two seeds' skills plus noise."""
+    rng = np.random.default_rng(1)
+    skill = {(a, s): base[a] + rng.normal(0, 1) for a in base for s in range(seeds)}
+    agents = list(skill)
+    rows = [(p, q, (skill[p] + skill[q]) / 2) for i, p in enumerate(agents) for q in agents[i:]
+            if across or p[0] == q[0]]  # fmt: skip
+    n = len(rows)
+    return make_table({
+        "policy_a": [f"{p[0]}{p[1]}" for p, _, _ in rows], "algorithm_a": [p[0] for p, _, _ in rows],
+        "seed_a": [p[1] for p, _, _ in rows], "policy_b": [f"{q[0]}{q[1]}" for _, q, _ in rows],
+        "algorithm_b": [q[0] for _, q, _ in rows], "seed_b": [q[1] for _, q, _ in rows],
+        "level": ["generated_000"] * n, "seat": [0] * n, "episode": [0] * n,
+        "returns": [r for *_, r in rows], "deliveries": [round(r / 20) for *_, r in rows],
+        "collisions": [4] * n, "shaped_return": [0.0] * n, "env": ["overcooked"] * n,
+        "episode_steps": [400] * n, "actions": ["sampled"] * n,
+    })  # fmt: skip
+
+
+def test_cross_play_tests_carry_the_exact_permutation_p_and_holm_within_each_family() -> None:
+    """Beside the t-test: the exact p from CEC's and the baseline's pooled seed x seed matrix (4 + 4 seeds:
+    never below 2/70) and every p Holm-adjusted within its level set and score; where the algorithms' seeds
+    never met, no exact p (NaN) and the t-test alone."""
+    from cec.evaluation.seeds import seed_matrix
+    from cec.evaluation.stats import holm, permutation_crossplay
+
+    table = _round_robin({"cec": 10.0, "ippo": 80.0, "fcp": 11.0})
+    summary = {"heldout": ro.seed_scores(table, ["generated_000"])}
+    matrices = {"heldout": seed_matrix(table, ["generated_000"])}
+    tests = [t for t in ro.comparisons(summary, matrices) if t["measure"] == "xp"]
+    assert [t["worse"] for t in tests] == ["fcp", "ippo"]
+    sm = matrices["heldout"]
+    for t in tests:
+        idx = sm.indices("cec") + sm.indices(t["worse"])
+        exact = permutation_crossplay(sm.scores[np.ix_(idx, idx)], 4)
+        assert (t["p_exact"], t["p_min"]) == (exact.p, exact.p_min) and t["p_min"] == pytest.approx(2 / 70)
+        assert t["family"] == 2
+    assert [t["p_holm"] for t in tests] == list(holm([t["p"] for t in tests]))
+    assert [t["p_exact_holm"] for t in tests] == list(holm([t["p_exact"] for t in tests]))
+    ippo = tests[1]
+    assert ippo["p_exact"] == pytest.approx(2 / 70) and ippo["p_exact_holm"] == pytest.approx(4 / 70)
+    # only within-algorithm games: no pooled matrix, the t-test alone
+    apart = _round_robin({"cec": 10.0, "ippo": 80.0, "fcp": 11.0}, across=False)
+    tests = ro.comparisons(
+        {"heldout": ro.seed_scores(apart, ["generated_000"])},
+        {"heldout": seed_matrix(apart, ["generated_000"])},
+    )
+    assert tests and all(math.isnan(t["p_exact"]) and math.isfinite(t["p_holm"]) for t in tests)
+
+
+def test_collisions_are_also_given_per_soup_beside_the_untrained_control() -> None:
+    table = _round_robin({"cec": 20.0, "ippo": 0.0})  # 4 collisions per episode; IPPO delivers nothing
+    controls = _round_robin({ro.UNTRAINED: 40.0})
+    mode = dataclasses.replace(TINY, generated_levels=1)
+    lines = ro.episode_lines(mode, table, controls)
+    head = next(line for line in lines if line.startswith("| algorithm | collisions, classic"))
+    assert head.endswith("| per soup, classic | per soup, held-out |")
+    rows = {line.split(" | ")[0]: line for line in lines if line.startswith("| ") and "per soup" not in line}
+    cec = table.select(
+        (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
+    )
+    assert rows["| CEC"].endswith(f"| {cec.collisions.sum() / cec.deliveries.sum():.1f} |")
+    assert rows["| IPPO"].endswith("| — | — |")  # no soup: no collisions per soup
+    assert rows["| control: untrained CEC network"].endswith("| — | 2.0 |")  # 4 per 2 soups
+
+
 def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() -> None:
     from cec.agents.policy import scripted_policy
 

@@ -20,7 +20,9 @@ from cec.evaluation.stats import (
     compare_crossplay,
     compare_crossplay_paired,
     crossplay_estimate,
+    holm,
     iqm,
+    permutation_crossplay,
     seed_means,
     sem,
     welch_ttest,
@@ -376,7 +378,43 @@ def test_the_report_tests_cross_play_with_the_jackknife_over_seeds(tmp_path: Pat
     est = crossplay_estimate(cec)
     assert f"| {est.mean:.1f} ± {est.se:.1f} |" in text
     row = next(line for line in text.splitlines() if line.startswith("| cec vs ippo |"))
-    assert row.endswith(f"| {jack.p:.2g} |") and f"{naive.p:.2g} |" not in row
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[6] == f"{jack.p:.2g}" and f"{naive.p:.2g} |" not in row
+    # Beside it the exact permutation test over the pooled seeds (one comparison: Holm changes nothing).
+    pooled = an.pair_scores(pl)  # the policies in order: cec 0-3, ippo 0-3
+    exact = permutation_crossplay(pooled, 4)
+    assert cells[7:] == [f"{jack.p:.2g}", f"{exact.p:.2g} ({exact.p_min:.2g})", f"{exact.p:.2g}"]
+    assert exact.p_min == pytest.approx(2 / 70)
+
+
+def test_the_report_holm_corrects_each_table_and_says_why_an_exact_p_is_missing(tmp_path: Path):
+    """Three algorithms: three tests in one family, Holm-adjusted together; an algorithm whose seeds never
+    met the others' (a hole in the pooled matrix) gets a t-test but no exact p, and the report says why."""
+    skill = {("cec", i): 20.0 + 3 * i for i in range(3)}
+    skill |= {("ippo", i): 5.0 + i for i in range(3)} | {("fcp", i): 10.0 + 2 * i for i in range(3)}
+
+    def value(p, q, level, seat, ep):
+        return skill[p] + skill[q] + ep
+
+    t = _table(list(skill), value, levels=("cramped_room",))
+    pl = an.pair_level_scores(t)
+    text = write_report(t, tmp_path / "rep").read_text()
+    xp = text.split("**XP (other seeds of the same algorithm)**")[1].split("**")[0]
+    rows = {r.split("|")[1].strip(): [c.strip() for c in r.strip("|").split("|")] for r in xp.splitlines()
+            if r.startswith("| cec vs") or r.startswith("| fcp vs")}  # fmt: skip
+    assert set(rows) == {"cec vs fcp", "cec vs ippo", "fcp vs ippo"}
+    tests = {k: compare_crossplay(*(an.seed_matrix(pl, a).values for a in k.split(" vs "))) for k in rows}
+    adjusted = holm([tests[k].p for k in rows])
+    for k, h in zip(rows, adjusted, strict=True):
+        assert rows[k][6:8] == [f"{tests[k].p:.2g}", f"{h:.2g}"]
+    assert "Exact p '—'" not in text  # every seed met every other: every exact p printed
+    # The same agents, but IPPO's seeds never play FCP's: no pooled matrix for that pair.
+    keep = ~(np.isin(t.algorithm_a, ["ippo", "fcp"]) & np.isin(t.algorithm_b, ["ippo", "fcp"])
+             & (t.algorithm_a != t.algorithm_b))  # fmt: skip
+    text = write_report(t.select(keep), tmp_path / "rep2").read_text()
+    xp = text.split("**XP (other seeds of the same algorithm)**")[1].split("**")[0]
+    row = next(r for r in xp.splitlines() if r.startswith("| fcp vs ippo |"))
+    assert row.endswith("| — | — |") and "Exact p '—': the two algorithms' seeds did not all play" in xp
 
 
 def test_the_same_seeds_trained_on_are_compared_paired_so_what_each_seed_brings_cancels():
