@@ -3,7 +3,9 @@
 A lever is a `benchmarks/time_to_skill.py` output (its seeds' cross-play and self-play on the validation
 kitchens, by kind and per classic kitchen, at every milestone). The recipe without the lever is CEC of the
 CPU reproduction (`cec reproduce overcooked --cpu`: the time-to-skill recipe, 4 seeds x 10.5M env steps,
-its committed table), read by the same parts (`cec.levels.kinds.validation_parts`). Every figure is the
+its committed table), read by the same parts (`cec.levels.kinds.validation_parts`), and the recipe's own
+time-to-skill curve (8 seeds) at exactly the lever's env steps, on the generated kitchens (that curve
+predates the split by kind). Every figure is the
 cross-play over pairs of two different seeds with its jackknife standard error over seeds; the difference
 is tested with `cec.evaluation.stats.compare_estimates` (independent seeds; the t-test's p beside the
 interval: with 4 seeds a side treat p as a reading, not a verdict), Holm-adjusted over the parts shown.
@@ -47,12 +49,37 @@ def lever_row(path: Path, steps: int) -> dict[str, Any]:
     return max(rows, key=lambda r: r["env_steps_per_seed"])
 
 
-def compare(levers: dict[str, Path], base: dict[str, dict[str, float]], steps: int) -> dict[str, Any]:
+BASELINE_CURVE = Path("benchmarks/results/overcooked/cpu/runs/probes/tts-e64ep2mb8-10m-r6-8seeds.json")
+EQUAL_STEPS = "generated, the recipe at equal steps"
+
+
+def curve_point(path: Path, steps: int) -> dict[str, float] | None:
+    """The recipe's own time-to-skill row at exactly `steps` env steps per seed (its generated kitchens
+    only: the curve predates the split by kind), as a part; None if it has no such milestone."""
+    for r in json.loads(path.read_text())["rows"]:
+        if r["env_steps_per_seed"] == steps:
+            return {
+                "levels": 100,
+                "xp": r["xp"],
+                "xp_se": r["xp_se"],
+                "sp": r["sp"],
+                "seeds": len(r["seeds"]),
+            }
+    return None
+
+
+def compare(
+    levers: dict[str, Path], base: dict[str, dict[str, float]], steps: int, curve: Path | None = None
+) -> dict[str, Any]:
     out: dict[str, Any] = {}
     for name, path in levers.items():
         row = lever_row(path, steps)
+        mine = dict(base)
+        if curve is not None and (point := curve_point(curve, row["env_steps_per_seed"])) is not None:
+            mine = {EQUAL_STEPS: point, **base}
+            row["parts"] = {EQUAL_STEPS: row["parts"]["generated"], **row["parts"]}
         parts = {}
-        for part, b in base.items():
+        for part, b in mine.items():
             a = row["parts"].get(part)
             if a is None:
                 continue
@@ -76,7 +103,8 @@ def markdown(result: dict[str, Any]) -> str:
         steps = lever["row"]["env_steps_per_seed"]
         lines += [
             f"**{name}** at {steps / 1e6:.1f}M env steps per seed (seeds {lever['row']['seeds']}) against "
-            "the recipe without it (CPU reproduction's CEC, seeds 200-203, 10.5M):",
+            "the recipe without it: its time-to-skill curve at the same steps (seeds 300-307, generated "
+            "kitchens only), then the CPU reproduction's CEC (seeds 200-203) at 10.5M, every part:",
             "",
             "| part | kitchens | lever XP (SP) | recipe XP (SP) | difference [95% CI] | p (Holm) |",
             "|---|---|---|---|---|---|",
@@ -100,6 +128,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--steps", type=int, default=BASELINE_STEPS, help="env steps per seed to compare at")
     ap.add_argument("--baseline-table", type=Path, default=BASELINE_TABLE)
     ap.add_argument("--baseline-algorithm", default="cec")
+    ap.add_argument(
+        "--baseline-curve", type=Path, default=BASELINE_CURVE, help="the recipe's time-to-skill output"
+    )
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.md")
     args = ap.parse_args(argv)
     levers = {}
@@ -108,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
         if not sep or not Path(path).is_file():
             ap.error(f"--lever {spec!r}: write NAME=PATH of a time_to_skill output")
         levers[name] = Path(path)
-    result = compare(levers, baseline(args.baseline_table, args.baseline_algorithm), args.steps)
+    base = baseline(args.baseline_table, args.baseline_algorithm)
+    result = compare(levers, base, args.steps, args.baseline_curve)
     from apps.machine import machine_info
 
     args.out.parent.mkdir(parents=True, exist_ok=True)

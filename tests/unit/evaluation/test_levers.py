@@ -40,5 +40,10 @@ def test_the_row_at_the_steps_asked_is_compared_and_holm_adjusted(tmp_path: Path
     p = [out["parts"][k]["p"] for k in ("generated", "classic")]
     assert out["parts"]["generated"]["p_holm"] == pytest.approx(min(1.0, 2 * min(p)))
     assert "| generated | 5 | 30.0 ± 1.0 (30.0) | 20.0 ± 1.0 (20.0) | +10.0" in levers.markdown({"x": out})
+    curve = tmp_path / "curve.json"
+    point = {"env_steps_per_seed": 10_485_760, "xp": 25.0, "xp_se": 1.0, "sp": 24.0, "seeds": list(range(8))}
+    curve.write_text(json.dumps({"rows": [point]}))
+    with_curve = levers.compare({"x": path}, base, 10_485_760, curve)["x"]["parts"]
+    assert list(with_curve)[0] == levers.EQUAL_STEPS and with_curve[levers.EQUAL_STEPS]["diff"] == 5.0
     with pytest.raises(SystemExit, match="no row with parts"):
         levers.lever_row(path, 1_000)
