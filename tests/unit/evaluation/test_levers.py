@@ -2,22 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[3]
+from tests.scripts import benchmark
 
 
 def _module() -> Any:
-    spec = importlib.util.spec_from_file_location("levers", ROOT / "benchmarks" / "levers.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark("levers")
 
 
 def _part(xp: float, se: float) -> dict[str, float]:

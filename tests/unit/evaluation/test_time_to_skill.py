@@ -2,22 +2,17 @@
 
 from __future__ import annotations
 
-import importlib.util
 import shutil
 from pathlib import Path
 from typing import Any
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[3]
+from tests.scripts import benchmark
 
 
 def _module() -> Any:
-    spec = importlib.util.spec_from_file_location("time_to_skill", ROOT / "benchmarks" / "time_to_skill.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return benchmark("time_to_skill")
 
 
 def test_a_stopped_update_counts_at_the_runs_median_rate_and_a_slow_one_as_measured(

@@ -1,0 +1,18 @@
+"""Scripts under `benchmarks/` imported as modules, so that tests can call their functions."""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def benchmark(name: str) -> Any:
+    """`benchmarks/<name>.py` as a fresh module."""
+    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
