@@ -82,6 +82,36 @@ def _round_problem(steps: list[dict[str, Any]], end: dict[str, Any]) -> str | No
     return None
 
 
+def log_problem(events: Sequence[dict[str, Any]]) -> str | None:
+    """What is missing from a participant's log as read back (None: nothing): it must start with the
+    participant event, its events numbered 0, 1, ... (`seq`) without a gap."""
+    if not events:
+        return "no event of it could be read"
+    head = events[0]
+    if head["type"] != "participant":
+        return f"its records start at event {head.get('seq', '?')} ({head['type']}), not at its join"
+    seqs = [e["seq"] for e in events if "seq" in e]
+    if len(seqs) == len(events):  # records from before `seq` have none
+        gap = next((i for i, seq in enumerate(seqs) if seq != i), None)
+        if gap is not None:
+            return f"its events {gap}..{seqs[gap] - 1} are missing"
+    return None
+
+
+#: What to do about a participant whose log misses events.
+LOG_FIX = (
+    "a store lost them (Redis restarted empty?): export from the records folder (--data), or restart `cec "
+    "play serve` with both stores, which replays the records folder into Redis"
+)
+
+
+def _unplayed(events: Sequence[dict[str, Any]]) -> str:
+    """Why a participant whose log is whole has no finished study round."""
+    if any(e["type"] == "consent" and not e["accepted"] for e in events):
+        return "declined consent"
+    return f"the last event recorded is {events[-1]['type']!r}"
+
+
 def read_all(store: EventStore, problems: list[str] | None = None) -> dict[str, list[dict[str, Any]]]:
     """Every participant's events (validated; bad lines quarantined by the store). A participant whose
     records cannot be read at all is left out with a warning (and its problem appended to `problems`)."""
@@ -106,7 +136,8 @@ def export_tables(
     index; the outcome columns; `actions` how the agent chose (`greedy`/`sampled`). Practice rounds are
     left out. Survey rows: one per answered item (`SURVEY_COLUMNS`). Bad record lines are quarantined by the
     store (`store.quarantined`); a round whose records are inconsistent, or a participant whose records
-    cannot be read, is left out and named in `problems` (when given; else `RecordError`).
+    cannot be read or miss events (`log_problem`), is left out and named in `problems` (when given; else
+    `RecordError`), and so is a participant with no finished study round (when `problems` is given).
     """
     cols: dict[str, list[Any]] = {f: [] for f in ARRAY_FIELDS}
     surveys: list[dict[str, Any]] = []
@@ -115,11 +146,19 @@ def export_tables(
     else:
         records = read_all(store, problems)
     for participant, events in records.items():
+        gap = log_problem(events)
+        if gap is not None:
+            if problems is None:
+                raise RecordError(f"participant {participant}: {gap}; {LOG_FIX}")
+            problems.append(f"participant {participant}: {gap}; left out ({LOG_FIX})")
+            continue
         by_round: dict[int, RoundRecord] = {}
         for r in finished_rounds(participant, events, problems):
             if r.practice:
                 continue
             by_round[r.round] = r  # a round is finished once; a later attempt would replace an earlier one
+        if not by_round and problems is not None:
+            problems.append(f"participant {participant}: no finished study round ({_unplayed(events)})")
         for index in sorted(by_round):
             r = by_round[index]
             s, e = r.start, r.end

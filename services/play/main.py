@@ -177,6 +177,7 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
         recorder = Recorder(stores)
         study = Study(config, base_dir, pools, recorder)
         records = read_all(stores[0])  # validated: bad lines are quarantined with a warning, never fatal
+        recorder.replay(records)  # Redis gets what it lacks of the primary's records (before anything new)
         restored = study.restore(records)
         if stores[0].quarantined:
             log.warning(
@@ -252,8 +253,8 @@ def _cmd_export(args: argparse.Namespace) -> int:
     print(f"wrote {results} ({len(table)} rounds, {participants} participants)")
     print(f"wrote {answers} ({len(survey)} answers)")
     if quarantined or problems:
-        print(f"left out {len(quarantined)} quarantined record line(s) and {len(problems)} round(s) or "
-              "participant(s) whose records are inconsistent:")  # fmt: skip
+        print(f"left out {len(quarantined)} quarantined record line(s) and passed over {len(problems)} "
+              "round(s) or participant(s), each with why:")  # fmt: skip
         for line in [*map(str, quarantined), *problems]:
             print(f"  {line}")
     return 0

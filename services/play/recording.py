@@ -8,11 +8,13 @@ is on disk (file written and fsynced) and/or acknowledged by Redis (whose own du
 event only after that, so a crash loses at most the step being played.
 
 Store faults (`Recorder`): an event goes to the primary store (files when configured, else Redis) first,
-then to the others. When a store fails, `RecordUnavailableError` names it and the action fails (the web
-layer answers 503); the participant's next event keeps the same `seq`: a retry of the same event is written
-only to the stores that miss it, and any other event (a retry with other answers, the abort of a round)
-is written to every store under that `seq`. Readers keep the last event of a `seq`, so a retry is never
-counted twice, and every store reads back the same log.
+then to the others. When a store fails, the stores that took the events give them back (the file is cut
+back to its length before them; a file a join created is removed), `RecordUnavailableError` names the store
+and the action fails (the web layer answers 503: nothing was changed). The participant's next event keeps
+the same `seq`, and readers keep the last event of a `seq`: an event that reached a store anyway (a write to
+a frozen Redis that timed out and was applied later, a cut that failed) is replaced by the next one, so a
+retry is never counted twice and every store reads back the same log. A server that starts replays the
+primary's records into Redis where Redis lacks them (`Recorder.replay`: Redis restarted empty, say).
 
 Reading back validates every event (`check_event`: a JSON object of a known `type` with the fields the
 readers use, of their types, nested at most `MAX_RECORD_DEPTH` levels). A bad line (or Redis entry) is
@@ -56,7 +58,7 @@ import logging
 import os
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -96,6 +98,7 @@ class Quarantined:
 
     where: str
     cause: str
+    participant: str = ""  # whose records the line belongs to (when known)
 
     def __str__(self) -> str:
         return f"{self.where}: {self.cause}"
@@ -225,7 +228,9 @@ class EventStore(Protocol):
 
     quarantined: list[Quarantined]
 
-    def append(self, participant: str, *events: dict[str, Any]) -> None: ...
+    def append(self, participant: str, *events: dict[str, Any]) -> Callable[[], None]:
+        """Records `events`; returns what takes them back (`Recorder`: another store failed)."""
+        ...
 
     def participants(self) -> list[str]: ...
 
@@ -263,10 +268,12 @@ class FileStore:
         _check_id(participant)
         return self.dir / f"{participant}.jsonl"
 
-    def append(self, participant: str, *events: dict[str, Any]) -> None:
-        """Appends `events` (one write, one fsync) to the participant's file."""
+    def append(self, participant: str, *events: dict[str, Any]) -> Callable[[], None]:
+        """Appends `events` (one write, one fsync) to the participant's file; returns what cuts the file back
+        to its length before them (removes it when they were its first events)."""
         data = "".join(_dumps(event) + "\n" for event in events).encode("utf-8")
-        fd = os.open(self.path(participant), os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o666)
+        path = self.path(participant)
+        fd = os.open(path, os.O_RDWR | os.O_APPEND | os.O_CREAT | os.O_CLOEXEC, 0o666)
         try:
             size = os.fstat(fd).st_size
             if size and os.pread(fd, 1, size - 1) != b"\n":  # a cut-off last line: end it first
@@ -277,6 +284,14 @@ class FileStore:
             os.fsync(fd)
         finally:
             os.close(fd)
+
+        def undo() -> None:
+            if size == 0:
+                path.unlink(missing_ok=True)
+            else:
+                os.truncate(path, size)
+
+        return undo
 
     def participants(self) -> list[str]:
         return sorted(p.stem for p in self.dir.glob("p*.jsonl") if PARTICIPANT_ID.match(p.stem))
@@ -313,7 +328,7 @@ class FileStore:
         return _latest_per_seq(out)
 
     def _quarantine(self, path: Path, line: int, cause: str) -> None:
-        entry = Quarantined(f"{path}, line {line}", cause)
+        entry = Quarantined(f"{path}, line {line}", cause, path.stem)
         if entry not in self.quarantined:
             self.quarantined.append(entry)
             log.warning("%s; quarantined (left out of the records read)", entry)
@@ -338,15 +353,45 @@ class RedisStore:
     def _key(self, *parts: str) -> str:
         return self.client.key("play", self.study, *parts)
 
-    def append(self, participant: str, *events: dict[str, Any]) -> None:
-        """Appends `events` to the participant's stream (one transaction)."""
+    def append(self, participant: str, *events: dict[str, Any]) -> Callable[[], None]:
+        """Appends `events` to the participant's stream (one transaction); returns what deletes them again
+        (and the participant, when they were its first events)."""
         _check_id(participant)
+        key, members = self._key(participant), self._key("participants")
         pipe = self._r.pipeline(transaction=True)
-        pipe.sadd(self._key("participants"), participant)
+        pipe.sadd(members, participant)
         for event in events:
-            pipe.xadd(self._key(participant), {"event": _dumps(event)})
+            pipe.xadd(key, {"event": _dumps(event)})
+        new, *ids = self._write("record an event", pipe)
+
+        def undo() -> None:
+            pipe = self._r.pipeline(transaction=True)
+            pipe.xdel(key, *ids)
+            if new:
+                pipe.delete(key)
+                pipe.srem(members, participant)
+            self._write("take events back", pipe)
+
+        return undo
+
+    def replace(self, participant: str, events: Sequence[dict[str, Any]]) -> None:
+        """Makes the participant's stream hold exactly `events` (one transaction; none: the participant is
+        removed)."""
+        _check_id(participant)
+        key, members = self._key(participant), self._key("participants")
+        pipe = self._r.pipeline(transaction=True)
+        pipe.delete(key)
+        if events:
+            pipe.sadd(members, participant)
+        else:
+            pipe.srem(members, participant)
+        for event in events:
+            pipe.xadd(key, {"event": _dumps(event)})
+        self._write("replay the records", pipe)
+
+    def _write(self, what: str, pipe: Any) -> list[Any]:
         try:
-            self.client.call("record an event", pipe.execute)
+            return list(self.client.call(what, pipe.execute))
         except StoreError as err:  # any failure to record is the store's unavailability to the study
             raise StoreUnavailableError(str(err)) from err
 
@@ -377,13 +422,14 @@ class RedisStore:
                 self._quarantine(f"Redis key {key!r}, member {_brief(pid)}", "not a participant id")
         return sorted(out)
 
-    def events(self, participant: str) -> list[dict[str, Any]]:
+    def events(self, participant: str, *, missing_ok: bool = False) -> list[dict[str, Any]]:
         """The participant's events in order; a bad entry is quarantined (`Quarantined`, with a warning
-        naming the key and entry), never an error. `RecordError` when the participant has no stream."""
+        naming the key and entry), never an error. `RecordError` when the participant has no stream (none:
+        `[]` with `missing_ok`)."""
         _check_id(participant)
         key = self._key(participant)
         entries = self._call(key, "a stream of events", lambda: self._r.xrange(key))
-        if not entries:
+        if not entries and not missing_ok:
             raise RecordError(
                 f"no records of participant {participant} in Redis at {self.config.display_url}"
             )
@@ -393,17 +439,17 @@ class RedisStore:
             where = f"Redis key {key!r}, entry {ident}"
             raw = data.get(b"event")
             if raw is None:
-                self._quarantine(where, "no `event` field")
+                self._quarantine(where, "no `event` field", participant)
                 continue
             event, problem = parse_event(raw)
             if event is None:
-                self._quarantine(where, problem)
+                self._quarantine(where, problem, participant)
                 continue
             out.append(event)
         return _latest_per_seq(out)
 
-    def _quarantine(self, where: str, cause: str) -> None:
-        entry = Quarantined(where, cause)
+    def _quarantine(self, where: str, cause: str, participant: str = "") -> None:
+        entry = Quarantined(where, cause, participant)
         if entry not in self.quarantined:
             self.quarantined.append(entry)
             log.warning("%s; quarantined (left out of the records read)", entry)
@@ -412,35 +458,20 @@ class RedisStore:
         self.client.close()
 
 
-@dataclass
-class _Pending:
-    """Events some stores hold and others do not (their failure is being retried)."""
-
-    seq: int
-    events: list[dict[str, Any]]
-    held: set[int] = field(default_factory=set)  # indices of the stores that hold them
-
-
-def _same_events(a: Sequence[dict[str, Any]], b: Sequence[dict[str, Any]]) -> bool:
-    """Whether `b` is `a` again (its retry): equal but for the times."""
-
-    def strip(events: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-        return [{k: v for k, v in e.items() if k != "at"} for e in events]
-
-    return strip(a) == strip(b)
+def _store_name(store: EventStore) -> str:
+    return str(getattr(store, "name", type(store).__name__))
 
 
 class Recorder:
     """Appends every event to all configured stores, the primary (the first: files when configured) first,
-    numbering each participant's events (`seq`) so that a retry after a store fault is recorded once in each
-    store (module docstring)."""
+    numbering each participant's events (`seq`); an action's events are in every store or in none, so a
+    retry after a store fault is recorded once in each store (module docstring)."""
 
     def __init__(self, stores: Sequence[EventStore]) -> None:
         if not stores:
             raise ValueError("a recorder needs at least one store")
         self.stores = list(stores)
         self._next: dict[str, int] = {}  # participant -> the seq of its next event
-        self._pending: dict[str, _Pending] = {}
 
     def resume(self, participant: str, events: Sequence[dict[str, Any]]) -> None:
         """Continues the numbering of a participant recorded by an earlier run (`events`: as read back)."""
@@ -449,30 +480,68 @@ class Recorder:
 
     def append(self, participant: str, *events: dict[str, Any]) -> list[dict[str, Any]]:
         """Records `events` (the events of one action, each with its `seq` added) in every store; returns
-        them. `RecordUnavailableError` naming the store that failed: the events then wait, under the same
-        `seq`s, for a retry (written only where they are missing) or for other events that replace them."""
+        them. `RecordUnavailableError` naming the store that failed: the stores that took them give them
+        back, and the next event of the participant (a retry, or what replaces it) takes the same `seq`s."""
         seq = self._next.get(participant, 0)
         batch = [{**event, "seq": seq + i} for i, event in enumerate(events)]
-        pending = self._pending.pop(participant, None)
-        held: set[int] = set()
-        if pending is not None and pending.seq == seq and _same_events(pending.events, batch):
-            batch, held = pending.events, pending.held  # a retry: only the stores that miss it
-        for i, store in enumerate(self.stores):
-            if i in held:
-                continue
-            name = str(getattr(store, "name", type(store).__name__))
+        taken: list[tuple[str, Callable[[], None]]] = []
+        for store in self.stores:
+            name = _store_name(store)
             try:
-                store.append(participant, *batch)
+                taken.append((name, store.append(participant, *batch)))
             except (OSError, StoreError) as err:
-                self._pending[participant] = _Pending(seq, batch, held)
+                for held, undo in reversed(taken):
+                    try:
+                        undo()
+                    except (OSError, StoreError) as cause:  # the next event replaces them (same seq)
+                        log.error(
+                            "participant %s: %s keeps events %d.. it could not give back (%s); the "
+                            "participant's next event replaces them", participant, held, seq, cause,
+                        )  # fmt: skip
                 raise RecordUnavailableError(f"{name} cannot record events now: {err}", name) from err
-            held.add(i)
         self._next[participant] = seq + len(batch)
         return batch
 
+    def replay(self, records: dict[str, list[dict[str, Any]]]) -> int:
+        """Makes Redis, where it follows the primary, hold the primary's `records` (as read back): a
+        participant's stream that misses events (Redis restarted empty, say) or holds others (a write to a
+        frozen Redis applied after it timed out) is written again from the primary's records; a participant
+        Redis alone holds with nothing but its join (a join refused while Redis was frozen) is removed.
+        Where the primary quarantined lines of a participant Redis holds more of, or Redis alone holds one
+        that went on, Redis is left as it is, with a warning. Returns how many participants were replayed."""
+        primary, replayed = self.stores[0], 0
+        damaged = {q.participant for q in primary.quarantined}
+        for store in self.stores[1:]:
+            if not isinstance(store, RedisStore):
+                continue
+            held = set(store.participants())
+            for pid, events in records.items():
+                theirs = store.events(pid, missing_ok=True) if pid in held else []
+                if theirs == events:
+                    continue
+                if pid in damaged and theirs != events[: len(theirs)]:
+                    log.warning(
+                        "participant %s: %s holds events the primary's records lack (some of their lines "
+                        "are quarantined); Redis is left as it is", pid, store.name,
+                    )  # fmt: skip
+                    continue
+                store.replace(pid, events)
+                replayed += 1
+                log.warning(
+                    "participant %s: %s held %d of its events, %s %d; replayed from %s", pid, store.name,
+                    len(theirs), _store_name(primary), len(events), _store_name(primary),
+                )  # fmt: skip
+            for pid in sorted(held - set(records)):
+                if [e["type"] for e in store.events(pid, missing_ok=True)] == ["participant"]:
+                    store.replace(pid, [])
+                    log.warning("participant %s: only in %s, its join refused; removed", pid, store.name)
+                else:
+                    where = (pid, store.name, _store_name(primary))
+                    log.warning("participant %s: in %s, not in %s; left as it is", *where)
+        return replayed
+
     def discard(self, participant: str) -> None:
         """Forgets a participant whose join failed (nobody can continue it)."""
-        self._pending.pop(participant, None)
         self._next.pop(participant, None)
 
     def close(self) -> None:

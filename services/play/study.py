@@ -8,7 +8,7 @@ anything a client could send wrong. Every state change is recorded (`services.pl
 method returns, the events of one action together. When a store cannot record them, the method raises
 `RecordUnavailableError` and leaves the participant's stage as it was (a round being played is ended: its
 connection closes and the round is played again), so the action can be retried without being recorded
-twice.
+twice; a join refused so leaves no record, and its counterbalancing index goes to the next join.
 
 The round plan of participant i (their partners in order, the human's seat, the zoo draws, the kitchen and
 the round seeds) comes from `numpy.random.default_rng([study.seed, i])`, so a study is reproducible; a
@@ -21,6 +21,7 @@ survey, export); splitting it would spread that invariant over files.
 from __future__ import annotations
 
 import hashlib
+import heapq
 import json
 import logging
 import math
@@ -176,6 +177,7 @@ class Study:
         self._refused_logged = -math.inf
         self._lock = threading.Lock()
         self._next_index = 0  # arrival index of the next participant (`restore` continues the count)
+        self._free_indices: list[int] = []  # a heap: indices of refused joins, given to the next joins
 
     # --- participants ---------------------------------------------------------------------------------
 
@@ -188,8 +190,10 @@ class Study:
         with self._lock:
             self._admit(address)
             self._joining += 1
-            index = self._next_index
-            self._next_index += 1
+            if self._free_indices:
+                index = heapq.heappop(self._free_indices)
+            else:
+                index, self._next_index = self._next_index, self._next_index + 1
         try:
             token = secrets.token_urlsafe(24)
             code = self.config.completion_code or "C" + secrets.token_hex(4).upper()
@@ -206,8 +210,10 @@ class Study:
                     session=_token_hash(token),
                     code=code,
                 )
-            except Exception:  # not admitted (no cookie): nobody will retry this participant's events
+            except Exception:  # not admitted (no cookie, no file): its index goes to the next join
                 self.recorder.discard(p.id)
+                with self._lock:
+                    heapq.heappush(self._free_indices, index)
                 raise
         finally:
             with self._lock:

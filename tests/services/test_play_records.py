@@ -2,7 +2,10 @@
 participant's form is answered 503 naming the store and a retry is recorded once in each store; a record
 line that is not an event is quarantined with a warning naming the file and line, so the study restarts
 over it and `cec play export` lists it; malformed Redis entries and an empty study file end in a clear
-error, never a traceback.
+error, never a traceback. The stores agree after faults (issue 63, item 4): what a store refused (Redis
+down or frozen) is taken back from the others (no line, no participant file, no counterbalancing index); a
+server that starts replays the records folder into a Redis that restarted empty; export names every
+participant it passes over and why.
 
 Through the entry point where practical: `python -m apps.cli play serve|export` on a real `redis-server`.
 """
@@ -10,6 +13,8 @@ Through the entry point where practical: `python -m apps.cli play serve|export` 
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -22,6 +27,7 @@ from typing import Any
 import pytest
 import redis
 
+from services.play.export import read_all
 from services.play.recording import FileStore, Recorder, RecordUnavailableError, RedisStore, parse_event
 from services.store import LocalRedis, StoreConfig
 from tests.play_server import ROOT, PlayServer
@@ -81,14 +87,14 @@ def test_the_recorder_records_a_retry_once_in_each_store(tmp_path: Path, own_red
     recorder.append(PID, head)
     own_redis.stop()
     consent = {"type": "consent", "accepted": True}
-    for _ in range(3):  # retries while Redis is down: the file gets the event once
+    for _ in range(3):  # retries while Redis is down: the file takes the event back each time
         with pytest.raises(RecordUnavailableError, match="Redis") as caught:
             recorder.append(PID, {**consent, "at": 1.0})
         assert caught.value.store == "Redis"
-    assert _types(files.events(PID)) == ["participant", "consent"]
-    assert len(files.path(PID).read_text().splitlines()) == 2
+    assert _types(files.events(PID)) == ["participant"]
+    assert len(files.path(PID).read_text().splitlines()) == 1
     own_redis.start()
-    recorder.append(PID, {**consent, "at": 2.0})  # the retry: only Redis misses it
+    recorder.append(PID, {**consent, "at": 2.0})  # the retry: recorded once in each store
     assert len(files.path(PID).read_text().splitlines()) == 2
     assert files.events(PID) == red.events(PID) and _types(red.events(PID)) == ["participant", "consent"]
     assert [e["seq"] for e in red.events(PID)] == [0, 1]
@@ -104,6 +110,49 @@ def test_the_recorder_records_a_retry_once_in_each_store(tmp_path: Path, own_red
     assert _types(files.events(PID)) == _types(red.events(PID)) == ["participant", "consent", "round_abort"]
     assert files.events(PID) == red.events(PID)
     recorder.close()
+
+
+def test_what_a_frozen_redis_refused_is_in_no_store_and_a_restart_replays_the_files(
+    tmp_path: Path, own_redis: LocalRedis
+) -> None:
+    """Redis frozen (SIGSTOP) past its socket timeout: the file gives the event back (and a join's file
+    goes), whether or not Redis applies the write when it thaws; a restart's replay makes Redis agree."""
+    files = FileStore(tmp_path, "s")
+    config = StoreConfig(url=own_redis.url, key_prefix="t", socket_timeout_s=0.5, retries=0)
+    red = RedisStore(config, "s")
+    recorder = Recorder([files, red])
+    head = {"type": "participant", "index": 0, "session": "x", "code": "C", "config_digest": "d"}
+    recorder.append(PID, head)
+    joiner = "p" + "ef" * 10
+    os.kill(own_redis.pid, signal.SIGSTOP)
+    try:
+        with pytest.raises(RecordUnavailableError, match="Redis"):
+            recorder.append(PID, {"type": "consent", "accepted": True})
+        with pytest.raises(RecordUnavailableError, match="Redis"):
+            recorder.append(joiner, {**head, "index": 1})
+        assert _types(files.events(PID)) == ["participant"]  # the refused submit wrote no line
+        assert not files.path(joiner).exists()  # the refused join left no file
+    finally:
+        os.kill(own_redis.pid, signal.SIGCONT)
+    recorder.append(PID, {"type": "consent", "accepted": False})  # the participant answers otherwise
+    assert files.events(PID) == red.events(PID)  # one consent, the second answer, in each store
+    assert [(e["seq"], e.get("accepted")) for e in red.events(PID)] == [(0, None), (1, False)]
+
+    # a server starting again: Redis keeps no participant the files do not have, and gets what it lacks
+    red.replace(PID, red.events(PID)[:1])
+    restarted = Recorder([files, red])
+    restarted.replay(read_all(files))
+    assert red.participants() == [PID] and red.events(PID) == files.events(PID)
+    recorder.close()
+
+
+def _restart_empty(server: LocalRedis) -> None:
+    """Restarts `server` without its data (a Redis without persistence, or whose files were lost)."""
+    server.stop()
+    for path in server.data_dir.iterdir():
+        if path.name not in ("redis.conf", "redis.log"):
+            shutil.rmtree(path) if path.is_dir() else path.unlink()
+    server.start()
 
 
 def test_parse_event_refuses_what_is_not_an_event() -> None:
@@ -142,14 +191,18 @@ def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_li
             status, body = browser.post("/api/submit", {"stage": "consent", "accept": True})
             assert status == 503 and body["store"] == "Redis" and "Redis is unavailable" in body["error"]
         status, _ = _Browser(server.url).post("/api/join", {})
-        assert status == 503  # new participants too
+        assert status == 503  # new participants too, leaving no participant file
+        assert [p.name for p in (data / "faults").iterdir()] == [f"{pid}.jsonl"]
         own_redis.start()
         status, view = browser.post("/api/submit", {"stage": "consent", "accept": True})
         assert status == 200 and view["stage"] == "instructions"
+        status, second = _Browser(server.url).post("/api/join", {})
+        assert status == 200
     finally:
         code = server.stop(signal.SIGINT)
     assert code == 0 and "Traceback" not in server.log, server.log
     files = FileStore(data, "faults", create=False)
+    assert files.events(second["participant"])[0]["index"] == 1  # the refused join took no index
     red = RedisStore(StoreConfig(url=own_redis.url, key_prefix="cec", retries=1), "faults")
     assert _types(files.events(pid)) == _types(red.events(pid)) == ["participant", "consent"]
     assert files.events(pid) == red.events(pid)
@@ -158,6 +211,7 @@ def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_li
     # damaged lines: a list, a 100,000-deep line, an event without its fields; the study restarts over them
     path = files.path(pid)
     path.write_text(path.read_text() + "[]\n" + "[" * 100_000 + "]" * 100_000 + "\n" + '{"type": "info"}\n')
+    _restart_empty(own_redis)  # and Redis lost everything: the server replays the files into it
     server = PlayServer(args, "faults")
     try:
         browser.url = server.url  # another port; the same cookie
@@ -169,6 +223,10 @@ def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_li
     for line in (3, 4, 5):
         assert f"{path}, line {line}:" in server.log and "quarantined" in server.log
     assert "3 record line(s) quarantined" in server.log
+    red = RedisStore(StoreConfig(url=own_redis.url, key_prefix="cec", retries=1), "faults")
+    assert red.participants() == files.participants()
+    assert red.events(pid) == files.events(pid) and [e["seq"] for e in red.events(pid)] == [0, 1, 2]
+    red.close()
 
     out = _cli("export", str(study), "--data", str(data), "--out", str(tmp_path / "out"))
     assert out.returncode == 0, out.stderr
@@ -176,6 +234,8 @@ def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_li
     assert f"{path}, line 3: not a JSON object but a list" in out.stdout
     assert f"{path}, line 4: nested 100000 levels deep" in out.stdout
     assert f"{path}, line 5: an event of type 'info' without `fields`" in out.stdout
+    unplayed = "no finished study round (the last event recorded is 'participant')"
+    assert f"participant {second['participant']}: {unplayed}" in out.stdout
     assert "Traceback" not in out.stderr
 
 
@@ -193,6 +253,24 @@ def test_export_from_redis_quarantines_malformed_entries(tmp_path: Path, redis_s
     assert out.returncode == 0 and "Traceback" not in out.stderr, out.stderr
     assert "left out 2 quarantined record line(s)" in out.stdout
     assert "no `event` field" in out.stdout and "not a JSON object but a list" in out.stdout
+
+    # a stream that starts at event 2 (Redis restarted empty under a running server), and one with a gap
+    late, gap = "p" + "ab" * 10, "p" + "ef" * 10
+    abort = {"type": "round_abort", "round": 0, "attempt": 0, "steps": -1}
+    r.sadd(f"{key}:participants", late, gap)
+    r.xadd(f"{key}:{late}", {"event": json.dumps({**abort, "seq": 2})})
+    for event in ({**head, "seq": 0}, {**abort, "seq": 3}):
+        r.xadd(f"{key}:{gap}", {"event": json.dumps(event)})
+    out = _cli("export", str(study), "--redis-url", redis_server.url, "--out", str(tmp_path / "out"))
+    assert out.returncode == 0 and "Traceback" not in out.stderr, out.stderr
+    assert f"participant {late}: its records start at event 2 (round_abort), not at its join" in out.stdout
+    assert f"participant {gap}: its events 1..2 are missing; left out" in out.stdout
+    assert "export from the records folder (--data)" in out.stdout
+    assert (
+        f"participant {PID}: no finished study round (the last event recorded is 'participant')" in out.stdout
+    )
+    r.delete(f"{key}:{late}", f"{key}:{gap}")
+    r.srem(f"{key}:participants", late, gap)
 
     r.delete(f"{key}:participants")
     r.set(f"{key}:participants", "not a set")
