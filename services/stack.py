@@ -121,6 +121,25 @@ def _ensure_ray_token() -> None:
         raise ConfigError(f"Ray's authentication token could not be created: {done.stderr.strip()[-500:]}")
 
 
+def start_ray_head(args: list[str], log_path: Path, timeout: float) -> ServiceProcess:
+    """Ray's head as a service (`args`: after `python -u`, e.g. `-m ray.scripts.scripts start --head ...`),
+    ready once it prints "Ray runtime started". `RayStartError` in this project's words, naming
+    `start_timeout_s` (`timeout`), when it exits or is not ready in time (a heavily loaded machine)."""
+    from services.learner.driver import RayStartError, first_line
+
+    try:
+        return ServiceProcess("ray head", args, log_path, "Ray runtime started", timeout)
+    except ServiceStartError as err:
+        why = "it exited" if err.exited else f"it was not ready within start_timeout_s = {timeout:g} s"
+        last = first_line("\n".join(reversed(err.tail)))
+        raise RayStartError(
+            f"Ray's head did not start: {why} (its last line: {last or 'none'}). On a heavily loaded machine "
+            f"Ray starts slowly or times out in its own start-up: raise start_timeout_s (now {timeout:g} s; "
+            "`cec up start_timeout_s=600 ...`) and try again when the load is lower, or start Ray yourself "
+            f"(`ray start --head`) and give distributed.ray_address=HOST:PORT. Ray's output: {log_path}"
+        ) from None
+
+
 def _forget_ray_address(port: int) -> None:
     """Remove the "last cluster" file (<Ray temp dir>/ray_current_cluster) if it names our stopped head, as
     `ray stop` does, so that no later `ray.init()` on this machine tries to join a cluster that is gone; a
@@ -131,6 +150,15 @@ def _forget_ray_address(port: int) -> None:
     with contextlib.suppress(OSError):
         if path.read_text().strip().rpartition(":")[2] == str(port):
             path.unlink()
+
+
+class ServiceStartError(ConfigError):
+    """A service did not become ready: it `exited` first, or the time ran out; `tail`: its last lines."""
+
+    def __init__(self, message: str, exited: bool, tail: list[str]) -> None:
+        super().__init__(message)
+        self.exited = exited
+        self.tail = tail
 
 
 class ServiceProcess:
@@ -157,8 +185,8 @@ class ServiceProcess:
         self.ready_line = self._wait_for(ready, timeout)
 
     def _wait_for(self, marker: str, timeout: float) -> str:
-        """The first whole line of the child's output holding `marker`; ConfigError (with the end of its
-        output) if it exits or `timeout` runs out first."""
+        """The first whole line of the child's output holding `marker`; `ServiceStartError` (with the end of
+        its output) if it exits or `timeout` runs out first."""
         found: list[str] = []
 
         def printed() -> bool:
@@ -171,9 +199,11 @@ class ServiceProcess:
         except NotReadyError as err:
             self.stop()
             tail = [line.rstrip() for line in err.output.splitlines()[-15:]]
-            raise ConfigError(
+            raise ServiceStartError(
                 f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
-                + "\n  ".join(tail)
+                + "\n  ".join(tail),
+                err.exited,
+                tail,
             ) from None
         return found[0]
 
@@ -344,8 +374,7 @@ class Stack:
         if not address:  # a local Ray started by its own CLI: no fork of this (JAX-threaded) process
             _ensure_ray_token()
             port = free_port()
-            head = ServiceProcess(
-                "ray head",
+            head = start_ray_head(
                 [
                     "-m",
                     "ray.scripts.scripts",
@@ -359,7 +388,6 @@ class Stack:
                     *([f"--num-cpus={self.dist.ray_num_cpus}"] if self.dist.ray_num_cpus else []),
                 ],
                 logs / "ray.log",
-                "Ray runtime started",
                 cfg.start_timeout_s,
             )
             self._started(head)

@@ -136,14 +136,38 @@ def learner_options(dist: DistributedConfig, devices: int = 1) -> dict[str, Any]
     }
 
 
+#: Ray's own wait for its head to answer a driver (seconds, default 60; Ray reads it from the environment,
+#: and a head started by `cec up` inherits it): what to raise when a loaded machine answers slowly.
+RAY_WAIT_VARIABLE = "RAY_gcs_server_request_timeout_seconds"
+
+
+class RayStartError(ConfigError):
+    """Ray's head could not be started or reached; the message names the cause and the setting to raise."""
+
+
+def first_line(text: str, limit: int = 200) -> str:
+    """The first non-empty line of `text`, clipped to `limit` characters (a cause, not a traceback)."""
+    line = next((ln.strip() for ln in text.splitlines() if ln.strip()), "")
+    return line if len(line) <= limit else line[: limit - 3] + "..."
+
+
 def connect_ray(address: str, **options: Any) -> Any:
     """`ray.init(address)`; the learner's and actors' lines Ray forwards here carry no colour codes when
-    stderr is not a terminal (a log file, a pipe), as Ray's RAY_COLOR_PREFIX=0 makes them."""
+    stderr is not a terminal (a log file, a pipe), as Ray's RAY_COLOR_PREFIX=0 makes them. `RayStartError`
+    naming the address and `RAY_WAIT_VARIABLE` when Ray cannot be reached."""
     import ray
 
     if not sys.stderr.isatty():
         os.environ.setdefault("RAY_COLOR_PREFIX", "0")
-    return ray.init(address=address, **options)
+    try:
+        return ray.init(address=address, **options)
+    except Exception as err:  # Ray raises ConnectionError, TimeoutError, RuntimeError and types of its own
+        raise RayStartError(
+            f"cannot connect to Ray at {address} ({type(err).__name__}: {first_line(str(err))}). A heavily "
+            f"loaded machine answers slowly: raise Ray's wait, e.g. {RAY_WAIT_VARIABLE}=300 in the "
+            f"environment (Ray's default: 60 s), and check that the cluster runs (`ray status --address "
+            f"{address}`)"
+        ) from None
 
 
 def disconnect_ray() -> None:
