@@ -30,7 +30,7 @@ from cec.training.config import TrainConfig  # noqa: E402
 from services.learner.config import DistributedConfig  # noqa: E402
 from services.learner.driver import check_cluster, run_distributed  # noqa: E402
 from services.processes import free_port  # noqa: E402
-from services.stack import ServiceProcess  # noqa: E402
+from services.service_process import ServiceProcess  # noqa: E402
 from services.store import ControlPlane, LocalRedis  # noqa: E402
 
 pytestmark = pytest.mark.timeout(600)

@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from services.learner.driver import RAY_WAIT_VARIABLE, RayStartError, connect_ray
-from services.stack import start_ray_head
+from services.service_process import start_ray_head
 
 #: What Ray's head prints when its raylet does not register in time (ray/_private/node.py).
 RAY_TIMED_OUT = (
