@@ -21,12 +21,12 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
+import jax.numpy as jnp
 import numpy as np
 
 from cec.envs.overcooked.state import POT_EMPTY, POT_READY
 from cec.levels import DIR_VEC, Item, Tile
-
-_NEIGHBOURS = ((-1, 0), (1, 0), (0, -1), (0, 1))
+from cec.levels.solvability import usable_counters
 
 
 @dataclass
@@ -48,29 +48,12 @@ class Handovers:
         return Handovers(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
 
 
-def _region(floor: np.ndarray, start: tuple[int, int]) -> np.ndarray:
-    region = np.zeros_like(floor)
-    stack = [start]
-    while stack:
-        r, c = stack.pop()
-        if region[r, c] or not floor[r, c]:
-            continue
-        region[r, c] = True
-        stack += [(r + dr, c + dc) for dr, dc in _NEIGHBOURS if 0 <= r + dr < 9 and 0 <= c + dc < 9]
-    return region
-
-
-def _next_to(mask: np.ndarray) -> np.ndarray:
-    p = np.pad(mask, 1)
-    return p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
-
-
 def shared_counters(grid: np.ndarray, agent_pos: np.ndarray) -> np.ndarray:
     """bool[9, 9]: bare counters next to both seats' floor regions (where one can leave an item for the
     other); in a kitchen whose seats share a region, every counter they can reach."""
-    floor = grid == Tile.FLOOR
-    near = [_next_to(_region(floor, (int(r), int(c)))) for r, c in np.asarray(agent_pos)]
-    return (grid == Tile.COUNTER) & near[0] & near[1]
+    tiles = jnp.asarray(grid)
+    near = [usable_counters(tiles, jnp.asarray(pos)) for pos in np.asarray(agent_pos)]
+    return np.asarray((tiles == Tile.COUNTER) & near[0] & near[1])
 
 
 def count_handovers(states: Any) -> Handovers:

@@ -11,8 +11,8 @@ The generated kitchens were drawn by `generate` (default config) from the keys `
 the validation ones with the classic kitchens excluded, the test ones with the whole validation set
 excluded, and both are frozen in `data/heldout.txt` and `data/test.txt`, so the sets never change when the
 generator does (`python -m cec.levels.heldout_build --write` rebuilds the files; `tests/unit/levels/
-test_heldout.py` checks they still match their seeds). The generator excludes both sets (`excluded_
-fingerprints`). Kitchens are identified by content (`cec.levels.fingerprint`).
+test_heldout.py` checks they still match their seeds). The generator excludes both sets
+(`heldout_fingerprints`). Kitchens are identified by content (`cec.levels.fingerprint`).
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Every evaluation reads its scores by kitchen kind, because the skills differ: a kitchen where neither seat
 can finish a soup alone needs a hand-over across a counter (Forced Coordination), one where a seat can
 finish alone only needs the two to keep out of each other's way. A seat *can finish alone* when the
-counters next to the floor region it starts in (`cec.levels.solvability.flood`) hold an onion pile, a pot,
+counters next to the floor region it starts in (`cec.levels.solvability.reaches`) hold an onion pile, a pot,
 a plate pile and a goal.
 
     kind     HANDOVER    neither seat can finish alone (a hand-over is needed: an item put on a counter
@@ -28,8 +28,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from cec.levels.classic import CLASSIC_ASCII
+from cec.levels.heldout import DRAWN_PREFIX
 from cec.levels.level import REQUIRED_TILES, Level, Tile, stack_levels
-from cec.levels.solvability import adjacent, flood
+from cec.levels.solvability import reaches
 
 
 class Kind(IntEnum):
@@ -72,11 +73,7 @@ def classify(level: Level) -> KitchenKind:
     """The kind of one level (jittable; vmap for batches)."""
     grid = level.grid
     floor = grid == Tile.FLOOR
-    alone = []
-    for seat in (0, 1):
-        usable = adjacent(flood(floor, level.agent_pos[seat])) & ~floor
-        alone.append(jnp.all(jnp.stack([jnp.any((grid == t) & usable) for t in REQUIRED_TILES])))
-    both = jnp.stack(alone)
+    both = jnp.stack([jnp.all(reaches(grid, level.agent_pos[seat], REQUIRED_TILES)) for seat in (0, 1)])
     # An island: counters that no chain of counters (8-neighbours: walking needs a 4-connected gap) joins
     # to the frame's edge. The floor round it is a loop.
     edge = jnp.zeros_like(floor).at[0, :].set(True).at[-1, :].set(True).at[:, 0].set(True).at[:, -1].set(True)
@@ -120,7 +117,7 @@ def validation_parts(levels: Mapping[str, Level]) -> dict[str, list[str]]:
         "classic"
         if set(rest) <= set(CLASSIC_ASCII)
         else "drawn"
-        if all("drawn_" in n for n in rest)
+        if all(n.startswith(DRAWN_PREFIX) for n in rest)
         else "named"
     )
     return {"generated": list(generated), **subsets(generated), label: rest, **{n: [n] for n in rest}}

@@ -74,6 +74,18 @@ def flood(floor: jax.Array, start: jax.Array) -> jax.Array:
     return region
 
 
+def usable_counters(grid: jax.Array, start: jax.Array) -> jax.Array:
+    """bool[9, 9]: the non-floor cells an agent starting at `start` can interact with (next to its region)."""
+    floor = grid == Tile.FLOOR
+    return adjacent(flood(floor, start)) & ~floor
+
+
+def reaches(grid: jax.Array, start: jax.Array, tiles: tuple[Tile, ...]) -> jax.Array:
+    """bool[len(tiles)]: whether an agent starting at `start` can use a tile of each kind."""
+    usable = usable_counters(grid, start)
+    return jnp.stack([jnp.any((grid == t) & usable) for t in tiles])
+
+
 def check(level: Level, allow_decoys: bool | jax.Array = False) -> SolvabilityReport:
     """Solvability of one level (vmap for batches). Pure and jittable.
 

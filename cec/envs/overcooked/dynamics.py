@@ -26,7 +26,7 @@ from cec.envs.overcooked.state import (
     StepOutput,
 )
 from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, cell_mask, validate_level
-from cec.levels.solvability import adjacent, flood
+from cec.levels.solvability import reaches
 
 _DIR_VEC = jnp.asarray(DIR_VEC)
 
@@ -161,15 +161,8 @@ def _interact(
 def _sources(state: EnvState) -> jax.Array:
     """bool[2, 3]: whether each seat's floor region (from where it stands) reaches an onion pile, a plate
     pile and a pot."""
-    grid = state.level.grid
-    floor = grid == Tile.FLOOR
-    out = []
-    for seat in (0, 1):
-        usable = adjacent(flood(floor, state.agent_pos[seat])) & ~floor
-        out.append(
-            jnp.stack([jnp.any((grid == t) & usable) for t in (Tile.ONION_PILE, Tile.PLATE_PILE, Tile.POT)])
-        )
-    return jnp.stack(out)
+    tiles = (Tile.ONION_PILE, Tile.PLATE_PILE, Tile.POT)
+    return jnp.stack([reaches(state.level.grid, state.agent_pos[seat], tiles) for seat in (0, 1)])
 
 
 def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Transition:
