@@ -17,7 +17,6 @@ import argparse
 import ast
 import dataclasses
 import hashlib
-import importlib.util
 import json
 import re
 import sys
@@ -45,9 +44,8 @@ from cec.humans.data import (
     save_steps,
     stack_steps,
 )
+from cec.levels.overcooked_ai import PACKAGE, PACKAGE_VERSION, package_dir
 
-PACKAGE = "overcooked_ai_py"
-PACKAGE_VERSION = "1.1.0"
 #: The pickles of `overcooked-ai` 1.1.0 (`overcooked_ai_py/data/human_data/`) by split, with their SHA-256.
 PICKLES = {
     "train": (
@@ -61,13 +59,13 @@ DEFAULT_DATA = "data/humans"
 
 def package_data_dir() -> Path:
     """`overcooked_ai_py/data/human_data` of the installed package (found without importing it)."""
-    spec = importlib.util.find_spec(PACKAGE)
-    if spec is None or not spec.submodule_search_locations:
+    package = package_dir()
+    if package is None:
         raise ConfigError(
             f"the {PACKAGE} package (PyPI: overcooked-ai=={PACKAGE_VERSION}) is not installed; install the "
             "peers extra: pip install -e '.[peers]' (make install does)"
         )
-    return Path(next(iter(spec.submodule_search_locations))) / "data" / "human_data"
+    return package / "data" / "human_data"
 
 
 def read_split(split: str, *, games_per_kitchen: int | None = None, log: TextIO = sys.stderr) -> Steps:

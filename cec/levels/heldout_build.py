@@ -11,7 +11,6 @@ data, the package is not imported). Without it the check covers the generated ki
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import re
 from pathlib import Path
 
@@ -33,6 +32,7 @@ from cec.levels.heldout import (
     heldout_levels,
 )
 from cec.levels.level import Level, LevelError
+from cec.levels.overcooked_ai import package_dir
 from cec.levels.solvability import validate_solvable
 
 #: overcooked-ai layouts that are the classic five or variants of them (other orders, one player).
@@ -64,12 +64,10 @@ def build_generated(prefix: str, seed_base: int, excluded: list[Level]) -> list[
 
 
 def overcooked_ai_layouts() -> Path | None:
-    """`overcooked_ai_py/data/layouts` of the installed overcooked-ai (found without importing it)."""
-    spec = importlib.util.find_spec("overcooked_ai_py")
-    if spec is None or not spec.submodule_search_locations:
-        return None
-    path = Path(next(iter(spec.submodule_search_locations))) / "data" / "layouts"
-    return path if path.is_dir() else None
+    """`overcooked_ai_py/data/layouts` of the installed overcooked-ai (None without it)."""
+    package = package_dir()
+    path = package / "data" / "layouts" if package is not None else None
+    return path if path is not None and path.is_dir() else None
 
 
 def convert_drawn(text: str) -> Level:
