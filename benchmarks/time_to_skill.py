@@ -143,11 +143,12 @@ def evaluate(
         if (name, update) in done:
             continue
         table = play_milestone(name, checkpoints, levels, config)
-        [point] = milestone_points(table, parts["generated"])
-        by_part = {}
-        for part, names in parts.items():
-            [p] = milestone_points(table, names)
-            by_part[part] = {"levels": len(names), "xp": p.xp, "xp_se": p.xp_se, "sp": p.sp, "sp_se": p.sp_se}
+        points = {part: milestone_points(table, names)[0] for part, names in parts.items()}
+        point = points["generated"]
+        by_part = {
+            part: {"levels": len(parts[part]), "xp": p.xp, "xp_se": p.xp_se, "sp": p.sp, "sp_se": p.sp_se}
+            for part, p in points.items()
+        }
         cost = sum(s.get(update, float("nan")) for s in seconds) / len(point.seeds) / 3600
         rows.append(
             {
