@@ -269,12 +269,36 @@ def _run_on_ray(
                     file=log_to,
                     flush=True,
                 )
+                # One death is one restart: calls made while Ray brings the process back fail too (on a
+                # loaded machine that takes minutes), so wait for the new process before calling `run`.
+                if not _restarted(learner):
+                    print(f"Ray did not restart the learner; giving up: {err}", file=log_to, flush=True)
+                    return None
                 if stopping.is_set():  # the stop request went to the dead process: ask the new one
                     time.sleep(1.0)
                     stop()
     with contextlib.suppress(Exception):
         ray.kill(learner, no_restart=True)
     return summary
+
+
+def _restarted(actor: Any) -> bool:
+    """Waits until Ray has restarted a dead actor's process (it answers); False when Ray will not."""
+    import ray
+
+    ref = actor.__ray_ready__.remote()
+    while True:
+        ready, _ = ray.wait([ref], timeout=0.5)  # short waits keep the main thread responsive to signals
+        if not ready:
+            continue
+        try:
+            ray.get(ref)
+            return True
+        except ray.exceptions.ActorDiedError:  # out of restarts, or its node is gone for good
+            return False
+        except ray.exceptions.ActorUnavailableError:  # still coming back: ask again
+            time.sleep(0.5)
+            ref = actor.__ray_ready__.remote()
 
 
 def _wait(ref: Any) -> dict:
