@@ -1,7 +1,8 @@
 """`cec reproduce`: the paper's results end to end, one command per game.
 
 pipeline.py           the skeleton both fill (plan, train, evaluate, summarise, report): a zoo's spec,
-                      plan lines, training, loading its policies; seeds as units: `cec.evaluation.seeds`
+                      plan lines, training, loading its policies, `cached_table`, recorded training and
+                      play times; seeds as units: `cec.evaluation.seeds`
 dual_destination.py   `cec reproduce dual-destination` (docs/reproduce.md): its plan, training,
                       evaluation and the command
 dd_modes.py           its versions (quick, full, paper): presets, seeds, budgets, measured speeds
@@ -10,7 +11,6 @@ dd_summary.py         the scores and ordering tests computed from the runs
 dd_reasons.py         why a number differs from the paper's or an ordering fails, from the same seeds
 dd_report.py          its report (report.md, summary.json, bar plots, learning curves)
 overcooked.py         `cec reproduce overcooked` (docs/reproduce_overcooked.md; paper_overcooked.yaml)
-common.py             what both share: `cached_table`, recorded training and play times
 """
 
 from __future__ import annotations

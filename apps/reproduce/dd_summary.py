@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from apps.reproduce.common import read_metrics, train_seconds
 from apps.reproduce.dd_paper import ABLATIONS, CLAIMS, LEVEL_SETS, ORACLE, ROWS, fixed_level_name
+from apps.reproduce.pipeline import read_metrics, train_seconds
 
 ALPHA = 0.05  # significance level of the ordering tests
 LEARNED = 0.5  # a seed whose sampled self-play reaches this normalised score has learned the task set

@@ -41,7 +41,6 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
-from apps.reproduce.common import play_seconds
 from apps.reproduce.dd_modes import FULL as FULL
 from apps.reproduce.dd_modes import MODES as MODES
 from apps.reproduce.dd_modes import PAPER_SCALE as PAPER_SCALE
@@ -67,6 +66,7 @@ from apps.reproduce.dd_report import write_report
 from apps.reproduce.dd_summary import ALPHA as ALPHA
 from apps.reproduce.dd_summary import Score as Score
 from apps.reproduce.dd_summary import conventions, summarise, training_stats
+from apps.reproduce.pipeline import play_seconds
 from cec.checkpoints import code_version
 from cec.config import ConfigError
 
@@ -256,8 +256,8 @@ def oracle_partner_digest() -> str:
 
 def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> Any:
     """`evaluate_variant`, or the table an earlier invocation wrote (`vdir/results.csv`) when nothing it
-    depends on has changed (`evaluation_key`); see `apps.reproduce.common.cached_table`."""
-    from apps.reproduce.common import cached_table
+    depends on has changed (`evaluation_key`); see `apps.reproduce.pipeline.cached_table`."""
+    from apps.reproduce.pipeline import cached_table
 
     key = evaluation_key(mode, variant, manifest)
     play = lambda: evaluate_variant(mode, variant, manifest, log=log)  # noqa: E731

@@ -54,7 +54,7 @@ import yaml
 
 from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
-from apps.reproduce.common import play_seconds, read_metrics, results_file, train_seconds
+from apps.reproduce.pipeline import play_seconds, read_metrics, results_file, train_seconds
 from cec.agents.zoo import HUMAN_PROXY, SHIPPED
 from cec.checkpoints import code_version
 from cec.config import ConfigError
@@ -443,7 +443,7 @@ def evaluate(
     reason. Each line-up's table is kept in `parts/<level set>-<i>` under `key` (`cached_table`) until the
     whole one is written: an interrupted evaluation (the CPU version's line-ups took 6 to 9 minutes
     each on the 2-vCPU Xeon) resumes at the line-up it was playing."""
-    from apps.reproduce.common import cached_table
+    from apps.reproduce.pipeline import cached_table
     from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import eval_levels
     from cec.evaluation.results import EpisodeTable
@@ -534,7 +534,7 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
     are unchanged (the untrained network: that of the folder's CEC agents, `cec_config`). They need no
     trained agent, so `--report-only` plays them when a work folder lacks them. `commit`: the checkout's
     as the command started (written beside a table it plays, with the machine)."""
-    from apps.reproduce.common import cached_table
+    from apps.reproduce.pipeline import cached_table
 
     cfg = cec_config(mode, work)
     network = dataclasses.asdict(cfg.network_config)
@@ -553,10 +553,10 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
 
 def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str) -> Any:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
-    SHA-256) nor the settings changed (`apps.reproduce.common.cached_table`). The invocation that plays it
+    SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`). The invocation that plays it
     writes `work/machine.json`: this machine, `commit` and the commits that wrote the agents' checkpoints
     (a zoo trained over several invocations)."""
-    from apps.reproduce.common import PLAY_TIME_FILE, cached_table
+    from apps.reproduce.pipeline import PLAY_TIME_FILE, cached_table
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
 
@@ -602,7 +602,7 @@ def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = Fa
     milestones`), as the evaluation plays them; cached in `work/curves` while neither the checkpoints nor
     the settings changed. `report_only`: the cached games whatever their key (a folder without its
     checkpoints), None where there are none."""
-    from apps.reproduce.common import cached_table
+    from apps.reproduce.pipeline import cached_table
     from cec.checkpoints import read_meta
     from cec.evaluation.crossplay import eval_levels
     from cec.evaluation.milestones import checkpoints_by_update, play_milestone

@@ -20,7 +20,7 @@ import yaml
 from apps import humans
 from apps.cli import main
 from apps.reproduce import overcooked as ro
-from apps.reproduce.common import play_seconds, read_metrics, train_seconds
+from apps.reproduce.pipeline import play_seconds, read_metrics, train_seconds
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
 from cec.checkpoints import code_version
