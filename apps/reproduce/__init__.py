@@ -17,7 +17,8 @@ from __future__ import annotations
 
 from typing import Any
 
-from apps.reproduce import dual_destination, overcooked
+from apps.reproduce import overcooked
+from apps.reproduce.dual_destination import command as dual_destination
 
 
 def add_subcommands(sub: Any) -> None:

@@ -21,8 +21,15 @@ import pytest
 import yaml
 
 from apps.cli import main
-from apps.reproduce import dd_paper, dd_reasons, dd_summary
-from apps.reproduce import dual_destination as rp
+from apps.reproduce import pipeline
+from apps.reproduce.dual_destination import command as dd_command
+from apps.reproduce.dual_destination import evaluate as dd_evaluate
+from apps.reproduce.dual_destination import modes as dd_modes
+from apps.reproduce.dual_destination import paper as dd_paper
+from apps.reproduce.dual_destination import plan as dd_plan
+from apps.reproduce.dual_destination import reasons as dd_reasons
+from apps.reproduce.dual_destination import report as dd_report
+from apps.reproduce.dual_destination import summary as dd_summary
 from apps.zoo_build import plan_zoo
 from cec import checkpoints
 from cec.config import ConfigError
@@ -34,12 +41,12 @@ TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 4, actor_features: [8], "
     "critic_features: [8]}"
 )
-TINY = rp.Mode(
+TINY = dd_modes.Mode(
     name="tiny",
-    presets=rp.QUICK.presets,
+    presets=dd_modes.QUICK.presets,
     seeds={"ippo": (0, 1, 2), "fcp": (100, 101, 102), "cec": (200, 201, 202)},
     steps={
-        v: dict.fromkeys(dd_paper.ALGORITHMS, 1_600) for v in rp.VARIANTS
+        v: dict.fromkeys(dd_paper.ALGORITHMS, 1_600) for v in dd_paper.VARIANTS
     },  # 2 updates, 8 envs x 100 steps
     episodes={"fixed": 2, "generated": 1},
     overrides=("num_envs=8", "ppo.num_minibatches=2", "ppo.update_epochs=1", "updates_per_call=1", TINY_NET),
@@ -50,9 +57,9 @@ TINY = rp.Mode(
 def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_variant(
     tmp_path: Path,
 ) -> None:
-    for mode in (rp.QUICK, rp.FULL, rp.PAPER_SCALE):
-        for variant in rp.VARIANTS:
-            spec = rp.zoo_spec(mode, variant)
+    for mode in (dd_modes.QUICK, dd_modes.FULL, dd_modes.PAPER_SCALE):
+        for variant in dd_paper.VARIANTS:
+            spec = dd_plan.zoo_spec(mode, variant)
             path = tmp_path / f"{mode.name}_{variant}.yaml"
             path.write_text(yaml.safe_dump(spec))
             plan = plan_zoo(path, tmp_path / f"zoo_{mode.name}_{variant}")  # the spec is valid as it stands
@@ -78,41 +85,45 @@ def test_the_plan_trains_fcp_on_the_ippo_seeds_and_cec_on_the_generator_of_each_
                 c = cec.config
                 assert dataclasses.replace(same, seed=c.seed, num_seeds=c.num_seeds, name=c.name) == c
             assert ippo.config.env.levels == fcp.config.env.levels == ("multi_task" if multi else "fixed")
-    for mode in (rp.FULL, rp.PAPER_SCALE):
-        lines = rp.plan_lines(mode, tmp_path / mode.name)
+    for mode in (dd_modes.FULL, dd_modes.PAPER_SCALE):
+        lines = dd_plan.plan_lines(mode, tmp_path / mode.name)
         assert len(lines) == 3 * len(mode.rows) and all(ln.estimate_s > 0 for ln in lines)
         assert all(ln.done == 0.0 and ln.left_s == ln.estimate_s for ln in lines)
-    assert "cec_nolstm" in rp.FULL.rows
+    assert "cec_nolstm" in dd_modes.FULL.rows
 
 
 def test_the_plan_says_how_much_of_each_row_is_trained_and_what_is_left(tmp_path: Path) -> None:
     """A reproduction spans sessions: `--plan` reads the checkpoints under the work directory."""
     work = tmp_path / "work"
-    plan = rp.zoo(rp.FULL, "partial_obs", work).plan()
+    plan = dd_plan.zoo(dd_modes.FULL, "partial_obs", work).plan()
     ippo = next(r for r in plan if r.algorithm == "ippo")  # 6 seeds in one run
     fcp = [r for r in plan if r.algorithm == "fcp"]  # 4 runs of one seed each
     state = {"w": np.zeros(2, np.float32)}
     for run, update in ((ippo, ippo.config.num_updates // 2), (fcp[0], fcp[0].config.num_updates)):
         path = checkpoints.CheckpointStore(run.run_dir, keep_last=1).path(update)
         checkpoints.save(path, state, update=update, env_steps=0, config=config_dict(run.config), metadata={})
-    lines = {ln.run: ln for ln in rp.plan_lines(rp.FULL, work, ["partial_obs"])}
+    lines = {ln.run: ln for ln in dd_plan.plan_lines(dd_modes.FULL, work, ["partial_obs"])}
     assert lines["ippo"].done == pytest.approx(ippo.config.num_updates // 2 / ippo.config.num_updates)
     assert lines["fcp"].done == 0.25 and lines["fcp"].left_s == pytest.approx(0.75 * lines["fcp"].estimate_s)
     assert lines["cec"].done == 0.0
     out = io.StringIO()
-    rp._print_plan(rp.FULL, ["partial_obs"], work, tmp_path / "out", out)
+    dd_command._print_plan(dd_modes.FULL, ["partial_obs"], work, tmp_path / "out", out)
     assert re.search(r"partial_obs +fcp .* 25% ", out.getvalue()) and ", left: " in out.getvalue()
 
 
 def test_the_paper_numbers_are_data_and_a_malformed_file_names_the_file_and_the_key(tmp_path: Path) -> None:
     paper = dd_paper.load_paper()
-    assert (paper.numbers, paper.claims, paper.oracle_fixed) == (rp.PAPER, rp.CLAIMS, rp.ORACLE_FIXED)
-    assert rp.paper_number("full_obs", "fixed", "cec") == rp.PaperNumber(
+    assert (paper.numbers, paper.claims, paper.oracle_fixed) == (
+        dd_paper.PAPER,
+        dd_paper.CLAIMS,
+        dd_paper.ORACLE_FIXED,
+    )
+    assert dd_paper.paper_number("full_obs", "fixed", "cec") == dd_paper.PaperNumber(
         "full_obs", "fixed", "cec", 0.931, 0.013, "CEC scored 0.931 normalized reward (SE 0.013)"
     )
-    figure_only = rp.paper_number("full_obs", "fixed", "ippo")
+    figure_only = dd_paper.paper_number("full_obs", "fixed", "ippo")
     assert figure_only is not None and figure_only.mean is None and "figure only:" in figure_only.text
-    assert rp.ORACLE_FIXED == 0.955 and len(rp.PAPER) == 15 and len(rp.CLAIMS) == 13
+    assert dd_paper.ORACLE_FIXED == 0.955 and len(dd_paper.PAPER) == 15 and len(dd_paper.CLAIMS) == 13
     good = yaml.safe_load(dd_paper.PAPER_FILE.read_text())
 
     def broken(change: Callable[[dict[str, Any]], object]) -> dict[str, Any]:
@@ -154,11 +165,11 @@ def test_the_committed_report_comes_back_from_its_work_folder_without_training_s
 ) -> None:
     """`cec reproduce dual-destination --report-only` on the committed full version's work folder (tables,
     metrics, exported policies; no training state): the committed numbers and conventions."""
-    full = rp.ROOT / "benchmarks" / "results" / "dual_destination" / "full"
+    full = dd_plan.ROOT / "benchmarks" / "results" / "dual_destination" / "full"
     cmd = [sys.executable, "-m", "apps.cli", "reproduce", "dual-destination", "--report-only",
            "--allow-dirty", "--variants", "full_obs", "--work", str(full / "work"),
            "--out", str(tmp_path)]  # fmt: skip
-    done = subprocess.run(cmd, capture_output=True, text=True, cwd=rp.ROOT, timeout=300)
+    done = subprocess.run(cmd, capture_output=True, text=True, cwd=dd_plan.ROOT, timeout=300)
     assert done.returncode == 0, done.stderr
     got, want = (json.loads((d / "summary.json").read_text()) for d in (tmp_path, full))
     assert got["summaries"]["full_obs"] == want["summaries"]["full_obs"]
@@ -193,7 +204,9 @@ def test_train_only_goes_on_with_the_next_variant_while_others_train_the_rest(
 
     monkeypatch.setattr(zoo_build, "build_zoo", fake_build)
     log = io.StringIO()
-    manifests = rp.train_only(rp.FULL, tmp_path, ("full_obs", "partial_obs"), progress=False, log=log)
+    manifests = dd_plan.train_only(
+        dd_modes.FULL, tmp_path, ("full_obs", "partial_obs"), progress=False, log=log
+    )
     assert calls == [("full_obs", False), ("partial_obs", False), ("full_obs", True)]
     assert list(manifests) == ["full_obs", "partial_obs"]
     assert manifests["full_obs"] == tmp_path / "full_obs" / "zoo" / "zoo.yaml"
@@ -205,10 +218,10 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # training alone (`--train-only`, as several processes or sessions share it), then the report reuses it
-    manifests = rp.train_only(TINY, tmp_path / "work", ("full_obs",), progress=False, log=io.StringIO())
+    manifests = dd_plan.train_only(TINY, tmp_path / "work", ("full_obs",), progress=False, log=io.StringIO())
     assert manifests["full_obs"].is_file() and not (tmp_path / "out").exists()
     log = io.StringIO()
-    report = rp.reproduce_dual_destination(
+    report = dd_command.reproduce_dual_destination(
         TINY, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log
     )
     assert log.getvalue().count("finished, skipping") == 3
@@ -236,11 +249,11 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     }  # fmt: skip
     for c in claims:  # p is NaN only where both samples are constant (untrained policies may tie)
         assert math.isnan(c["p"]) or 0.0 <= c["p"] <= 1.0
-        assert c["significant"] == (c["holds"] and not math.isnan(c["p"]) and c["p"] < rp.ALPHA)
+        assert c["significant"] == (c["holds"] and not math.isnan(c["p"]) and c["p"] < dd_summary.ALPHA)
 
     # the numbers come from the result table written beside the zoo
     table = read_csv(tmp_path / "work" / "full_obs" / "results.csv")
-    sp = (table.policy_a == rp.ORACLE) & (table.policy_b == rp.ORACLE)
+    sp = (table.policy_a == dd_paper.ORACLE) & (table.policy_b == dd_paper.ORACLE)
     assert len(table.returns[sp]) == 2 * 1 + 2 * 1  # 2 episodes on the fixed task, 1 on each of 2 generated
     fixed = sp & (table.level == "fixed")
     assert np.all(table.returns[fixed] == dd.oracle_return(dd.fixed_level()))
@@ -252,7 +265,7 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     # greedy play of the seeds among themselves, without the oracle; the conventions of every seed
     greedy = table.actions == "greedy"
     assert np.any(greedy) and not np.any(
-        greedy & ((table.policy_a == rp.ORACLE) | (table.policy_b == rp.ORACLE))
+        greedy & ((table.policy_a == dd_paper.ORACLE) | (table.policy_b == dd_paper.ORACLE))
     )
     kinds = summary["summaries"]["full_obs"]["fixed"]
     assert {"xp", "sp", "oracle", "xp_clipped", "greedy_xp", "greedy_sp"} <= set(kinds)
@@ -269,7 +282,7 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
 
     # a second run resumes: nothing is trained or played again, and the report is the same
     log2 = io.StringIO()
-    again = rp.reproduce_dual_destination(
+    again = dd_command.reproduce_dual_destination(
         TINY, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log2
     )
     assert log2.getvalue().count("finished, skipping") == 3
@@ -282,20 +295,20 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
 
     # evaluated with other settings, the variant is played again
     log3 = io.StringIO()
-    more = rp.Mode(**{**TINY.__dict__, "episodes": {"fixed": 3, "generated": 1}})
-    rp.reproduce_dual_destination(
+    more = dd_modes.Mode(**{**TINY.__dict__, "episodes": {"fixed": 3, "generated": 1}})
+    dd_command.reproduce_dual_destination(
         more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=log3
     )
     assert "cross-play results found" not in log3.getvalue()
     table = read_csv(tmp_path / "work" / "full_obs" / "results.csv")
-    sp = (table.policy_a == rp.ORACLE) & (table.policy_b == rp.ORACLE)
+    sp = (table.policy_a == dd_paper.ORACLE) & (table.policy_b == dd_paper.ORACLE)
     assert len(table.returns[sp]) == 3 * 1 + 1 * 2  # now 3 episodes on the fixed task
 
     # so is it once the oracle partner's code changed: what the table depends on includes its source
     manifest = tmp_path / "work" / "full_obs" / "zoo" / "zoo.yaml"
-    key = rp.evaluation_key(more, "full_obs", manifest)
-    monkeypatch.setattr(rp, "oracle_partner_digest", lambda: "another oracle")
-    assert rp.evaluation_key(more, "full_obs", manifest) != key
+    key = dd_evaluate.evaluation_key(more, "full_obs", manifest)
+    monkeypatch.setattr(dd_evaluate, "oracle_partner_digest", lambda: "another oracle")
+    assert dd_evaluate.evaluation_key(more, "full_obs", manifest) != key
 
     # the work folder kept without its training states (as the committed full reproduction is): the report
     # from the tables, the exported policies and the metrics, the same numbers and conventions
@@ -306,14 +319,14 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     }  # fmt: skip
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
     # the exported policies are their checkpoints' parameters, exactly
-    exported = {p.name: p for p in rp.pipeline.load_zoo_policies(policies / "zoo.yaml", "exported")}
-    for state in rp.pipeline.load_zoo_policies(manifest, "zoo"):
+    exported = {p.name: p for p in pipeline.load_zoo_policies(policies / "zoo.yaml", "exported")}
+    for state in pipeline.load_zoo_policies(manifest, "zoo"):
         same = jax.tree.map(np.array_equal, state.params, exported[state.name].params)
         assert all(jax.tree.leaves(same)) and exported[state.name].network == state.network, state.name
     for states in (tmp_path / "work" / "full_obs" / "zoo" / "runs").glob("*/checkpoints"):
         shutil.rmtree(states)
     (tmp_path / "out" / "summary.json").unlink()
-    rp.reproduce_dual_destination(
+    dd_command.reproduce_dual_destination(
         more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=io.StringIO(),
         report_only=True,
     )  # fmt: skip
@@ -322,16 +335,18 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     assert summary3["meta"]["conventions"] == summary["meta"]["conventions"]
     assert summary3["meta"]["training"] == summary["meta"]["training"]
     with pytest.raises(ConfigError, match="results.csv"):
-        rp.reproduce_dual_destination(
+        dd_command.reproduce_dual_destination(
             TINY, tmp_path / "out", tmp_path / "empty", variants=("full_obs",), log=io.StringIO(),
             report_only=True,
         )  # fmt: skip
 
 
-def _score(mean: float, n_seeds: int = 4, spread: float = 0.01, seeds: tuple[int, ...] = ()) -> rp.Score:
+def _score(
+    mean: float, n_seeds: int = 4, spread: float = 0.01, seeds: tuple[int, ...] = ()
+) -> dd_summary.Score:
     samples = tuple(mean + spread * np.linspace(-1, 1, n_seeds))  # one per seed
     err = float(np.std(samples, ddof=1) / math.sqrt(len(samples)))
-    return rp.Score(
+    return dd_summary.Score(
         float(np.mean(samples)), err, n_seeds, len(samples), samples, seeds or tuple(range(n_seeds))
     )
 
@@ -420,7 +435,7 @@ def test_the_report_states_differences_beyond_the_tolerance_and_failed_orderings
             },  # fmt: skip
         },
     }
-    text = rp.write_report(tmp_path, rp.FULL, summaries, meta).read_text()
+    text = dd_report.write_report(tmp_path, dd_modes.FULL, summaries, meta).read_text()
     cec_fixed = next(
         ln for ln in text.splitlines() if ln.startswith("| Fully observable | fixed task | CEC |")
     )
@@ -583,8 +598,8 @@ def test_the_late_slope_is_the_end_of_each_seed_s_learning_curve(tmp_path: Path)
 def test_a_reason_never_contradicts_the_paper_value_printed_beside_it(paper: float) -> None:
     """A policy that never trained on a task set fails there (-0.5 on our scale); the reason names the
     paper's own value and calls the gap one of scale only when that value is a failure too."""
-    from apps.reproduce.dd_reasons import difference_reason
-    from apps.reproduce.dd_summary import Score
+    from apps.reproduce.dual_destination.reasons import difference_reason
+    from apps.reproduce.dual_destination.summary import Score
 
     xp = Score(-0.5, 0.0, 4, 4, (-0.5,) * 4)
     text = difference_reason(xp, paper, xp, None, trained_on_set=False)

@@ -1,8 +1,9 @@
 """The report of `cec reproduce dual-destination`: our numbers beside the paper's, its orderings tested.
 
-`write_report` writes `report.md`, `summary.json` and one `bar_plot` per variant from the scores
-`dd_summary` computed, beside the paper's numbers (`dd_paper`), with the reasons it gives where a number
-differs from the paper's or one of the paper's orderings fails (`dd_reasons`).
+`write_report` writes `report.md`, `summary.json` and one `bar_plot` per variant (`plot_curves`: the
+learning curves) from the scores
+`summary` computed, beside the paper's numbers (`paper`), with the reasons it gives where a number
+differs from the paper's or one of the paper's orderings fails (`reasons`).
 
 Size: one report's sections in the order they appear, each with the sentences that say how to read it.
 """
@@ -16,8 +17,8 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from apps.machine import duration
-from apps.reproduce.dd_modes import algorithm_of
-from apps.reproduce.dd_paper import (
+from apps.reproduce.dual_destination.modes import algorithm_of
+from apps.reproduce.dual_destination.paper import (
     ABLATIONS,
     ALGORITHMS,
     LEVEL_SET_TITLES,
@@ -31,12 +32,17 @@ from apps.reproduce.dd_paper import (
     PaperNumber,
     paper_number,
 )
-from apps.reproduce.dd_reasons import TOLERANCE, cec_gap_reason, difference_reason, ordering_reason
-from apps.reproduce.dd_summary import ALPHA, LEARNED, Score, check_ablations, check_claims
+from apps.reproduce.dual_destination.reasons import (
+    TOLERANCE,
+    cec_gap_reason,
+    difference_reason,
+    ordering_reason,
+)
+from apps.reproduce.dual_destination.summary import ALPHA, LEARNED, Score, check_ablations, check_claims
 from cec.evaluation.plotting import pyplot
 
 if TYPE_CHECKING:
-    from apps.reproduce.dd_modes import Mode
+    from apps.reproduce.dual_destination.modes import Mode
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -511,3 +517,20 @@ def ablation_section(
                 )
             md.append("")
     return md
+
+
+def plot_curves(mode: Mode, zoo_dir: Path, variant: str, out: Path) -> Path:
+    """`out/curves_<variant>.png`: every row's normalised training return and policy entropy per seed
+    against env steps, from its runs' metrics (`zoo_dir/runs/<row>-s<seed>`)."""
+    from cec.evaluation.curves import plot_learning_curves
+
+    runs = {row.upper(): sorted(zoo_dir.glob(f"runs/{row}-s*")) for row in mode.rows}
+    panels = (("normalised_return", "normalised training return"), ("entropy", "policy entropy"))
+    title = f"Dual Destination, {VARIANT_TITLES[variant].lower()}: training (IPPO, FCP on the fixed task)"
+    return plot_learning_curves(
+        {k: v for k, v in runs.items() if v},
+        out / f"curves_{variant}.png",
+        smooth=5,
+        title=title,
+        panels=panels,
+    )

@@ -1,14 +1,14 @@
 """The versions of `cec reproduce dual-destination` (quick, full, paper): what each trains and plays.
 
 `Mode` is one version's presets, seeds, budgets per variant, evaluation episodes and the seconds per
-update measured for its `--plan` estimate; `dual_destination.py` trains, evaluates and reports it.
+update measured for its `--plan` estimate; `command` trains, evaluates and reports it.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from apps.reproduce.dd_paper import ABLATIONS, VARIANTS
+from apps.reproduce.dual_destination.paper import ABLATIONS, VARIANTS
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class Mode:
         why: the report's paragraph after the differences from the paper's numbers: what this version is
             (its sizes against the paper's budgets), so what its differences can and cannot show; none
             when empty.
-        ablations: `dd_paper.ABLATIONS` it trains after the algorithms (each its algorithm's preset with
+        ablations: `paper.ABLATIONS` it trains after the algorithms (each its algorithm's preset with
             the ablation's overrides last) and reports as more rows.
     """
 

@@ -1,6 +1,6 @@
 """Why a number of `cec reproduce dual-destination` differs from the paper's, or one of the paper's
 orderings fails, read from the same seeds' other measures (self-play, the oracle partner, greedy play,
-conventions, entropy); `dd_report.write_report` puts these lines under its tables.
+conventions, entropy); `report.write_report` puts these lines under its tables.
 """
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import math
 from collections import Counter
 from typing import Any
 
-from apps.reproduce.dd_paper import LEVEL_SET_TITLES, VARIANT_TITLES
-from apps.reproduce.dd_summary import LEARNED, ClaimResult, Score
+from apps.reproduce.dual_destination.paper import LEVEL_SET_TITLES, VARIANT_TITLES
+from apps.reproduce.dual_destination.summary import LEARNED, ClaimResult, Score
 
 TOLERANCE = 0.05  # "within 0.05 of the paper's"
 

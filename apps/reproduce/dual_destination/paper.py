@@ -1,9 +1,9 @@
 """What the paper reports on Dual Destination: its variants, task sets and algorithms, and its numbers.
 
 The numbers, the orderings the paper states and the oracle's ceiling are data, in
-`paper_dual_destination.yaml` beside this module (where they come from is in its header). They are read and
+`apps/reproduce/paper_dual_destination.yaml` (where they come from is in its header). They are read and
 checked once, when this module is imported: a malformed file raises `ConfigError` naming the file and the
-key. `cec reproduce dual-destination` (`dual_destination.py`) and its report (`dd_report.py`) use them.
+key. `cec reproduce dual-destination` (`command`) and its report (`report`) use them.
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ import yaml
 
 from cec.config import ConfigError
 
-PAPER_FILE = Path(__file__).with_name("paper_dual_destination.yaml")
+PAPER_FILE = Path(__file__).parents[1] / "paper_dual_destination.yaml"
 VARIANTS = ("full_obs", "partial_obs", "multi_task")
 VARIANT_TITLES = {
     "full_obs": "Fully observable",

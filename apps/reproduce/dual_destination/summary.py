@@ -1,11 +1,11 @@
 """The numbers `cec reproduce dual-destination` reports, from what its runs wrote.
 
 `summarise`: per task set, kind (XP, SP, with the oracle partner; sampled and greedy) and algorithm, a
-variant's score over seeds, from its cross-play table (`dual_destination.evaluate_variant`); `conventions`:
+variant's score over seeds, from its cross-play table (`evaluate.evaluate_variant`); `conventions`:
 the goal each seed sends seat 0 to in greedy self-play. `check_claims`: the paper's
-orderings (`dd_paper.CLAIMS`) tested on per-seed XP, `check_ablations` each ablation against its
+orderings (`paper.CLAIMS`) tested on per-seed XP, `check_ablations` each ablation against its
 algorithm. `training_stats`: each algorithm's training time and
-return at the end, from its runs' metrics. `dd_report.write_report` writes them beside the paper's numbers.
+return at the end, from its runs' metrics. `report.write_report` writes them beside the paper's numbers.
 """
 
 from __future__ import annotations
@@ -17,7 +17,14 @@ from typing import Any
 
 import numpy as np
 
-from apps.reproduce.dd_paper import ABLATIONS, CLAIMS, LEVEL_SETS, ORACLE, ROWS, fixed_level_name
+from apps.reproduce.dual_destination.paper import (
+    ABLATIONS,
+    CLAIMS,
+    LEVEL_SETS,
+    ORACLE,
+    ROWS,
+    fixed_level_name,
+)
 from apps.reproduce.pipeline import read_metrics, train_seconds
 
 ALPHA = 0.05  # significance level of the ordering tests
