@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from cec.config import ConfigError
-from cec.levels import from_ascii
+from cec.levels import from_ascii, heldout
 from cec.levels.classic import classic_levels
 from cec.levels.generator import GeneratorConfig, generate_batch, generate_batch_with_info
-from cec.levels.heldout import heldout_levels, test_levels
+from cec.levels.heldout import heldout_levels
 from cec.levels.kinds import LOOP, Kind, classify, kind_of, kinds_of, subsets, validation_parts
 
 
@@ -81,5 +81,5 @@ def test_validation_parts_split_generated_by_kind_and_name_the_rest() -> None:
     assert len(parts["generated"]) == 100 and parts["classic"] == list(classic_levels())
     assert parts["forced_coord"] == ["forced_coord"]
     assert len(parts[Kind.HANDOVER.label]) == 23  # the generated ones only
-    test = validation_parts(dict(test_levels()))
+    test = validation_parts(dict(heldout.test_levels()))  # a module attribute: pytest collects test_* names
     assert len(test["generated"]) == 100 and all(n.startswith("drawn_") for n in test["drawn"])
