@@ -1,24 +1,22 @@
 """`cec reproduce`: the paper's results end to end, one command per game.
 
-pipeline.py           the skeleton both fill (plan, train, evaluate, summarise, report): a zoo's spec,
-                      plan lines, training, loading its policies, `cached_table`, recorded training and
-                      play times; seeds as units: `cec.evaluation.seeds`
-dual_destination.py   `cec reproduce dual-destination` (docs/reproduce.md): its plan, training,
-                      evaluation and the command
-dd_modes.py           its versions (quick, full, paper): presets, seeds, budgets, measured speeds
-dd_paper.py           the paper's numbers and orderings (paper_dual_destination.yaml), the ablations
-dd_summary.py         the scores and ordering tests computed from the runs
-dd_reasons.py         why a number differs from the paper's or an ordering fails, from the same seeds
-dd_report.py          its report (report.md, summary.json, bar plots, learning curves)
-overcooked.py         `cec reproduce overcooked` (docs/reproduce_overcooked.md; paper_overcooked.yaml)
+Every paper is a package with the same parts (`pipeline.PARTS`: modes, paper, plan, evaluate, summary,
+report, command; `tests/unit/apps/test_reproduce_packages.py`), its numbers as data beside them:
+
+pipeline.py              the skeleton every paper fills (plan, train, evaluate, summarise, report): a zoo's
+                         spec, plan lines, training, loading its policies, `cached_table`, recorded training
+                         and play times; seeds as units: `cec.evaluation.seeds`
+dual_destination/        `cec reproduce dual-destination` (docs/reproduce.md; paper_dual_destination.yaml)
+overcooked/              `cec reproduce overcooked` (docs/reproduce_overcooked.md; paper_overcooked.yaml)
+paper_<game>.yaml        the paper's numbers each reproduction reports beside its own
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from apps.reproduce import overcooked
 from apps.reproduce.dual_destination import command as dual_destination
+from apps.reproduce.overcooked import command as overcooked
 
 
 def add_subcommands(sub: Any) -> None:

@@ -1,22 +1,27 @@
 """The skeleton both reproductions fill: plan -> train -> evaluate -> summarise -> report.
 
+Every paper is a package `apps/reproduce/<paper>/` with the same modules (`PARTS`, checked by
+`tests/unit/apps/test_reproduce_packages.py`), each filling one step of this skeleton:
+
+    modes      its versions (quick, CPU or full, paper): presets, seeds, budgets, measured speeds
+    paper      the paper's numbers and claims, as data (`apps/reproduce/paper_<paper>.yaml`)
     plan       `Zoo`: one `cec zoo build` spec a reproduction writes into its work folder
                (`<folder>/spec.yaml`, the zoo in `<folder>/zoo`): Overcooked one, Dual Destination one per
                variant; `Zoo.plan` checks it (`apps.zoo_build.plan_zoo`), `plan_line` sizes a run or a
-               spec entry (`PlanLine`: its estimate from measured seconds per update, the share done)
-    train      `Zoo.build`: finished runs skipped, interrupted ones resumed
+               spec entry (`PlanLine`: its estimate from measured seconds per update, the share done);
+               training is `Zoo.build`: finished runs skipped, interrupted ones resumed
     evaluate   `load_zoo_policies` (every entry, or an error naming those that cannot load), cross-play on
                `generated_levels` and the game's own, cached while the zoo is unchanged
                (`cached_table`, keyed by `zoo_entries`); the zoo exported as parameter files
                (`export_policies`), so that a work folder kept without its training states still
                reports (`played_table`, `--report-only`)
-    summarise  seeds as units: `cec.evaluation.seeds` (per seed XP and SP, the jackknife over seeds)
-    report     each reproduction's own (`overcooked.write_report`, `dd_report.write_report`), with the
-               recorded times of training and playing (`train_seconds` from a run's metrics,
-               `play_seconds`)
+    summary    seeds as units: `cec.evaluation.seeds` (per seed XP and SP, the jackknife over seeds)
+    report     the paper's own report beside the paper's numbers, with the recorded times of this module
+               (`train_seconds`, `play_seconds`)
+    command    `cec reproduce <paper>`: `add_subcommand` and the function that runs the steps in order
 
-What each fills in: the runs of its spec (`overcooked.zoo_spec`, `dual_destination.zoo_spec`), which
-policies play which partners on which levels, and what its report says beside the paper's numbers.
+What each fills in: the runs of its spec (`<paper>.plan.zoo_spec`), which policies play which partners on
+which levels, and what its report says beside the paper's numbers.
 """
 
 from __future__ import annotations
@@ -39,6 +44,17 @@ from cec.evaluation.results import COMPRESSED, read_csv, stored, write_csv
 
 if TYPE_CHECKING:
     from apps.zoo_build import BuildResult, PlannedRun
+
+
+PARTS = (
+    "modes",
+    "paper",
+    "plan",
+    "evaluate",
+    "summary",
+    "report",
+    "command",
+)  # every paper's package has these
 
 
 def note(out: TextIO, msg: str) -> None:

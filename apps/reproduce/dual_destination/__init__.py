@@ -16,8 +16,8 @@ For each variant of the game (fully observable, partially observable 3x3 view, m
    fixed task and on the 100 held-out generated tasks: every pair of different seeds of one algorithm
    (zero-shot coordination with unseen partners, the paper's measure), self-play, and every policy with
    the scripted oracle partner (`dd_oracle`) as a reference point.
-3. **Report** (`dd_summary.py`, `dd_report.py`) `report.md` (+ `summary.json`, bar plots) beside the
-   paper's numbers (`paper_dual_destination.yaml`, through `dd_paper.py`): per variant, task set
+3. **Report** (`summary.py`, `report.py`) `report.md` (+ `summary.json`, bar plots) beside the
+   paper's numbers (`paper_dual_destination.yaml`, through `paper.py`): per variant, task set
    and algorithm the normalised cross-play score (return / 200) with its standard error over seeds (each
    seed's mean with the other seeds); the paper's orderings with Welch t-tests and bootstrap intervals over
    those per-seed means (seeds are the independent units; pairs share seeds); and, where a number

@@ -19,7 +19,13 @@ import yaml
 
 from apps import humans
 from apps.cli import main
-from apps.reproduce import overcooked as ro
+from apps.reproduce.overcooked import command as oc_command
+from apps.reproduce.overcooked import evaluate as oc_evaluate
+from apps.reproduce.overcooked import modes as oc_modes
+from apps.reproduce.overcooked import plan as oc_plan
+from apps.reproduce.overcooked import report as oc_report
+from apps.reproduce.overcooked import sections as oc_sections
+from apps.reproduce.overcooked import summary as oc_summary
 from apps.reproduce.pipeline import play_seconds, read_metrics, train_seconds
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
@@ -35,9 +41,9 @@ TINY_NET = (
     "network_overrides={conv_features: [], encoder_features: [8], lstm_features: 0, actor_features: [8], "
     "critic_features: [8], egocentric: true, cell_features: 2}"
 )
-TINY = ro.Mode(
+TINY = oc_modes.Mode(
     name="tiny",
-    preset=ro.QUICK.preset,
+    preset=oc_modes.QUICK.preset,
     seeds={
         "cec": (200, 201),
         "cec_e3t": (400,),
@@ -46,7 +52,7 @@ TINY = ro.Mode(
         "e3t": (150,),
         "cec_finetune": (300, 301),
     },  # one seed where two add nothing the test reads: every agent meets every other (400-step games)
-    steps={a: 256 for a in ro.ALGORITHMS},  # 2 updates of 8 envs x 16 steps
+    steps={a: 256 for a in oc_modes.ALGORITHMS},  # 2 updates of 8 envs x 16 steps
     kitchens=("cramped_room",),
     episodes={"classic": 1, "heldout": 1},
     overrides=(
@@ -62,8 +68,8 @@ TINY = ro.Mode(
 
 
 def test_the_plan_trains_every_baseline_per_kitchen_with_the_cec_network(tmp_path: Path) -> None:
-    for mode in (ro.QUICK, ro.CPU, ro.PAPER):
-        lines = ro.plan_lines(mode, tmp_path / mode.name)
+    for mode in (oc_modes.QUICK, oc_modes.CPU, oc_modes.PAPER):
+        lines = oc_plan.plan_lines(mode, tmp_path / mode.name)
         names = [p.run for p in lines]
         assert names[0] == f"cec-s{mode.seeds['cec'][0]}"
         for k in mode.kitchens:
@@ -71,13 +77,13 @@ def test_the_plan_trains_every_baseline_per_kitchen_with_the_cec_network(tmp_pat
                 assert f"{algo}_{k}-s{mode.seeds[algo][0]}" in names
             finetunes = [n for n in names if n.startswith(f"cec_finetune_{k}-")]
             assert len(finetunes) == len(mode.seeds["cec"])  # one per CEC seed
-        assert all(p.estimate_s > 0 for p in lines) or mode is ro.PAPER  # not measured on a CPU
+        assert all(p.estimate_s > 0 for p in lines) or mode is oc_modes.PAPER  # not measured on a CPU
     spec = yaml.safe_load((tmp_path / "cpu" / "spec.yaml").read_text())["entries"]
     fcp = next(e for e in spec if e["name"] == "fcp_cramped_room")
     assert "runs/ippo_cramped_room-s0, seeds: [0, 1, 2, 3]" in next(
         o for o in fcp["overrides"] if o.startswith("partner.population")
     )
-    assert {e["preset"] for e in spec} == {str(ro.ROOT / ro.CPU.preset)}
+    assert {e["preset"] for e in spec} == {str(oc_modes.ROOT / oc_modes.CPU.preset)}
 
 
 def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
@@ -95,7 +101,7 @@ def test_seed_scores_average_each_seed_over_its_partners_first() -> None:
         "env": ["overcooked"] * n, "episode_steps": [400] * n, "actions": [6] * n,
     }  # fmt: skip
     table = make_table(columns)
-    scores = ro.seed_scores(table, ["generated_000"])["cec"]
+    scores = oc_summary.seed_scores(table, ["generated_000"])["cec"]
     assert scores.seeds == (0, 1, 2)
     assert scores.xp == (30.0, 50.0, 40.0) and scores.sp == (80.0, 80.0, 100.0)
     assert scores.cook[0] == 20.0 and np.isnan(scores.cook[1])
@@ -117,8 +123,8 @@ def test_a_baseline_significantly_ahead_of_cec_reads_cec_behind() -> None:
         "collisions": [0] * n, "shaped_return": [0.0] * n, "env": ["overcooked"] * n,
         "episode_steps": [400] * n, "actions": ["sampled"] * n,
     })  # fmt: skip
-    tests = ro.comparisons({"heldout": ro.seed_scores(table, ["generated_000"])})
-    reading = {t["worse"]: ro._reading(t) for t in tests if t["measure"] == "xp"}
+    tests = oc_summary.comparisons({"heldout": oc_summary.seed_scores(table, ["generated_000"])})
+    reading = {t["worse"]: oc_report._reading(t) for t in tests if t["measure"] == "xp"}
     assert reading == {"ippo": "CEC behind", "fcp": "no difference shown"}
 
 
@@ -150,9 +156,9 @@ def test_cross_play_tests_carry_the_exact_permutation_p_and_holm_within_each_fam
     from cec.evaluation.stats import holm, permutation_crossplay
 
     table = _round_robin({"cec": 10.0, "ippo": 80.0, "fcp": 11.0})
-    summary = {"heldout": ro.seed_scores(table, ["generated_000"])}
+    summary = {"heldout": oc_summary.seed_scores(table, ["generated_000"])}
     matrices = {"heldout": seed_matrix(table, ["generated_000"])}
-    tests = [t for t in ro.comparisons(summary, matrices) if t["measure"] == "xp"]
+    tests = [t for t in oc_summary.comparisons(summary, matrices) if t["measure"] == "xp"]
     assert [t["worse"] for t in tests] == ["fcp", "ippo"]
     sm = matrices["heldout"]
     for t in tests:
@@ -166,8 +172,8 @@ def test_cross_play_tests_carry_the_exact_permutation_p_and_holm_within_each_fam
     assert ippo["p_exact"] == pytest.approx(2 / 70) and ippo["p_exact_holm"] == pytest.approx(4 / 70)
     # only within-algorithm games: no pooled matrix, the t-test alone
     apart = _round_robin({"cec": 10.0, "ippo": 80.0, "fcp": 11.0}, across=False)
-    tests = ro.comparisons(
-        {"heldout": ro.seed_scores(apart, ["generated_000"])},
+    tests = oc_summary.comparisons(
+        {"heldout": oc_summary.seed_scores(apart, ["generated_000"])},
         {"heldout": seed_matrix(apart, ["generated_000"])},
     )
     assert tests and all(math.isnan(t["p_exact"]) and math.isfinite(t["p_holm"]) for t in tests)
@@ -175,9 +181,9 @@ def test_cross_play_tests_carry_the_exact_permutation_p_and_holm_within_each_fam
 
 def test_collisions_are_also_given_per_soup_beside_the_untrained_control() -> None:
     table = _round_robin({"cec": 20.0, "ippo": 0.0})  # 4 collisions per episode; IPPO delivers nothing
-    controls = _round_robin({ro.UNTRAINED: 40.0})
+    controls = _round_robin({oc_modes.UNTRAINED: 40.0})
     mode = dataclasses.replace(TINY, generated_levels=1)
-    lines = ro.episode_lines(mode, table, controls)
+    lines = oc_sections.episode_lines(mode, table, controls)
     head = next(line for line in lines if line.startswith("| algorithm | collisions, classic"))
     assert head.endswith("| per soup, classic | per soup, held-out |")
     rows = {line.split(" | ")[0]: line for line in lines if line.startswith("| ") and "per soup" not in line}
@@ -199,8 +205,10 @@ def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() 
 
     zoo = [agent("cec", 200), agent("cec", 201)]
     zoo += [agent("ippo", s, k) for k in ("cramped_room", "coord_ring") for s in (0, 1)]
-    assert ro.lineups(zoo, "classic") == [(zoo, None)]  # each on its kitchens: a kitchen's agents meet
-    first, second = ro.lineups(zoo, "heldout")
+    assert oc_evaluate.lineups(zoo, "classic") == [
+        (zoo, None)
+    ]  # each on its kitchens: a kitchen's agents meet
+    first, second = oc_evaluate.lineups(zoo, "heldout")
     assert [p.name for p in first[0]] == [
         "cec-s200",
         "cec-s201",
@@ -238,7 +246,7 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
         (runs / run / "metrics.csv").write_text("\n".join(lines) + "\n")
         (runs / run / "config.yaml").write_text(f"env:\n  overcooked:\n    max_steps: {steps}\n")
     mode = dataclasses.replace(TINY, kitchens=("cramped_room", "coord_ring"))
-    text = "\n".join(ro.failing_lines(mode, table, runs))
+    text = "\n".join(oc_sections.failing_lines(mode, table, runs))
     fcp = next(line for line in text.splitlines() if line.startswith("| FCP | cramped_room"))
     assert "| 400 | 17.0 → 24.0 |" in fcp and "partners delivered from its first update" in fcp
     e3t = next(line for line in text.splitlines() if line.startswith("| E3T | coord_ring"))
@@ -252,7 +260,9 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
     (runs / "ippo_cramped_room-s0" / "metrics.csv").write_text(
         f"update,env_steps,seed,mean_return,x\n{rising}\n"
     )
-    plateau = ro.plateau_lines(mode, runs)  # each algorithm's training episode as its runs recorded it
+    plateau = oc_sections.plateau_lines(
+        mode, runs
+    )  # each algorithm's training episode as its runs recorded it
     assert (
         "| IPPO | 128 | 15.5 (+5.0) | 30.0 (+0.0) |" in plateau
         and "| FCP | 400 | 24.0 (+0.0) | — |" in plateau
@@ -266,14 +276,14 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
 ) -> None:
     # human proxies with the agents' (tiny) network, cloned from the first recorded game of each kitchen
     humans.import_games(tmp_path / "humans", games_per_kitchen=1, log=io.StringIO())
-    network = load_config(TrainConfig, str(ro.ROOT / TINY.preset), [TINY_NET]).network_config
+    network = load_config(TrainConfig, str(oc_modes.ROOT / TINY.preset), [TINY_NET]).network_config
     proxies = humans.train_proxies(
         tmp_path / "humans", tmp_path / "proxies", kitchens=["cramped_room"],
         config=BCConfig(epochs=1, network=network), log=io.StringIO(),
     )  # fmt: skip
     mode = dataclasses.replace(TINY, proxies=str(proxies))
     work, out, log = tmp_path / "work", tmp_path / "out", io.StringIO()
-    report = ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
+    report = oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert report is not None and report.exists()
     text = report.read_text()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
@@ -296,16 +306,19 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     cec = summary["summary"]["heldout"]["cec"]
     assert cec["seeds"] == [200, 201] and len(cec["xp"]) == 2 and len(cec["cook"]) == 2
     assert all(np.isnan(cec["human"]))  # the proxies play their own (classic) kitchen only
-    for algo in ro.ALGORITHMS:  # every seed played both proxies on the classic kitchen
+    for algo in oc_modes.ALGORITHMS:  # every seed played both proxies on the classic kitchen
         human = summary["summary"]["classic"][algo]["human"]
         assert len(human) == len(TINY.seeds[algo]) and np.all(np.isfinite(human)), algo
     assert "human_proxy" not in summary["summary"]["classic"]  # partners, not an algorithm of the summary
-    for control, seeds in ((ro.UNTRAINED, [200, 201]), (ro.NOOP, [0])):  # beside every score with the cook
-        for level_set in ro.LEVEL_SETS:
+    for control, seeds in (
+        (oc_modes.UNTRAINED, [200, 201]),
+        (oc_modes.NOOP, [0]),
+    ):  # beside every score with the cook
+        for level_set in oc_modes.LEVEL_SETS:
             scores = summary["summary"][level_set][control]
             assert scores["seeds"] == seeds and np.all(np.isfinite(scores["cook"])), (control, level_set)
-    assert summary["summary"]["classic"][ro.NOOP]["sp"] == [0.0]  # two agents that stay deliver nothing
-    assert (work / "controls" / ro.MACHINE_FILE).is_file()  # where they were played, for a later report
+    assert summary["summary"]["classic"][oc_modes.NOOP]["sp"] == [0.0]  # two agents that stay deliver nothing
+    assert (work / "controls" / oc_modes.MACHINE_FILE).is_file()  # where they were played, for a later report
     assert summary["summary"]["heldout"]["ippo"]["seeds"] == [0, 1]  # single-kitchen agents play held-out
     assert (out / "curves_cec.png").exists() and (out / "cec_xp_heldout.gif").exists()
     # cross-play at each milestone checkpoint (the preset's 0.5 and 1.0 of 2 updates)
@@ -320,25 +333,33 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert (out / "curves_xp.png").exists()
     # every agent met every other: CEC with each baseline on both level sets, `cec report` of those games
     played = read_csv(work / "results.csv")
-    for level_set in ro.LEVEL_SETS:
-        on = np.isin(played.level, ro.level_spec(mode, level_set).split(","))
+    for level_set in oc_modes.LEVEL_SETS:
+        on = np.isin(played.level, oc_evaluate.level_spec(mode, level_set).split(","))
         met = {(a, b) for a, b in zip(played.algorithm_a[on], played.algorithm_b[on], strict=True)}
-        assert all(("cec", x) in met or (x, "cec") in met for x in ro.ALGORITHMS), (level_set, met)
+        assert all(("cec", x) in met or (x, "cec") in met for x in oc_modes.ALGORITHMS), (level_set, met)
     assert "Cross-algorithm heatmap" in (out / "crossplay" / "report.md").read_text()
     # `--plan` counts the episodes each part of the evaluation plays, from the mode alone
-    planned, tables = ro.planned_episodes(mode), {}
-    for level_set in ro.LEVEL_SETS:
-        tables[level_set] = int(np.isin(played.level, ro.level_spec(mode, level_set).split(",")).sum())
-    for part, folder in (("controls", "controls"), ("curves", ro.CURVES)):
+    planned, tables = oc_evaluate.planned_episodes(mode), {}
+    for level_set in oc_modes.LEVEL_SETS:
+        tables[level_set] = int(
+            np.isin(played.level, oc_evaluate.level_spec(mode, level_set).split(",")).sum()
+        )
+    for part, folder in (("controls", "controls"), ("curves", oc_evaluate.CURVES)):
         tables[part] = len(read_csv(work / folder / "results.csv"))
     assert planned == tables
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
-    ro.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
+    oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert log.getvalue().count("not played again") == 3 and "finished, skipping" in log.getvalue()
-    assert not (work / ro.PARTS).exists()  # each line-up's table kept only until the whole one is written
+    assert not (
+        work / oc_evaluate.PARTS
+    ).exists()  # each line-up's table kept only until the whole one is written
     # an evaluation interrupted after its first line-up plays the others again, not that one: the same table
-    first, manifest, real = (work / "results.csv").read_bytes(), work / "zoo" / "zoo.yaml", ro._play_lineup
+    first, manifest, real = (
+        (work / "results.csv").read_bytes(),
+        work / "zoo" / "zoo.yaml",
+        oc_evaluate._play_lineup,
+    )
     (work / "results.key.json").unlink()
     calls: list[float] = []  # how long each line-up played
 
@@ -353,12 +374,12 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
             raise KeyboardInterrupt
         return timed(*args, **kwargs)
 
-    monkeypatch.setattr(ro, "_play_lineup", interrupted)
+    monkeypatch.setattr(oc_evaluate, "_play_lineup", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        ro.cached_evaluation(mode, manifest, work, log=io.StringIO(), commit="abc1234")
-    monkeypatch.setattr(ro, "_play_lineup", timed)
+        oc_evaluate.cached_evaluation(mode, manifest, work, log=io.StringIO(), commit="abc1234")
+    monkeypatch.setattr(oc_evaluate, "_play_lineup", timed)
     log = io.StringIO()
-    ro.cached_evaluation(mode, manifest, work, log=log, commit="abc1234")
+    oc_evaluate.cached_evaluation(mode, manifest, work, log=log, commit="abc1234")
     monkeypatch.undo()
     assert "classic line-up 1 of 1: cross-play results found" in log.getvalue(), log.getvalue()
     assert log.getvalue().count("not played again") == 1 and (work / "results.csv").read_bytes() == first
@@ -375,16 +396,16 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     long_run.unlink()
     (out / "cec_xp_heldout.gif").unlink()
     shutil.rmtree(work / "zoo" / "runs" / "cec_e3t-s400")  # as in a folder trained before the mode had it
-    for folder in (work, work / "controls", work / ro.CURVES):  # committed gzipped, read as they are
+    for folder in (work, work / "controls", work / oc_evaluate.CURVES):  # committed gzipped, read as they are
         plain = folder / "results.csv"
         (folder / "results.csv.gz").write_bytes(gzip.compress(plain.read_bytes()))
         plain.unlink()
-    ran_on = json.loads((work / ro.MACHINE_FILE).read_text())
+    ran_on = json.loads((work / oc_modes.MACHINE_FILE).read_text())
     # ... by an earlier version of the mode (another preset and budget): the report says what was trained
     earlier = dataclasses.replace(mode, preset="configs/train/cec_overcooked_tts.yaml",
                                   steps={a: 2 * n for a, n in mode.steps.items()})  # fmt: skip
     log = io.StringIO()
-    again = ro.reproduce_overcooked(
+    again = oc_command.reproduce_overcooked(
         earlier, work, tmp_path / "again", log=log, command="tiny", report_only=True,
         policies=tmp_path / "shipped" / "zoo.yaml",
     )  # fmt: skip
@@ -394,7 +415,9 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
                     "## Cross-play learning curves"):  # fmt: skip
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert ran_on["commit"] == "abc1234"  # the invocation that finished the table, not one that read it
-    assert ran_on["trained_at"] == [ro._short(code_version())]  # as the agents' checkpoints record it
+    assert ran_on["trained_at"] == [
+        oc_evaluate._short(code_version())
+    ]  # as the agents' checkpoints record it
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
     assert "cross-play finished at commit abc1234; the agents' last checkpoints written at 1 commit (" in (
         again.read_text()
@@ -404,7 +427,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert "| cec_e3t-s400 |" not in again.read_text() and "Not in this work folder" in again.read_text()
     assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
     with pytest.raises(ConfigError, match="results.csv"):
-        ro.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
+        oc_command.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
 
 
 def _section(text: str, head: str) -> str:
@@ -415,9 +438,9 @@ def _section(text: str, head: str) -> str:
 
 
 def test_proxies_that_cannot_play_are_named_with_the_reason() -> None:
-    summary = {"classic": {"cec": ro.SeedScores((200,), (10.0,), (20.0,), (30.0,), (math.nan,))}}
+    summary = {"classic": {"cec": oc_summary.SeedScores((200,), (10.0,), (20.0,), (30.0,), (math.nan,))}}
     skipped = [SkippedEntry("hp_cramped_room", "human_proxy", 0, "its network differs")]
-    (line, _) = ro._human_lines(TINY, summary, skipped)
+    (line, _) = oc_report._human_lines(TINY, summary, skipped)
     assert line.endswith("not played (they could not play with the agents: its network differs).")
 
 

@@ -1,0 +1,335 @@
+"""The cross-play of `cec reproduce overcooked`: who meets whom on which kitchens (`lineups`), the agents'
+games with the cook and the human proxies, the controls' and the learning curves' games, each cached
+while what it depends on is unchanged (`pipeline.cached_table`), and how many episodes that is
+(`planned_episodes`, for `--plan`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+import shutil
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, TextIO
+
+from apps.machine import machine_info
+from apps.reproduce import pipeline
+from apps.reproduce.overcooked.modes import (
+    ALGORITHMS,
+    COOK,
+    EVAL_STEPS,
+    GENERALISTS,
+    LEVEL_SETS,
+    MACHINE_FILE,
+    NOOP,
+    ROOT,
+    UNTRAINED,
+    Mode,
+)
+from apps.reproduce.overcooked.plan import generalist_run
+from apps.reproduce.pipeline import play_seconds, results_file
+from cec.agents.zoo import HUMAN_PROXY
+
+
+def level_spec(mode: Mode, level_set: str) -> str:
+    if level_set == "classic":
+        return ",".join(mode.kitchens)
+    return pipeline.generated_levels(mode.generated_levels)
+
+
+def human_proxies(mode: Mode) -> list[Any]:
+    """The `human_proxy` policies of `mode.proxies` (none when it is ''), numbered 0, 1, ... as their seeds:
+    result tables tell policies apart by algorithm and seed, and `cec humans bc` gives its `bc_` and `hp_`
+    proxies of a kitchen the same training seed."""
+    if not mode.proxies:
+        return []
+    proxies = [
+        p for p in pipeline.load_zoo_policies(mode.proxies, mode.proxies) if p.algorithm == HUMAN_PROXY
+    ]
+    return [dataclasses.replace(p, seed=i) for i, p in enumerate(proxies)]
+
+
+def eval_config(mode: Mode, level_set: str, seed: int = 0) -> Any:
+    """How every policy plays on a level set: the mode's episodes per pair, seat order and kitchen, the
+    paper's episode length, common random numbers from `seed` (per level and episode: the same games
+    whatever the games per call, 8 on a CPU and 64 on an accelerator, which plays them side by side)."""
+    import jax
+
+    from cec.evaluation.crossplay import EvalConfig
+
+    return EvalConfig(
+        levels=level_spec(mode, level_set), episodes=mode.episodes[level_set], seed=seed,
+        max_steps=EVAL_STEPS, games_per_call=8 if jax.default_backend() == "cpu" else 64,
+    )  # fmt: skip
+
+
+def _eval_key(mode: Mode) -> dict[str, Any]:
+    """What a table of `evaluate` or `evaluate_controls` depends on besides its policies."""
+    settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
+    return {**settings, "steps": EVAL_STEPS}
+
+
+def lineups(policies: Sequence[Any], level_set: str) -> list[tuple[list[Any], frozenset[str] | None]]:
+    """Who meets whom on a level set, as (line-up, the names whose games it adds; None: all of them). On
+    the classic kitchens one line-up of every agent, each on the kitchens it plays (a single-kitchen agent
+    on its own, so it meets that kitchen's agents and the generator-trained ones). On the held-out kitchens
+    one line-up per training kitchen: that kitchen's agents, free of their kitchen, with the
+    generator-trained ones, whose games without a kitchen's agent the first line-up already has. A seed of
+    a single-kitchen algorithm is then, as on the classic kitchens, its agents of every kitchen: the
+    result table names a policy by algorithm and seed, and a pair's score averages its kitchens."""
+    if level_set == "classic":
+        return [(list(policies), None)]
+    generalists = [p for p in policies if p.levels is None]
+    by_kitchen: dict[tuple[str, ...], list[Any]] = {}
+    for p in policies:
+        if p.levels is not None:
+            by_kitchen.setdefault(tuple(p.levels), []).append(dataclasses.replace(p, levels=None))
+    if not by_kitchen:
+        return [(generalists, None)]
+    return [
+        ([*generalists, *agents], None if i == 0 else frozenset(a.name for a in agents))
+        for i, agents in enumerate(by_kitchen.values())
+    ]
+
+
+def evaluate(
+    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, Any], seed: int = 0
+) -> Any:
+    """Per level set, every line-up (`lineups`) with the scripted cook, every pair (XP, SP, ad hoc, with
+    the cook), and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable`.
+    Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
+    reason. Each line-up's table is kept in `parts/<level set>-<i>` under `key` (`cached_table`) until the
+    whole one is written: an interrupted evaluation (the CPU version's line-ups took 6 to 9 minutes
+    each on the 2-vCPU Xeon) resumes at the line-up it was playing."""
+    from apps.reproduce.pipeline import cached_table
+    from cec.agents.policy import scripted_policy
+    from cec.evaluation.crossplay import eval_levels
+    from cec.evaluation.results import EpisodeTable
+
+    policies = pipeline.load_zoo_policies(manifest, str(manifest))
+    proxies = human_proxies(mode)
+    cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
+    tables = []
+    for level_set in LEVEL_SETS:
+        config = eval_config(mode, level_set, seed)
+        levels = eval_levels("overcooked", config.levels)
+        partners = [cook, *proxies] if level_set == "classic" else [cook]
+        with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
+        where = f"{len(levels.names)} {level_set} kitchens"
+        everyone = lineups(policies, level_set)
+        for i, (lineup, adds) in enumerate(everyone):
+            what = f"{len(lineup)} agents + {with_whom} on {where}"
+            play = functools.partial(
+                _play_lineup, [*lineup, *partners], levels, config, adds, what=what, log=log
+            )
+            label = f"{level_set} line-up {i + 1} of {len(everyone)}: "
+            tables.append(cached_table(parts / f"{level_set}-{i}", key, play, label=label, log=log))
+    return EpisodeTable.concat(tables)
+
+
+def _play_lineup(players: list[Any], levels: Any, config: Any, adds: Any, *, what: str, log: TextIO) -> Any:
+    """One line-up's cross-play (`evaluate`), logged with how many episodes it played and how long it took."""
+    from cec.evaluation.crossplay import crossplay
+
+    t0 = time.perf_counter()
+    table = crossplay(players, levels, config, involving=adds)
+    pipeline.note(log, f"{what}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
+    return table
+
+
+def cec_config(mode: Mode, work: Path) -> Any:
+    """The config of the work folder's CEC agents: their run's recorded `config.yaml` (a folder trained by
+    an earlier version of the mode has that version's network), else the mode's preset."""
+    from cec.config import load_config
+    from cec.training.config import TrainConfig
+
+    recorded = generalist_run(mode, work, "cec") / "config.yaml"
+    if recorded.is_file():
+        return load_config(TrainConfig, recorded)
+    return load_config(TrainConfig, str(ROOT / mode.preset), list(mode.overrides))
+
+
+def control_policies(mode: Mode, cfg: Any) -> list[Any]:
+    """The controls beside every score with the cook (and a chance level for XP and SP): the CEC network
+    of `cfg` (`cec_config`) at its random initialisation, one per CEC seed (`untrained`), and the agent
+    that always stays (`noop`): what the cook delivers with a partner that learned nothing, so that an
+    agent's own contribution reads as the difference."""
+    import jax
+
+    from cec.agents.policy import random_policy, scripted_policy
+
+    untrained = [
+        random_policy(f"{UNTRAINED}-s{s}", jax.random.PRNGKey(s), env=cfg.env, network=cfg.network_config,
+                      algorithm=UNTRAINED, seed=s)
+        for s in mode.seeds["cec"]
+    ]  # fmt: skip
+    return [*untrained, scripted_policy(NOOP, NOOP, env=cfg.env, algorithm=NOOP)]
+
+
+def evaluate_controls(mode: Mode, cfg: Any, *, log: TextIO, seed: int = 0) -> Any:
+    """The controls (`control_policies` of `cfg`) with each other and the cook on both level sets, as
+    `evaluate` plays the algorithms (the cook's own games left out: `evaluate` has them)."""
+    from cec.agents.policy import scripted_policy
+    from cec.evaluation.crossplay import crossplay, eval_levels
+    from cec.evaluation.results import EpisodeTable
+
+    controls = control_policies(mode, cfg)
+    cook = scripted_policy(COOK, COOK, env=controls[0].env, algorithm=COOK)
+    tables = []
+    for level_set in LEVEL_SETS:
+        config = eval_config(mode, level_set, seed)
+        t0 = time.perf_counter()
+        levels = eval_levels("overcooked", config.levels)
+        table = crossplay([*controls, cook], levels, config, involving={c.name for c in controls})
+        tables.append(table)
+        pipeline.note(log, f"controls on the {level_set} kitchens: {len(table)} episodes in "
+                      f"{time.perf_counter() - t0:.0f}s")  # fmt: skip
+    return EpisodeTable.concat(tables)
+
+
+def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
+    """`evaluate_controls`, or the table an earlier invocation wrote in `work/controls` while the settings
+    are unchanged (the untrained network: that of the folder's CEC agents, `cec_config`). They need no
+    trained agent, so `--report-only` plays them when a work folder lacks them. `commit`: the checkout's
+    as the command started (written beside a table it plays, with the machine)."""
+    from apps.reproduce.pipeline import cached_table
+
+    cfg = cec_config(mode, work)
+    network = dataclasses.asdict(cfg.network_config)
+    key = {**_eval_key(mode), "network": network, "seeds": mode.seeds["cec"]}
+    folder = work / "controls"
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def play() -> Any:  # they may be played by another machine than the zoo: it is named in the report
+        table = evaluate_controls(mode, cfg, log=log)
+        ran_on = {"machine": machine_info(), "commit": commit}
+        (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
+        return table
+
+    return cached_table(folder, key, play, label="controls: ", log=log)
+
+
+def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str) -> Any:
+    """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
+    SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`). The invocation that plays it
+    writes `work/machine.json`: this machine, `commit` and the commits that wrote the agents' checkpoints
+    (a zoo trained over several invocations)."""
+    from apps.reproduce.pipeline import PLAY_TIME_FILE, cached_table
+    from cec.agents.zoo import load_zoo
+    from cec.checkpoints import read_meta
+
+    entries = sorted(pipeline.zoo_entries(manifest))
+    proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
+    # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
+    key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
+    parts = work / PARTS
+
+    def play() -> Any:
+        table = evaluate(mode, manifest, log=log, parts=parts, key=key)
+        # the line-ups' own times, also those an interrupted invocation played
+        seconds = sum(play_seconds(part) for part in parts.iterdir())
+        (work / PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
+        trained = {
+            _short(read_meta(checkpoint)["metadata"].get("code_version", "unknown"))
+            for _, _, checkpoint, _ in entries
+        }
+        ran_on = {"machine": machine_info(), "commit": commit, "trained_at": sorted(trained)}
+        (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
+        return table
+
+    table = cached_table(work, key, play, label="", log=log)
+    shutil.rmtree(parts, ignore_errors=True)  # all in the table now
+    return table
+
+
+def _short(version: str) -> str:
+    """A commit as `code_version()` records it (40 hex digits, `+dirty` for a changed tree), abbreviated."""
+    sha, dirty, rest = version.partition("+")
+    return sha[:7] + dirty + rest
+
+
+PARTS = "parts"  # in the work folder: each line-up's games until the whole table is written (`evaluate`)
+
+CURVES = "curves"  # in the work folder: the milestone checkpoints' games (`cached_curves`)
+
+
+def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = False) -> Any:
+    """Cross-play learning curves of the generator-trained runs: at each checkpoint a run saved (its
+    milestones and its last), its seeds with each other on the held-out kitchens (`cec.evaluation.
+    milestones`), as the evaluation plays them; cached in `work/curves` while neither the checkpoints nor
+    the settings changed. `report_only`: the cached games whatever their key (a folder without its
+    checkpoints), None where there are none."""
+    from apps.reproduce.pipeline import cached_table
+    from cec.checkpoints import read_meta
+    from cec.evaluation.crossplay import eval_levels
+    from cec.evaluation.milestones import checkpoints_by_update, play_milestone
+    from cec.evaluation.results import EpisodeTable, read_csv
+
+    folder = work / CURVES
+    if report_only:
+        cached = results_file(folder)
+        return read_csv(cached) if cached.is_file() else None
+    runs = {a: generalist_run(mode, work, a) for a in GENERALISTS}
+    saved = {a: checkpoints_by_update([run]) for a, run in runs.items() if run.is_dir()}
+    config = eval_config(mode, "heldout")
+    states = {a: [read_meta(p)["sha256"] for ps in s.values() for p in ps] for a, s in saved.items()}
+    key = {**_eval_key(mode), "checkpoints": states}  # each checkpoint's state by its SHA-256
+    folder.mkdir(parents=True, exist_ok=True)
+
+    def play() -> Any:
+        levels = eval_levels("overcooked", config.levels)
+        return EpisodeTable.concat(
+            [play_milestone(a, paths, levels, config) for a, s in saved.items() for paths in s.values()]
+        )
+
+    return cached_table(folder, key, play, label="learning curves: ", log=log)
+
+
+def planned_episodes(mode: Mode) -> dict[str, int]:
+    """The episodes the evaluation plays, by part: `evaluate`'s on each level set (every line-up with the
+    cook, the human proxies on the classic kitchens), the controls' (`evaluate_controls`) and the learning
+    curves' (`cached_curves`: every seed pair of each CEC and CEC-E3T checkpoint the preset saves), counted
+    as they are played, from the mode alone (nothing loaded)."""
+    from cec.agents.policy import Policy
+    from cec.agents.zoo import load_zoo
+    from cec.config import load_config
+    from cec.evaluation.crossplay import plan_games
+    from cec.training.config import TrainConfig
+
+    def stand_in(name: str, algorithm: str, levels: tuple[str, ...] | None = None) -> Policy:
+        return Policy(name, algorithm, 0, None, None, None, levels)  # type: ignore[arg-type]
+
+    def episodes(lineup: Sequence[Policy], level_set: str, involving: frozenset[str] | None = None) -> int:
+        names = level_spec(mode, level_set).split(",")
+        games = plan_games(lineup, names, "all", involving)
+        return sum(len(g.levels) for g in games) * mode.episodes[level_set]
+
+    agents = [
+        stand_in(f"{algo}-{kitchen}-s{s}", algo, (kitchen,) if kitchen else None)
+        for algo in ALGORITHMS
+        for kitchen in (("",) if algo in GENERALISTS else mode.kitchens)
+        for s in mode.seeds[algo]
+    ]
+    cook = stand_in(COOK, COOK)
+    proxies = [
+        stand_in(e.name, HUMAN_PROXY, e.levels) for e in (load_zoo(mode.proxies) if mode.proxies else [])
+        if e.algorithm == HUMAN_PROXY
+    ]  # fmt: skip
+    controls = [*(stand_in(f"{UNTRAINED}-s{s}", UNTRAINED) for s in mode.seeds["cec"]), stand_in(NOOP, NOOP)]
+    partners = {"classic": [cook, *proxies], "heldout": [cook]}
+    counts = {
+        level_set: sum(episodes([*lineup, *partners[level_set]], level_set, adds)
+                       for lineup, adds in lineups(agents, level_set))
+        for level_set in LEVEL_SETS
+    }  # fmt: skip
+    names = frozenset(c.name for c in controls)
+    counts["controls"] = sum(episodes([*controls, cook], level_set, names) for level_set in LEVEL_SETS)
+    milestones = set(load_config(TrainConfig, str(ROOT / mode.preset)).checkpoint.milestones) | {1.0}
+    counts["curves"] = sum(
+        len(milestones) * episodes([stand_in(f"{a}-s{s}", a) for s in mode.seeds[a]], "heldout")
+        for a in GENERALISTS
+    )
+    return counts

@@ -1,0 +1,294 @@
+"""The report of `cec reproduce overcooked`: `report.md` (the seed-level tables beside the paper's values,
+the tests, the sections of `sections`, training, figures) and `summary.json`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from apps.machine import duration, machine_info
+from apps.reproduce import pipeline
+from apps.reproduce.overcooked.modes import (
+    ALGORITHMS,
+    COOK,
+    EVAL_STEPS,
+    GENERALISTS,
+    NOOP,
+    TITLES,
+    UNTRAINED,
+    Mode,
+)
+from apps.reproduce.overcooked.paper import HUMAN_STUDY, paper_values
+from apps.reproduce.overcooked.summary import ALPHA, MEASURES, SeedScores, comparisons, finite
+from cec.agents.zoo import HUMAN_PROXY
+
+TABLE_HEAD = (
+    "| algorithm | self-play | cross-play (unseen partners) | XP / SP | with the cook | with human proxies "
+    "| paper (XP) |"
+)
+
+
+def write_report(
+    mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
+    plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
+    skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
+    sections: Sequence[str] = (), missing: Sequence[str] = (), matrices: dict[str, Any] | None = None,
+) -> Path:  # fmt: skip
+    """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
+    `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
+    (proxies that could not play with the agents); `train_s`: the recorded seconds of each training run (by
+    run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
+    `sections`: the lines after the tests (`analysis_lines`); `missing`: runs of the mode's plan that the
+    work folder does not have (a folder trained before the mode had them); `matrices`: {level set:
+    `cec.evaluation.seeds.SeedMatrix`} of the same table, for the exact tests (`comparisons`)."""
+
+    paper, paper_text = paper_values(), paper_values("text")
+    tests = comparisons(summary, matrices)
+    out.mkdir(parents=True, exist_ok=True)
+    machine, ran = machine_info(), ran_on["machine"]
+    lines = [
+        f"# CEC on Overcooked: `{command}`",
+        "",
+        f"Trained and played on: {_machine_text(ran)}; cross-play finished at commit {ran_on['commit']}"
+        + _trained_at(ran_on)
+        + ".",
+        "",
+        *_controls_machine_lines(ran_on),
+        f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
+        "",
+        *_time_lines(train_s or {}, played_s),
+        f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
+        "both seat orders. SP, cook and proxies: the mean over seeds of each seed's mean (SP: with itself; "
+        "cook: with the scripted cook), ± the standard error over seeds, n = seeds. XP: the mean over every "
+        "pair of two different seeds of the algorithm ± its leave-one-seed-out jackknife standard error (a "
+        "seed's pairs are shared with the other seeds, so a standard error over per-seed means would "
+        "understate it about 3x for 4 seeds). The controls are partners that learned nothing: the CEC "
+        "network at its random initialisation (one per CEC seed) and an agent that always stays; what an "
+        "algorithm adds with the cook is its score there minus theirs. The paper's values are read off its "
+        "figures (approximate, marked 'figure') or, where its text prints one, that value ('text'; "
+        "`apps/reproduce/paper_overcooked.yaml`).",
+        "",
+        *_human_lines(mode, summary, skipped),
+    ]
+    for level_set, scores in summary.items():
+        title = (
+            f"{len(mode.kitchens)} classic" if level_set == "classic" else f"{mode.generated_levels} held-out"
+        )
+        lines += [f"## The {title} kitchens", "", TABLE_HEAD, "|---|---|---|---|---|---|---|"]
+        for algo in [*ALGORITHMS, UNTRAINED, NOOP, COOK]:
+            if algo not in scores:
+                continue
+            s = scores[algo]
+            sp, xp = finite(s.sp), finite(s.xp)
+            ratio = f"{xp.mean() / sp.mean():.2f}" if xp.size and sp.size and sp.mean() > 0 else "—"
+            lines.append(
+                f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_xp_cell(s)} | {ratio} | "
+                f"{_cell(s.cook) if algo != COOK else '—'} | {_cell(s.human)} | "
+                f"{_paper_cell(level_set, algo, paper, paper_text)} |"
+            )
+        absent = {a: v for a, v in paper_text[level_set].items() if a not in scores}
+        if absent:
+            named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
+            lines += ["", f"Not trained here; the paper's text gives: {named}."]
+        lines.append("")
+    lines += ["## CEC against the baselines (seeds as units)", "",
+              "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
+              "standard errors over seeds (Welch-Satterthwaite degrees of freedom) and its 95% t "
+              "interval. With human proxies: a Welch t-test over per-seed scores and a 95% bootstrap "
+              "interval. No test is printed where a side has too few seeds to estimate its spread "
+              "(the jackknife needs 3).", "",
+              "The interval is the headline; the p-values come second. Beside the t-test's p, for "
+              "cross-play, the exact permutation test over seeds (`cec.evaluation.stats."
+              "permutation_crossplay`: every split of CEC's and the baseline's seeds into two groups of "
+              "their sizes, from the pooled seed x seed matrix, as every CEC seed played every seed of "
+              "the baseline), valid at any seed count, with the smallest p it can give at these seed "
+              "counts in brackets: with 4 seeds each it cannot go below 0.0286 whatever the difference. "
+              "None with human proxies: the proxies are the same fixed partners for every seed, not seeds "
+              "of either algorithm, so there is no pooled matrix to permute. Holm: each p adjusted for the "
+              "tests of its family, one level set and one score (CEC against each baseline).",
+              ""]  # fmt: skip
+    if not tests:
+        lines += ["No test: too few seeds, or no spread between them.", ""]
+    else:
+        lines += ["| level set | score | CEC − | difference | 95% CI | p | Holm p | "
+                  "exact p (smallest possible) | Holm exact p | reading (p < 0.05) |",
+                  "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for t in tests:
+            exact = "—" if math.isnan(t["p_exact"]) else f"{_p(t['p_exact'])} ({_p(t['p_min'])})"
+            lines.append(
+                f"| {t['level_set']} | {MEASURES[t['measure']]} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
+                f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | {_p(t['p_holm'])} | {exact} | "
+                f"{_p(t['p_exact_holm'])} | {_reading(t)} |"
+            )
+        lines += ["", *_floor_lines(tests)]
+    lines += sections
+    lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
+              "|---|---|---|---|---|"]  # fmt: skip
+    recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
+    lines += [
+        f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} | {recorded.get(p.run, '—')} |" for p in plan
+    ]
+    lines += ["", *budget_lines(mode, plan)]
+    if missing:
+        lines += ["", f"Not in this work folder (trained before the mode had them; the tables have none of "
+                  f"their games): {', '.join(missing)}."]  # fmt: skip
+    lines.append("")
+    for title, rel in figures.items():
+        lines += [f"![{title}]({rel})", ""]
+    report = out / "report.md"
+    report.write_text("\n".join(lines))
+    data = {
+        "mode": mode.name, "command": command, "ran_on": ran_on, "machine": machine, "commit": commit,
+        "eval_steps": EVAL_STEPS, "paper": paper, "tests": tests,
+        "summary": {ls: {a: dataclasses.asdict(s) for a, s in sc.items()} for ls, sc in summary.items()},
+    }  # fmt: skip
+    (out / "summary.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
+    return report
+
+
+def _cell(values: Sequence[float]) -> str:
+    from cec.evaluation.stats import sem
+
+    arr = finite(values)
+    if not arr.size:
+        return "—"
+    return _pm(float(arr.mean()), sem(arr), arr.size)
+
+
+def _xp_cell(scores: SeedScores) -> str:
+    """Cross-play: the mean over every pair of two different seeds ± its jackknife standard error."""
+    est = scores.crossplay()
+    return "—" if math.isnan(est.mean) else _pm(est.mean, est.se, est.seeds)
+
+
+def _pm(mean: float, err: float, n: int) -> str:
+    return f"{mean:.1f}" + ("" if math.isnan(err) else f" ± {err:.1f}") + f" (n={n})"
+
+
+def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]], text: dict) -> str:
+    exact = text.get(level_set, {}).get(algo)
+    if exact is not None:
+        return f"{exact} (text)"
+    ref = figures.get(level_set, {}).get(algo)
+    return "—" if ref is None else f"≈{ref} (figure)"
+
+
+def _reading(test: dict[str, Any]) -> str:
+    """What a comparison of `comparisons` shows: CEC ahead, CEC behind, or neither at the 5% level of the
+    t-test; a difference the t-test's Holm-adjusted p does not keep below 5% in its family says so."""
+    if not test["significant"]:
+        return "no difference shown"
+    reading = "CEC ahead" if test["diff"] > 0 else "CEC behind"
+    held = test.get("p_holm", test["p"]) < ALPHA
+    return reading if held else f"{reading}; not after Holm"
+
+
+def _p(p: float) -> str:
+    return "—" if math.isnan(p) else f"{p:.3g}"
+
+
+def _floor_lines(tests: Sequence[dict[str, Any]]) -> list[str]:
+    """Per family with exact tests: the smallest Holm-adjusted exact p it could reach (its smallest test's
+    p_min times the family's size), and how many of its tests stay below 5% after Holm, t and exact."""
+    families: dict[tuple[str, str], list[dict[str, Any]]] = {}
+    for t in tests:
+        families.setdefault((t["level_set"], t["measure"]), []).append(t)
+    parts = []
+    for (level_set, measure), family in families.items():
+        floors = [t["p_min"] for t in family if not math.isnan(t["p_exact"])]
+        if not floors:
+            continue
+        k = len(family)
+        held_t = sum(t["p_holm"] < ALPHA for t in family)
+        held_exact = sum(t["p_exact_holm"] < ALPHA for t in family)
+        parts.append(
+            f"{level_set} {MEASURES[measure]}: {k} tests, the smallest Holm-adjusted exact p attainable "
+            f"{min(1.0, k * min(floors)):.3g}; below {ALPHA:g} after Holm: {held_t} of {k} by the t-test, "
+            f"{held_exact} by the exact test"
+        )
+    return [f"Families: {'; '.join(parts)}.", ""] if parts else []
+
+
+def budget_lines(mode: Mode, plan: Sequence[pipeline.PlanLine]) -> list[str]:
+    """Env steps per trained model (one seed; a single-kitchen model: one kitchen) by algorithm, and CEC's
+    against those of one single-kitchen model and of all of an algorithm's kitchens together; the paper
+    trains every model for the same 3e9 steps (its section on the generator: "all other baselines, for 3
+    billion steps"), 1:1."""
+    steps: dict[str, int] = {}
+    for p in plan:  # `trained_runs`' lines: each with its run's algorithm
+        steps.setdefault(p.algorithm, p.env_steps)
+    if "cec" not in steps:
+        return []
+    cec, k = steps["cec"], len(mode.kitchens)
+    parts = [f"{TITLES[a]} {steps[a]:,} per model" for a in GENERALISTS if a in steps]
+    single = [a for a in ALGORITHMS if a in steps and a not in (*GENERALISTS, "cec_finetune")]
+    for n in sorted({steps[a] for a in single}):
+        names = ", ".join(TITLES[a] for a in single if steps[a] == n)
+        parts.append(
+            f"{names} {n:,} per model, one per kitchen (CEC trains {cec / n:.1f}x the steps of one of their "
+            f"models, {cec / (n * k):.1f}x those of all {k} together)"
+        )
+    if "cec_finetune" in steps:
+        parts.append(f"CEC-Finetune {steps['cec_finetune']:,} per kitchen on top of its CEC seed's")
+    return [
+        f"Budget (env steps per seed): {'; '.join(parts)}. The paper trains every model for 3e9 steps (1:1)."
+    ]
+
+
+def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped: Sequence[Any]) -> list[str]:
+    """What the human-proxy column holds, the paper's human study beside it, or why it is empty."""
+    played = any(finite(s.human).size for scores in summary.values() for s in scores.values())
+    if played:
+        return [
+            f"With human proxies: each seed with every `{HUMAN_PROXY}` entry of `{mode.proxies}` "
+            "(behaviour-cloned from recorded human-human games, `cec humans bc`; each plays its own "
+            "kitchen), the mean over the proxies. The paper's human study (score with real people, "
+            f"Counter Circuit and Coordination Ring): {HUMAN_STUDY}",
+            "",
+        ]
+    reasons = sorted({s.reason for s in skipped if s.algorithm == HUMAN_PROXY})
+    why = f"they could not play with the agents: {'; '.join(reasons)}" if reasons else "none in the table"
+    return [f"With human proxies: not played ({why}).", ""]
+
+
+def _time_lines(train_s: dict[str, float], played_s: float) -> list[str]:
+    """The recorded time of the work behind the report, reused work included (empty when none is known)."""
+    recorded = [t for t in train_s.values() if math.isfinite(t) and t > 0]
+    if not recorded:  # a work folder from before training times were kept
+        return []
+    train = sum(recorded)
+    unknown = "not recorded (played before play times were kept)"
+    play = duration(played_s) if math.isfinite(played_s) else unknown
+    return [
+        f"Recorded times of the work behind these numbers, whichever invocation did it: training "
+        f"{duration(train)} on the machine that trained (per run in the Training section; runs that share "
+        f"it run side by side, so this is not its wall time); cross-play {play}.",
+        "",
+    ]
+
+
+def _controls_machine_lines(ran_on: dict[str, Any]) -> list[str]:
+    """Where the controls were played, when not where the zoo was (`--report-only` plays them)."""
+    controls = ran_on.get("controls")
+    if not controls or controls["machine"]["host"] == ran_on["machine"]["host"]:
+        return []
+    return [f"Controls played on: {_machine_text(controls['machine'])}; commit {controls['commit']}.", ""]
+
+
+def _trained_at(ran_on: dict[str, Any]) -> str:
+    """The commits that wrote the agents' checkpoints, where the folder's `machine.json` records them."""
+    commits = ran_on.get("trained_at")
+    if not commits:
+        return ""
+    many = "s" if len(commits) > 1 else ""
+    return f"; the agents' last checkpoints written at {len(commits)} commit{many} ({', '.join(commits)})"
+
+
+def _machine_text(m: dict[str, Any]) -> str:
+    return f"{m['device']} (JAX {m['jax']}), {m['cpu']} ({m['cpu_count']} cores), host {m['host']}"

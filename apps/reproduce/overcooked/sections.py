@@ -1,0 +1,345 @@
+"""The report's sections after its tests (this paper's own part): per kitchen, collisions and episodes
+without a soup, the cross-algorithm matrices, held-out play by training kitchen, the cross-play learning
+curves, whether the single-kitchen runs levelled off, and the baselines without a soup in their kitchen.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from apps.reproduce.overcooked.evaluate import level_spec
+from apps.reproduce.overcooked.modes import (
+    ALGORITHMS,
+    EVAL_STEPS,
+    GENERALISTS,
+    LEVEL_SETS,
+    SELF_PLAY,
+    TITLES,
+    UNTRAINED,
+    Mode,
+)
+from apps.reproduce.overcooked.plan import run_name
+from cec.agents.zoo import HUMAN_PROXY
+from cec.evaluation.curves import metrics_file
+
+
+def analysis_lines(mode: Mode, table: Any, runs: Path, controls: Any = None) -> list[str]:
+    """The sections after the tests: per kitchen (`episode_lines`, with the `controls`' table), the
+    cross-algorithm matrices, held-out play by training kitchen, whether the single-kitchen runs levelled
+    off, and the baselines without a soup in their own kitchen."""
+    return [
+        *episode_lines(mode, table, controls), *cross_algorithm_lines(mode, table),
+        *heldout_kitchen_lines(mode, table), *plateau_lines(mode, runs), *failing_lines(mode, table, runs),
+    ]  # fmt: skip
+
+
+def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
+    """The per-kitchen view the seed-level tables average over: per algorithm, cross-play (two different
+    seeds) and self-play in each classic kitchen and over the held-out ones, then per level set the
+    collisions per episode, the share of cross-play episodes without a soup and the collisions per soup
+    (with the untrained network's cross-play from `controls`, the controls' table, beside them). Means over
+    episodes (descriptive; the seed-level tests are above)."""
+    xp, sp = _xp_sp(table)
+    held = _held_out(mode, table)
+    columns = [(k, table.level == k) for k in mode.kitchens] + [("held-out", held)]
+    algos = [a for a in ALGORITHMS if np.any(table.algorithm_a == a)]
+    kitchens = [k for k in mode.kitchens if any(_of_kitchen(table.policy_a[held], a, k).any() for a in algos)]
+
+    def mean(values: np.ndarray, mask: np.ndarray, fmt: str = "{:.1f}") -> str:
+        return fmt.format(float(values[mask].mean())) if mask.any() else "—"
+
+    lines = [
+        "## Per kitchen, collisions and episodes without a soup",
+        "",
+        f"Team return per {EVAL_STEPS}-step episode, the mean over episodes: cross-play (two different seeds "
+        "of the algorithm) and, in brackets, self-play, in each classic kitchen and over the held-out ones. "
+        "The baselines of a classic kitchen are that kitchen's agents; on the held-out kitchens the "
+        "single-kitchen agents that played are those trained on "
+        + ", ".join(kitchens or ["none"])
+        + " (as in the tables above; by training kitchen below).",
+        "",
+        "| algorithm | " + " | ".join(k for k, _ in columns) + " |",
+        "|---" * (len(columns) + 1) + "|",
+    ]
+    for algo in algos:
+        mine = table.algorithm_a == algo
+        cells = [
+            f"{mean(table.returns, mine & xp & m)} ({mean(table.returns, mine & sp & m)})" for _, m in columns
+        ]
+        lines.append(f"| {TITLES[algo]} | " + " | ".join(cells) + " |")
+    lines += [
+        "",
+        "Collisions per cross-play episode (steps where the two cooks move to the same cell or try to swap "
+        "cells), the share of cross-play episodes that deliver no soup, and the collisions per soup (every "
+        "collision of those episodes over every soup they delivered; — where none): an agent that cooks "
+        "moves more, so it has more steps to collide on. The untrained CEC network (the control; its seeds "
+        "with each other) is the baseline of an agent that learned nothing:",
+        "",
+        "| algorithm | collisions, classic | collisions, held-out | no soup, classic | no soup, held-out "
+        "| per soup, classic | per soup, held-out |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    rows = [(TITLES[a], table, a) for a in algos]
+    if controls is not None and np.any(controls.algorithm_a == UNTRAINED):
+        rows.append((TITLES[UNTRAINED], controls, UNTRAINED))
+    for title, t, algo in rows:
+        t_xp, t_held = _xp_sp(t)[0], _held_out(mode, t)
+        sets = [(t.algorithm_a == algo) & t_xp & m for m in (~t_held, t_held)]
+        coll = [mean(t.collisions, m) for m in sets]
+        none = [mean((t.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
+        per_soup = [_per_soup(t.collisions[m].sum(), t.deliveries[m].sum()) for m in sets]
+        lines.append(f"| {title} | {' | '.join(coll)} | {' | '.join(none)} | {' | '.join(per_soup)} |")
+    return [*lines, ""]
+
+
+def _per_soup(collisions: float, soups: float) -> str:
+    if not soups:
+        return "—"
+    ratio = float(collisions) / float(soups)
+    return f"{ratio:.1f}" if ratio < 1000 else f"{ratio:,.0f}"
+
+
+def _xp_sp(table: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of cross-play (two different seeds of one algorithm) and of self-play."""
+    same = table.algorithm_a == table.algorithm_b
+    return same & (table.seed_a != table.seed_b), same & (table.seed_a == table.seed_b)
+
+
+def _held_out(mode: Mode, table: Any) -> np.ndarray:
+    """Rows played on the mode's held-out kitchens."""
+    return np.isin(table.level, level_spec(mode, "heldout").split(","))
+
+
+def agent_games(table: Any, *, with_proxies: bool = True) -> Any:
+    """The games of the trained agents with each other (and with the human proxies): the table without the
+    cook and the controls."""
+    who = (*ALGORITHMS, HUMAN_PROXY) if with_proxies else ALGORITHMS
+    return table.select(np.isin(table.algorithm_a, who) & np.isin(table.algorithm_b, who))
+
+
+def _of_kitchen(names: np.ndarray, algo: str, kitchen: str) -> np.ndarray:
+    """Which policy names are `algo`'s agents of `kitchen` (the zoo's run names: `ALGO_KITCHEN-sSEED`)."""
+    return np.char.startswith(names.astype(str), f"{run_name(algo, kitchen)}-s")
+
+
+def curve_points(curves: Any) -> tuple[list[Any], int]:
+    """The cross-play learning curves' points (`cec.evaluation.milestones.milestone_points`) of
+    `cached_curves`' games, and the held-out kitchens they were played on (none: no games)."""
+    from cec.evaluation.milestones import milestone_points
+
+    if curves is None or not len(curves):
+        return [], 0
+    return milestone_points(curves), len(set(curves.level))
+
+
+def curve_lines(points: Sequence[Any], kitchens: int) -> list[str]:
+    """The cross-play learning curves (`curve_points`) as a table: each checkpoint's cross-play and
+    self-play on the held-out kitchens."""
+    head = "## Cross-play learning curves (held-out kitchens)"
+    if not points:
+        missing = "Not measured: the work folder has neither the runs' milestone checkpoints nor their games."
+        return [head, "", missing, ""]
+    about = (
+        "At each checkpoint a generator-trained run saved (its milestones and its last), its seeds with each "
+        f"other on the {kitchens} held-out kitchens, {EVAL_STEPS}-step episodes: cross-play "
+        "(every pair of two different seeds) ± its jackknife standard error over seeds, and self-play ± "
+        "the standard error over seeds (`curves_xp.png`)."
+    )
+    lines = [head, "", about, "", "| algorithm | env steps per seed | seeds | cross-play | self-play |",
+             "|---|---|---|---|---|"]  # fmt: skip
+
+    def cell(mean: float, se: float) -> str:
+        return "—" if math.isnan(mean) else f"{mean:.1f}" + ("" if math.isnan(se) else f" ± {se:.1f}")
+
+    for p in points:
+        lines.append(
+            f"| {TITLES.get(p.name, p.name)} | {p.env_steps:,} | {len(p.seeds)} | {cell(p.xp, p.xp_se)} | "
+            f"{cell(p.sp, p.sp_se)} |"
+        )
+    return [*lines, ""]
+
+
+def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
+    """Per level set the cross-algorithm matrix (`cec.evaluation.analysis.algorithm_matrix`): cell (A, B)
+    the mean team return of the pairs of an A agent and a different B agent (on the diagonal: cross-play),
+    each pair's score the mean over the kitchens both play (the paper's ad-hoc teamplay heatmaps)."""
+    from cec.evaluation import analysis as an
+
+    agents = agent_games(table, with_proxies=False)
+    lines = [
+        "## Cross-algorithm play (ad-hoc teamplay)",
+        "",
+        "Team return per 400-step episode of an agent of the row's algorithm with a different agent of the "
+        "column's (the diagonal is cross-play), each pair's score the mean over the kitchens both play: on "
+        "the classic kitchens a single-kitchen agent meets the others of its kitchen and the "
+        "generator-trained agents, on the held-out kitchens its kitchen's agents and the generator-trained "
+        "ones. Means over pairs (descriptive; seeds as units for tests above). Heatmaps, seed matrices and "
+        "the meta-game (replicator dynamics): [crossplay/report.md](crossplay/report.md).",
+        "",
+    ]
+    for level_set in LEVEL_SETS:
+        m = an.algorithm_matrix(an.pair_level_scores(agents, level_spec(mode, level_set).split(",")))
+        if not m.labels:
+            continue
+        titles = [TITLES.get(a, a) for a in m.labels]
+        lines += [f"**{level_set}**", "", "| | " + " | ".join(titles) + " |", "|---" * len(titles) + "|---|"]
+        for title, row in zip(titles, m.values, strict=True):
+            cells = ("—" if math.isnan(v) else f"{v:.1f}" for v in row)
+            lines.append(f"| {title} | " + " | ".join(cells) + " |")
+        off = m.values[~np.eye(len(m.labels), dtype=bool)]
+        if off.size and np.isnan(off).all():
+            lines += ["", "No two algorithms met in this table (it was played before every agent met every "
+                      "other): the cells off the diagonal are empty."]  # fmt: skip
+        lines.append("")
+    return lines
+
+
+def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
+    """Held-out cross-play (self-play) of each single-kitchen algorithm by the kitchen its agents trained
+    on: which kitchens' agents carry anything to kitchens they never saw."""
+    xp, sp = _xp_sp(table)
+    held = _held_out(mode, table)
+    algos = [a for a in ALGORITHMS if a not in GENERALISTS and np.any(table.algorithm_a == a)]
+    if not algos:
+        return []
+    lines = [
+        "## The held-out kitchens by training kitchen",
+        "",
+        f"Team return per {EVAL_STEPS}-step episode on the held-out kitchens, the mean over episodes: "
+        "cross-play (two different seeds of one algorithm, both trained on the column's kitchen) and, in "
+        "brackets, self-play; — where that kitchen's agents did not play them.",
+        "",
+        "| algorithm | " + " | ".join(mode.kitchens) + " |",
+        "|---" * (len(mode.kitchens) + 1) + "|",
+    ]
+    for algo in algos:
+        cells = []
+        for k in mode.kitchens:
+            mine = held & _of_kitchen(table.policy_a, algo, k) & _of_kitchen(table.policy_b, algo, k)
+            cells.append(
+                f"{table.returns[mine & xp].mean():.1f} ({table.returns[mine & sp].mean():.1f})"
+                if (mine & xp).any() and (mine & sp).any() else "—"
+            )  # fmt: skip
+        lines.append(f"| {TITLES[algo]} | " + " | ".join(cells) + " |")
+    return [*lines, ""]
+
+
+def _kitchen_runs(runs: Path, algo: str, kitchen: str) -> list[Path]:
+    """`algo`'s run directories on `kitchen` under `runs` (one per spec entry)."""
+    return sorted(runs.glob(f"{run_name(algo, kitchen)}-s*"))
+
+
+def _curves(runs: Path, algo: str, kitchen: str, column: str) -> list[np.ndarray]:
+    """Per seed of `algo`'s runs on `kitchen` under `runs`, `column` of its `metrics.csv` by update."""
+    from cec.evaluation.curves import read_curve
+
+    runs_k = [r for r in _kitchen_runs(runs, algo, kitchen) if metrics_file(r).is_file()]
+    return [v for r in runs_k for _, v in read_curve(r, column).values() if len(v)]
+
+
+def _episode_steps(runs: Path, algo: str, kitchens: Sequence[str]) -> str:
+    """The training episode length of `algo`'s runs on `kitchens` under `runs`, as each run's `config.yaml`
+    recorded it ('128', or '128/400' where they differ; '—' when no run has its config there)."""
+    configs = [r / "config.yaml" for k in kitchens for r in _kitchen_runs(runs, algo, k)]
+    steps = {
+        int(yaml.safe_load(c.read_text())["env"]["overcooked"]["max_steps"]) for c in configs if c.is_file()
+    }
+    return "/".join(str(s) for s in sorted(steps)) or "—"
+
+
+def plateau_lines(mode: Mode, runs: Path) -> list[str]:
+    """Whether each single-kitchen algorithm's training had levelled off: its team return per training
+    episode over the last 10 updates, and how much it rose over the last quarter of the run (the mean over
+    seeds; `metrics.csv` of its runs under `runs`)."""
+    from cec.evaluation.curves import trailing_mean
+
+    algos = [a for a in ALGORITHMS if a not in GENERALISTS]
+    cells = {}
+    for algo in algos:
+        for k in mode.kitchens:
+            smooth = [trailing_mean(v, 10) for v in _curves(runs, algo, k, "mean_return") if len(v) >= 4]
+            ends = [(m[-1], m[(3 * len(m)) // 4 - 1]) for m in smooth]
+            if ends:
+                last, earlier = np.mean(ends, axis=0)
+                cells[algo, k] = f"{last:.1f} ({last - earlier:+.1f})"
+    if not cells:
+        return []
+    return [
+        "## Single-kitchen training: levelled off?",
+        "",
+        "Team return per training episode (of the steps given; its run's `config.yaml`) with its training "
+        "partners over the last 10 updates and, in brackets, its rise over the last quarter of the run (the "
+        "mean over seeds): a rise that is large beside the return means the run stopped before its "
+        "self-play levelled off.",
+        "",
+        "| algorithm | training episode (steps) | " + " | ".join(mode.kitchens) + " |",
+        "|---" * (len(mode.kitchens) + 2) + "|",
+        *(
+            f"| {TITLES[a]} | {_episode_steps(runs, a, mode.kitchens)} | "
+            + " | ".join(cells.get((a, k), "—") for k in mode.kitchens)
+            + " |"
+            for a in algos
+        ),
+        "",
+    ]
+
+
+def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
+    """Every single-kitchen algorithm and kitchen whose self-play there delivers nothing, with what its
+    training recorded (`metrics.csv` of its runs under `runs`): the team return per training episode with
+    its training partners at the first update and over the last 10, the shaped return, and the reading
+    those numbers allow."""
+    from cec.evaluation.curves import trailing_mean
+
+    xp, sp = _xp_sp(table)
+    rows = []
+    for algo in (a for a in ALGORITHMS if a not in GENERALISTS):
+        for k in mode.kitchens:
+            own = (table.algorithm_a == algo) & (table.level == k)
+            if not (own & sp).any() or table.returns[own & sp].mean() > 0:
+                continue
+            curves = {c: _curves(runs, algo, k, c) for c in ("mean_return", "mean_shaped_return")}
+            if not curves["mean_return"]:
+                rows.append(f"| {TITLES[algo]} | {k} | 0.0 | — | — | — | — | its training metrics are not in "
+                            "the work folder |")  # fmt: skip
+                continue
+            first = float(np.mean([v[0] for v in curves["mean_return"]]))
+            last, shaped = (float(np.mean([trailing_mean(v, 10)[-1] for v in curves[c]])) for c in curves)
+            if last < 1.0:
+                reading = "no soup in training either: it learned the shaped steps only, not to deliver"
+            elif algo in SELF_PLAY:
+                reading = "it delivered in its training episodes (with itself), not in these"
+            elif first >= last / 2:
+                reading = (
+                    f"its training partners delivered from its first update ({first:.1f}): it scored with "
+                    "them, not by itself"
+                )
+            else:
+                reading = "it learned to deliver with its training partners, but not with a copy of itself"
+            xp_k = f"{table.returns[own & xp].mean():.1f}" if (own & xp).any() else "—"
+            rows.append(f"| {TITLES[algo]} | {k} | 0.0 | {xp_k} | {_episode_steps(runs, algo, [k])} | "
+                        f"{first:.1f} → {last:.1f} | {shaped:.1f} | {reading} |")  # fmt: skip
+    if not rows:
+        return ["## Baselines in their own kitchen", "", "Every single-kitchen algorithm delivers in "
+                "self-play in its own kitchen (self-play > 0 in each).", ""]  # fmt: skip
+    return [
+        "## Baselines without a soup in their own kitchen",
+        "",
+        "Each algorithm and kitchen whose self-play there (every seed with itself, 400-step episodes) "
+        "delivers nothing, with what its training recorded: the team return per training episode (of the "
+        "steps given) with its training partners (IPPO and CEC-Finetune: itself; FCP: its population; E3T: "
+        "itself mixed with random moves) at the first update and over the last 10 (the mean over seeds), "
+        "and the shaped return over the last 10.",
+        "",
+        "| algorithm | kitchen | self-play | cross-play | training episode (steps) | training return, first "
+        "→ last | shaped, last | reading |",
+        "|---|---|---|---|---|---|---|---|",
+        *rows,
+        "",
+    ]
