@@ -66,7 +66,7 @@ for before_dir in ("cec451m", "cec64m"):
 EOF
 "$PY" -c "
 from pathlib import Path
-from apps.reproduce.overcooked import crossplay_gif
+from apps.reproduce.overcooked.figures import crossplay_gif
 from cec.evaluation.results import read_csv
 S = Path('$S')
 print(crossplay_gif(read_csv(S / 'heldout.csv'), Path('cec/shipped/zoo.yaml'), S / 'cec_xp_heldout.gif'))
