@@ -14,9 +14,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 class PlayServer:
-    """`python -m apps.cli play serve ARGS` until `stop()`; `url` once it serves study `study`."""
+    """`python -m apps.cli play serve ARGS` until `stop()`; `url` once it serves study `study` (None: any
+    name, e.g. free play's folder of its flags), whose name is then `study`."""
 
-    def __init__(self, args: list[str], study: str, timeout: float = 180) -> None:
+    def __init__(self, args: list[str], study: str | None, timeout: float = 180) -> None:
         cmd = [sys.executable, "-m", "apps.cli", "play", "serve", *args]
         self.proc = subprocess.Popen(
             cmd, cwd=ROOT, env={**os.environ, "JAX_PLATFORMS": "cpu"}, stdout=subprocess.PIPE,
@@ -24,15 +25,17 @@ class PlayServer:
         )  # fmt: skip
         self.lines: list[str] = []
         self.url = ""
+        self.study = study or ""
+        name = re.escape(study) if study else r"[A-Za-z0-9_-]+"
         ready = threading.Event()
 
         def pump() -> None:
             assert self.proc.stdout is not None
             for line in self.proc.stdout:
                 self.lines.append(line)
-                m = re.search(rf"serving study '{re.escape(study)}' at (http://\S+/)", line)
+                m = re.search(rf"serving study '({name})' at (http://\S+/)", line)
                 if m:
-                    self.url = m.group(1)
+                    self.study, self.url = m.group(1), m.group(2)
                     ready.set()
             ready.set()
 

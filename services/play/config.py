@@ -274,6 +274,9 @@ class StudyConfig:
         seed: seeds the participants' round orders, seat draws and partner draws (with their index).
         storage: where the records go.
         limits: bounds on joins (per client address, participants in progress, participants in all).
+        free_play: play as a game, not a study: after each round the person plays again, with the same
+            partner or the next one (their choice), for as long as they like; the page names the partner
+            (policy and kind) and sums up their rounds; no completion code, no survey, no practice round.
     """
 
     name: str = ""  # required: `load_study` names a missing one (an empty file included)
@@ -300,6 +303,7 @@ class StudyConfig:
     seed: int = 0
     storage: StorageConfig = field(default_factory=StorageConfig)
     limits: LimitsConfig = field(default_factory=LimitsConfig)
+    free_play: bool = False
 
     def __post_init__(self) -> None:
         missing = [key for key in ("name", "levels", "partners") if not getattr(self, key)]
@@ -345,6 +349,11 @@ class StudyConfig:
             raise ConfigError(f"ask ids must be unique, got {ids}")
         if len(self.completion_code) > 64 or not self.completion_code.isprintable():
             raise ConfigError("completion_code must be at most 64 printable characters")
+        if self.free_play and (self.survey.items or self.practice is not None):
+            raise ConfigError(
+                "free_play: true plays rounds without a survey or a practice round: set "
+                "`survey: {items: []}` and `practice: null`"
+            )
 
     @property
     def num_rounds(self) -> int:

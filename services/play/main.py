@@ -12,7 +12,10 @@ free one), and stops on Ctrl-C / SIGTERM.
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
 import logging
+import re
 import socket
 import time
 from pathlib import Path
@@ -22,6 +25,7 @@ from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
 from services.entry import Service, override_arguments
 from services.play.config import AGENT_ACTIONS, MODES, StudyConfig, load_study
+from services.progress import Heartbeat
 from services.store import StoreError  # needs redis: without it `cec X` names the package
 
 log = logging.getLogger("cec.play")
@@ -91,8 +95,22 @@ def _storage_overrides(args: argparse.Namespace) -> list[str]:
     return out
 
 
+FREE_PLAY_DIR = "runs/play"  # free play's records folder unless --data gives one (runs/ is ignored by git)
+
+
+def free_play_name(data: dict[str, Any]) -> str:
+    """The record folder of one set of free-play flags: `free_play-<partner>-<kitchen>-<digest>`, so that
+    changing a flag starts a folder of its own (its rounds never meet those of other flags)."""
+    (partner,) = data["partners"]
+    source = partner.get("group") or Path(partner.get("checkpoint") or partner.get("zoo") or "random").name
+    words = [re.sub(r"[^A-Za-z0-9_]+", "_", w).strip("_")[:16] for w in (source, data["levels"][0])]
+    digest = hashlib.sha256(json.dumps(data, sort_keys=True).encode()).hexdigest()[:8]
+    return "-".join(["free_play", *(w for w in words if w), digest])
+
+
 def free_play_config(args: argparse.Namespace) -> StudyConfig:
-    """A one-partner study without consent, practice or survey, from `cec play serve` flags."""
+    """Free play from `cec play serve` flags: one partner condition, rounds without end (`free_play`), no
+    consent, practice or survey; records in `runs/play/<free_play_name>/` unless `--data` says where."""
     partner: dict[str, Any] = {"name": "partner"}
     if args.partner:
         partner.update(zoo=SHIPPED, group=args.partner)
@@ -104,8 +122,7 @@ def free_play_config(args: argparse.Namespace) -> StudyConfig:
         partner.update(zoo=str(path.resolve()) if path.exists() else args.zoo, group=args.group)
     if args.random_init:
         partner.update(random_init=True)
-    data = {
-        "name": "free_play",
+    data: dict[str, Any] = {
         "title": "Cook with an agent",
         "levels": [args.level],
         "partners": [partner],
@@ -114,10 +131,12 @@ def free_play_config(args: argparse.Namespace) -> StudyConfig:
         "agent_actions": args.agent_actions,
         "env": {"max_steps": args.steps, "random_start_facing": False},
         "survey": {"items": []},
-        "storage": {
-            "dir": args.data if args.data is not None else "play_data",
-            "redis_url": args.redis_url or "",
-        },
+        "free_play": True,
+    }
+    data["name"] = free_play_name(data)
+    data["storage"] = {
+        "dir": args.data if args.data is not None else FREE_PLAY_DIR,
+        "redis_url": args.redis_url or "",
     }
     return from_dict(StudyConfig, data)
 
@@ -146,8 +165,13 @@ def prepare(config: StudyConfig, base_dir: Path) -> dict[str, Any]:
                 f"partner {name!r} has no policy that plays {spec!r} (its policies are single-task agents of "
                 f"{kitchens}); change the levels or the partner's zoo group"
             )
-    log.info("loaded %d partner conditions in %.1f s; compiling", len(pools), time.perf_counter() - t0)
-    log.info("compiled the game and the agents in %.1f s", warm_up(list(pools.values()), config))
+    log.info(
+        "loaded %d partner conditions in %.1f s; compiling the game and the agents (once per start: about 15 "
+        "s on a busy 2-core CPU)", len(pools), time.perf_counter() - t0,
+    )  # fmt: skip
+    with Heartbeat(log.info, lambda s: f"still compiling ({s:.0f} s)", every_s=5.0):
+        seconds = warm_up(list(pools.values()), config)
+    log.info("compiled the game and the agents in %.1f s", seconds)
     return pools
 
 
@@ -224,6 +248,8 @@ def _cmd_serve(args: argparse.Namespace) -> int:
             "give a study file (e.g. configs/study/default.yaml) or a partner to play with: "
             "--partner NAME (e.g. cec), --checkpoint RUN_DIR, --zoo ZOO.yaml [--group ALG] or --random-init"
         )
+    what = "free play" if config.free_play else f"study {config.name!r}"
+    log.info("%s: loading the partners and the kitchens, then compiling (a line every few seconds)", what)
     return serve(config, base_dir, args.host, args.port)
 
 

@@ -41,6 +41,7 @@ Event types, in the order a participant produces them:
                   the round ended; it is played again from the start)
     survey        round, partner, answers {item id: 1..len(scale)}
     complete      code (the completion code shown)
+    choice        round, choice (`same` or `next`), partner, policy: free play's partner of a coming round
 
 Files: `<dir>/<study>/<participant>.jsonl`, one event per line. Redis: a stream per participant,
 `<prefix>:play:<study>:<participant>` (field `event`: the JSON), and the set of participants,
@@ -153,6 +154,7 @@ EVENT_FIELDS: dict[str, dict[str, str]] = {
     },
     "round_abort": {"round": "int", "attempt": "nonneg", "steps": "int"},
     "survey": {"round": "int", "partner": "any", "answers": "dict"},
+    "choice": {"round": "int", "choice": "str", "partner": "any", "policy": "any"},
     "complete": {"code": "str"},
 }  # fmt: skip
 

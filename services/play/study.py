@@ -2,12 +2,14 @@
 
 A participant walks through stages: consent (if the study has consent text), info (if it asks anything),
 instructions, the practice round (if any), then for each study round the round and its survey (if the
-survey has items), and finally the completion code. `Study` holds the participants of one server process;
-every method validates its input and raises `InputError` (the web layer answers 400 with its message) for
-anything a client could send wrong. Every state change is recorded (`services.play.recording`) before the
-method returns, the events of one action together. When a store cannot record them, the method raises
-`RecordUnavailableError` and leaves the participant's stage as it was (a round being played is ended: its
-connection closes and the round is played again), so the action can be retried without being recorded
+survey has items), and finally the completion code. In free play (`StudyConfig.free_play`) the rounds never
+end: each finished round plans the next, whose partner the person may change (`services.play.free_play`).
+`Study` holds the participants of one server process; every method validates its input and raises
+`InputError` (the web layer answers 400 with its message) for anything a client could send wrong. Every
+state change is recorded (`services.play.recording`) before the method returns, the events of one action
+together. When a store cannot record them, the method raises `RecordUnavailableError` and leaves the
+participant's stage as it was (a round being played is ended: its connection closes and the round is played
+again), so the action can be retried without being recorded
 twice; a join refused so leaves no record, and its counterbalancing index goes to the next join.
 
 The round plan of participant i (their partners in order, the human's seat, the zoo draws, the kitchen and
@@ -20,6 +22,7 @@ survey, export); splitting it would spread that invariant over files.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import heapq
 import json
@@ -39,8 +42,9 @@ import numpy as np
 
 from cec.levels import to_ascii
 from cec.levels.named import resolve_level
-from services.play import metrics
+from services.play import free_play, metrics
 from services.play.config import PracticeConfig, StudyConfig
+from services.play.free_play import Candidate
 from services.play.game import (
     NUM_ACTIONS,
     PartnerPool,
@@ -123,6 +127,7 @@ class Participant:
     round: Round | None = None
     lock: threading.Lock = field(default_factory=threading.Lock)
     seen: float = 0.0  # the study clock at the participant's last request
+    played: list[dict[str, Any]] = field(default_factory=list)  # free play: the rounds so far, summed up
 
     @property
     def current(self) -> tuple[str, int]:
@@ -288,7 +293,8 @@ class Study:
         """Participant `index`'s plan and stages (a function of the study config and the index only)."""
         rng = np.random.default_rng([self.config.seed, index])
         level_spec = self.config.levels[index % len(self.config.levels)]
-        rounds = self._plan(rng, level_spec)
+        free = self.config.free_play  # one round planned now, the next when it ends (`free_play`)
+        rounds = [self._free_round(index, 0, level_spec, None)] if free else self._plan(rng, level_spec)
         stages: list[tuple[str, int]] = []
         if self.config.consent.strip():
             stages.append(("consent", 0))
@@ -299,8 +305,51 @@ class Study:
             stages.append(("round", plan.index))
             if not plan.practice and self.config.survey.items:
                 stages.append(("survey", plan.index))
-        stages.append(("done", 0))
+        if not free:
+            stages.append(("done", 0))
         return Participant(pid, index, level_spec, rounds, stages, code)
+
+    def _free_round(self, index: int, number: int, level_spec: str, partner: Candidate | None) -> RoundPlan:
+        """Free-play round `number` of participant `index`, with `partner` (None: the drawn one)."""
+        drawn = free_play.draw(
+            self.config, free_play.candidates(self.config, self.pools, level_spec), index, number
+        )
+        partner = partner or drawn.partner
+        steps, mode = int(self.config.env.max_steps), self.config.mode
+        return RoundPlan(number, *partner, level_spec, drawn.human_seat, steps, mode, drawn.seed)
+
+    def _free_round_ended(self, p: Participant, plan: RoundPlan, end: dict[str, Any]) -> None:
+        """Free play: `plan`'s round is summed up and the next is planned, with the same partner."""
+        partner = Candidate(plan.partner, plan.policy)
+        p.played.append(free_play.summary_row(plan.index, free_play.describe(self.pools, partner), end))
+        p.rounds.append(self._free_round(p.index, plan.index + 1, p.level_spec, partner))
+        p.stages.append(("round", plan.index + 1))
+
+    def _choose(self, p: Participant, index: int, payload: dict[str, Any]) -> None:
+        """Free play: the partner of the coming round `index`, the previous one's (`same`) or the next."""
+        choice = payload.get("partner")
+        if payload.get("round") != index:
+            raise InputError(f"the coming round is round {index}, not {brief(payload.get('round'))}; reload")
+        if choice not in free_play.CHOICES:
+            raise InputError(f"partner must be one of {list(free_play.CHOICES)}, got {brief(choice)}")
+        if index == 0:
+            raise InputError("the first round's partner is drawn; choose the partner after it")
+        if p.round is not None:
+            raise InputError("this round is being played; choose the partner of the next one after it")
+        previous = self._plan_of(p, index - 1)
+        partner = Candidate(previous.partner, previous.policy)
+        if choice == "next":
+            cands = free_play.candidates(self.config, self.pools, p.level_spec)
+            partner = free_play.following(cands, partner)
+        name = free_play.describe(self.pools, partner)["name"]
+        self._record(p, "choice", round=index, choice=choice, partner=partner.partner, policy=name)
+        self._set_partner(p, index, partner)
+
+    def _set_partner(self, p: Participant, index: int, partner: Candidate) -> None:
+        p.rounds = [
+            dataclasses.replace(r, partner=partner.partner, policy=partner.policy) if r.index == index else r
+            for r in p.rounds
+        ]
 
     def participant(self, token: str | None) -> Participant | None:
         """The participant of a session token (None for an unknown or missing one)."""
@@ -339,6 +388,12 @@ class Study:
                 kind = ev.get("type")
                 if kind == "consent" and not ev.get("accepted"):
                     p.stages = [*p.stages[: p.stage + 1], ("declined", 0)]
+                if self.config.free_play and kind == "round_end":
+                    self._free_round_ended(p, self._plan_of(p, int(ev["round"])), ev)
+                if self.config.free_play and kind == "choice":
+                    chosen = free_play.by_name(self.pools, ev.get("partner"), ev.get("policy"))
+                    if chosen is not None:
+                        self._set_partner(p, int(ev["round"]), chosen)
                 if kind in ("consent", "info", "instructions", "round_end", "survey"):
                     p.stage = min(p.stage + 1, len(p.stages) - 1)
                 if kind == "round_start":
@@ -414,7 +469,10 @@ class Study:
                 "text": c.instructions,
                 "practice": c.practice is not None,
                 "rounds": c.num_rounds,
+                "free_play": c.free_play,
             }
+        if kind == "round" and c.free_play:
+            return {**base, **free_play.view(c, self.pools, p, index)}
         if kind == "round":
             plan = self._plan_of(p, index)
             return {
@@ -470,6 +528,8 @@ class Study:
             elif kind == "instructions":
                 self._record_all(p, [self._event(p, "instructions"), *self._completion(p)])
                 self._advance(p)
+            elif kind == "round" and self.config.free_play:
+                self._choose(p, index, payload)
             elif kind == "survey":
                 if payload.get("round") != index:
                     raise InputError(f"this survey is about round {index}, not {brief(payload.get('round'))}")
@@ -656,6 +716,8 @@ class Study:
             metrics.STEPS.labels(plan.mode).inc()
             metrics.STEP_SECONDS.observe(result.compute_s)
             if result.done:
+                if self.config.free_play:
+                    self._free_round_ended(p, plan, events[1])
                 p.round = None
                 metrics.ACTIVE_ROUNDS.dec()
                 metrics.ROUNDS.labels("completed").inc()

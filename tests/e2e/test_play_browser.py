@@ -402,7 +402,7 @@ def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_default_free_pl
     from services.play.game import expand_state
 
     _browser_paths()
-    server = PlayServer(["--partner", "cec", "--port", "0", "--data", str(tmp_path)], "free_play")
+    server = PlayServer(["--partner", "cec", "--port", "0", "--data", str(tmp_path)], None)
     _, level = resolve_level("cramped_room", ROOT, np.random.default_rng(0))
     key = jax.random.PRNGKey(0)
     cook = jax.jit(lambda state, t: scripted_actions(jax.random.fold_in(key, t), state, epsilon=0.05))
@@ -425,7 +425,7 @@ def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_default_free_pl
         player.close()
         code = server.stop(signal.SIGINT)
     assert code == 0 and "Traceback" not in server.log, server.log
-    files = FileStore(tmp_path, "free_play")
+    files = FileStore(tmp_path, server.study)
     try:
         ((pid,),) = [files.participants()]
         (rnd,) = finished_rounds(pid, files.events(pid))

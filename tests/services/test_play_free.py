@@ -15,7 +15,7 @@ pytestmark = pytest.mark.slow
 
 
 def test_cec_play_serve_partner_cec_serves_the_page_and_stops_on_ctrl_c(tmp_path: Path) -> None:
-    server = PlayServer(["--partner", "cec", "--port", "0", "--data", str(tmp_path)], "free_play")
+    server = PlayServer(["--partner", "cec", "--port", "0", "--data", str(tmp_path)], None)
     try:
         with urllib.request.urlopen(server.url, timeout=30) as page:
             assert page.status == 200 and b"<html" in page.read().lower()

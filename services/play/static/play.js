@@ -26,11 +26,14 @@ const COLORS = {
   agent: ["rgb(52,104,224)", "rgb(214,58,48)"], agentDark: ["rgb(22,48,128)", "rgb(120,24,18)"],
 };
 const SEAT_NAMES = ["blue", "red"];
+// Free play: after this many bumps in a row the page says to step aside (the agents never give way), and the
+// hint goes after this many steps without one.
+const BUMP_HINT = 3, BUMP_CLEAR = 4;
 
 // Measurements of the current round a test or a researcher can read: key-down to painted frame, key-down to
 // server reply (ms), frames drawn; `lastState` is the compact state on screen.
 function resetStats(mode) {
-  window.cecStats = { keyToFrame: [], roundTrip: [], frames: 0, mode, lastState: null };
+  window.cecStats = { keyToFrame: [], roundTrip: [], frames: 0, mode, lastState: null, bumpHints: 0 };
 }
 resetStats(null);
 
@@ -118,7 +121,8 @@ function render(view) {
         el("kbd", {}, "W"), " ", el("kbd", {}, "A"), " ", el("kbd", {}, "S"), " ", el("kbd", {}, "D")), el("td", {}, "move / turn")),
       el("tr", {}, el("td", {}, el("kbd", {}, "Space"), " or ", el("kbd", {}, "E")), el("td", {}, "pick up, put down, use a pot or the serving window")),
       el("tr", {}, el("td", {}, el("kbd", {}, "X")), el("td", {}, "wait one step")));
-    const next = view.practice ? "Start with a practice round." : `You will play ${view.rounds} round(s).`;
+    const next = view.free_play ? "Play as many rounds as you like; after each one you choose who you cook with next."
+      : view.practice ? "Start with a practice round." : `You will play ${view.rounds} round(s).`;
     show(el("h1", {}, "Instructions"), el("div", { class: "card" }, ...paragraphs(view.text), el("h2", {}, "Controls"), keys),
       el("p", {}, next),
       el("div", { class: "row" }, el("button", { id: "instructions-continue", onclick: () => act(() => api("/api/submit", { stage: "instructions" }), err) }, "Continue")),
@@ -162,7 +166,49 @@ function showSurvey(view) {
 
 // --- the round ----------------------------------------------------------------------------------------
 
+// Free play: the person's rounds so far, latest last.
+function summary(view) {
+  if (!view.played || !view.played.length) return [];
+  const head = el("tr", {}, ...["Round", "Partner", "Kind", "Score", "Soups", "Bumps"].map((h) => el("th", {}, h)));
+  const rows = view.played.map((r) => el("tr", {}, el("td", {}, r.number), el("td", {}, r.partner), el("td", {}, r.kind),
+    el("td", {}, r.score), el("td", {}, r.deliveries), el("td", {}, r.collisions)));
+  const total = view.played.reduce((a, r) => a + r.score, 0);
+  const shown = view.played.length < view.rounds_played ? ` (the latest ${view.played.length} shown)` : "";
+  return [el("h2", {}, "Your rounds so far"), el("table", { class: "summary", id: "summary" }, head, ...rows),
+    el("p", { class: "muted" }, `${view.rounds_played} round(s), total score ${total}${shown}.`)];
+}
+
+function showFreeRound(view) {
+  const pace = view.mode === "turn_based"
+    ? "The game moves one step each time you press a key."
+    : `The game runs by itself at ${view.ticks_per_second} steps per second; your partner keeps moving.`;
+  const err = errorLine();
+  const play = (choice) => async (e) => {
+    for (const b of document.querySelectorAll(".row button")) b.disabled = true;
+    try {
+      const next = choice ? await api("/api/submit", { stage: "round", round: view.number - 1, partner: choice }) : view;
+      new Game(next, err).connect();
+    } catch (ex) {
+      err.textContent = ex.message;
+      for (const b of document.querySelectorAll(".row button")) b.disabled = false;
+    }
+  };
+  const buttons = [];
+  if (!view.same) {
+    buttons.push(el("button", { id: "round-start", onclick: play(null) }, "Start round"));
+  } else {
+    buttons.push(el("button", { id: "round-same", onclick: play("same") }, `Play again with ${view.same.name}`));
+    if (view.next.name !== view.same.name) {
+      buttons.push(el("button", { id: "round-next", class: "secondary", onclick: play("next") }, `Next partner: ${view.next.name} (${view.next.kind})`));
+    }
+  }
+  show(el("h1", {}, `Round ${view.number}`),
+    el("p", { id: "partner" }, `Your partner: ${view.partner_label}. ${pace}`), ...summary(view),
+    el("div", { class: "row" }, ...buttons), err);
+}
+
 function showRound(view) {
+  if (view.free_play) return showFreeRound(view);
   const heading = view.practice ? "Practice round" : `Round ${view.number} of ${view.of}`;
   const sub = view.practice ? "Get to know the kitchen and the controls." : `You are playing with ${view.partner_label}.`;
   const pace = view.mode === "turn_based"
@@ -190,6 +236,8 @@ class Game {
     this.frameShownAt = 0;
     this.sentAt = 0;
     this.over = false;
+    this.bumps = 0; // collisions in a row (free play's step-aside hint)
+    this.calm = 0; // steps without one since the hint was shown
     this.onKey = this.onKey.bind(this);
   }
 
@@ -229,8 +277,12 @@ class Game {
     this.hudScore = el("span", { id: "score" });
     this.hudTime = el("span", { id: "time-left" });
     const you = el("span", { class: "you-" + this.seat }, `You are the ${SEAT_NAMES[this.seat]} chef`);
-    const heading = msg.practice ? "Practice round" : `Round ${this.view.number} of ${this.view.of} · ${this.view.partner_label}`;
+    const heading = msg.practice ? "Practice round"
+      : this.view.free_play ? `Round ${this.view.number} · with ${this.view.partner_label}`
+        : `Round ${this.view.number} of ${this.view.of} · ${this.view.partner_label}`;
+    this.bumpHint = el("p", { class: "bump-hint", id: "bump-hint", hidden: "" });
     show(el("h1", {}, heading), el("div", { class: "game" }, el("div", { class: "hud" }, you, this.hudScore, this.hudTime), this.canvas,
+      this.bumpHint,
       el("p", { class: "muted", id: "hint" }, this.mode === "turn_based" ? "Press a key to move; the game waits for you." : "Go!")), this.err);
     this.draw(msg.state);
     this.branches = msg.branches || null;
@@ -262,8 +314,24 @@ class Game {
     this.t += 1;
   }
 
+  // Free play: bumped BUMP_HINT times in a row -> say to step aside; gone after BUMP_CLEAR calm steps.
+  bumped(collision) {
+    if (!this.view.free_play) return;
+    this.bumps = collision ? this.bumps + 1 : 0;
+    this.calm = collision ? 0 : this.calm + 1;
+    if (this.bumps >= BUMP_HINT && this.bumpHint.hidden) {
+      this.bumpHint.textContent = `You have bumped into each other ${this.bumps} times in a row. Your partner does not ` +
+        "give way: step aside into a free cell and let it pass.";
+      this.bumpHint.hidden = false;
+      window.cecStats.bumpHints += 1;
+    } else if (this.calm >= BUMP_CLEAR) {
+      this.bumpHint.hidden = true;
+    }
+  }
+
   frame(msg) {
     this.score = msg.score;
+    this.bumped(msg.collision);
     if (this.mode === "turn_based") {
       window.cecStats.roundTrip.push(performance.now() - this.sentAt);
       if (JSON.stringify(msg.state) !== JSON.stringify(this.shown)) this.draw(msg.state); // never differs in practice
@@ -292,7 +360,7 @@ class Game {
 
   end(msg) {
     this.over = true;
-    const cont = el("button", { id: "round-continue", onclick: () => refresh() }, "Continue");
+    const cont = el("button", { id: "round-continue", onclick: () => refresh() }, this.view.free_play ? "Play again" : "Continue");
     const hint = document.getElementById("hint");
     hint.textContent = `Round over. Team score: ${msg.return}.`;
     hint.after(el("div", { class: "row" }, cont));

@@ -1,0 +1,144 @@
+"""Free play as a game, in headless Chromium through the entry point (`cec play serve`, a real process):
+three rounds in a row in one visit, a reload in the middle of one and between two, the partner the person
+chose, each round recorded once; and the page's hint to step aside when the cooks bump head-on.
+
+Needs Debian's `chromium` and `chromium-driver` (skipped locally without them, failed under CI).
+"""
+
+from __future__ import annotations
+
+import signal
+from pathlib import Path
+
+import pytest
+
+from services.play.export import finished_rounds
+from services.play.recording import FileStore
+from tests.e2e.test_play_browser import EC, By, Player, _browser_paths
+from tests.play_server import PlayServer
+
+pytestmark = pytest.mark.slow
+
+STEPS = 6
+# Seat 0 at the mouth of seat 1's dead end: seat 1 can move only into seat 0's cell, so every step in which
+# seat 0 walks east into it is a collision, whatever the agent does (a staged head-on block).
+HEAD_ON = "WWWPWW\nO  01W\nWBWWXW\n"
+
+
+def _play(player: Player, actions: list[int]) -> None:
+    player.wait.until(EC.presence_of_element_located((By.ID, "board")))
+    for i, action in enumerate(actions):
+        player.turn(i, action)
+
+
+def _round_page(player: Player, number: int) -> None:
+    player.stage("round")
+    player.wait.until(EC.text_to_be_present_in_element((By.TAG_NAME, "h1"), f"Round {number}"))
+
+
+def _summary_rows(player: Player) -> list[list[str]]:
+    rows = player.d.find_elements(By.CSS_SELECTOR, "#summary tr")[1:]
+    return [[td.text for td in row.find_elements(By.TAG_NAME, "td")] for row in rows]
+
+
+def test_three_free_play_rounds_in_one_visit_with_reloads(tmp_path: Path) -> None:
+    _browser_paths()
+    server = PlayServer(
+        ["--partner", "cec", "--steps", str(STEPS), "--port", "0", "--data", str(tmp_path)], None
+    )
+    player = Player(server.url)
+    try:
+        player.d.get(server.url)
+        player.click("start")
+        player.stage("instructions")
+        player.click("instructions-continue")
+        _round_page(player, 1)
+        first = player.d.find_element(By.ID, "partner").text  # "Your partner: cec758m-s201 (cec). ..."
+        assert "Your partner: cec" in first and "(cec)" in first
+        player.click("round-start")
+        _play(player, [3, 5, 2, 0, 5, 4])
+        player.wait.until(EC.text_to_be_present_in_element((By.ID, "hint"), "Round over"))
+        player.click("round-continue")  # "Play again"
+        _round_page(player, 2)
+        assert [r[0] for r in _summary_rows(player)] == ["1"]
+        player.click("round-same")
+        _play(player, [3, 5])
+        player.d.refresh()  # a reload in the middle of round 2: round 2 afresh
+        _round_page(player, 2)
+        player.click("round-same")
+        _play(player, [3, 5, 2, 0, 5, 4])
+        player.click("round-continue")
+        _round_page(player, 3)
+        player.d.refresh()  # a reload between rounds: the fresh round 3 again, the summary kept
+        _round_page(player, 3)
+        assert [r[0] for r in _summary_rows(player)] == ["1", "2"]
+        next_label = player.d.find_element(By.ID, "round-next").text  # "Next partner: cec758m-s202 (cec)"
+        player.click("round-next")
+        _play(player, [4] * STEPS)
+        player.click("round-continue")
+        _round_page(player, 4)
+        rows = _summary_rows(player)
+    finally:
+        player.close()
+        code = server.stop(signal.SIGINT)
+    assert code == 0 and "Traceback" not in server.log, server.log
+    assert [r[0] for r in rows] == ["1", "2", "3"] and rows[0][1] == rows[1][1] != rows[2][1]
+    assert next_label == f"Next partner: {rows[2][1]} ({rows[2][2]})"
+    assert server.study.startswith("free_play-cec-cramped_room-")
+    files = FileStore(tmp_path, server.study)
+    try:
+        ((pid,),) = [files.participants()]
+        events = files.events(pid)
+    finally:
+        files.close()
+    rounds = finished_rounds(pid, events)
+    assert [(r.round, r.start["attempt"], len(r.steps)) for r in rounds] == [
+        (0, 0, STEPS),
+        (1, 1, STEPS),
+        (2, 0, STEPS),
+    ]
+    assert [r.start["policy"] for r in rounds] == [row[1] for row in rows]
+    aborts = [(ev["round"], ev["attempt"]) for ev in events if ev["type"] == "round_abort"]
+    assert aborts == [(1, 0)]  # the reload in round 2; the reload between rounds left nothing to abort
+    assert [int(row[3]) for row in rows] == [int(r.end["return"]) for r in rounds]
+
+
+def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path) -> None:
+    _browser_paths()
+    (tmp_path / "head_on.txt").write_text(HEAD_ON)
+    (tmp_path / "study.yaml").write_text(
+        "name: head_on\nfree_play: true\nlevels: [head_on.txt]\nhuman_seat: 0\nagent_actions: sampled\n"
+        "partners: [{name: random, random_init: true}]\nsurvey: {items: []}\n"
+        "env: {max_steps: 12, random_start_facing: false}\n"
+        f"storage: {{dir: {tmp_path / 'records'}}}\n"
+    )
+    server = PlayServer([str(tmp_path / "study.yaml"), "--port", "0"], "head_on")
+    player = Player(server.url)
+    try:
+        player.d.get(server.url)
+        player.click("start")
+        player.stage("instructions")
+        player.click("instructions-continue")
+        _round_page(player, 1)
+        player.click("round-start")
+        player.wait.until(EC.presence_of_element_located((By.ID, "board")))
+        hint = player.d.find_element(By.ID, "bump-hint")
+        shown = []
+        for i in range(5):  # east, into the agent's cell: a collision every step
+            player.turn(i, 2)
+            shown.append(hint.is_displayed())
+        text = hint.text
+        stats = player.stats()
+    finally:
+        player.close()
+        server.stop(signal.SIGINT)
+    assert shown == [False, False, True, True, True], shown
+    assert "bumped into each other 3 times in a row" in text and "step aside" in text
+    assert stats["bumpHints"] == 1
+    files = FileStore(tmp_path / "records", "head_on")
+    try:
+        ((pid,),) = [files.participants()]
+        steps = [ev for ev in files.events(pid) if ev["type"] == "step"]
+    finally:
+        files.close()
+    assert [s["collision"] for s in steps[:5]] == [True] * 5  # the block the page saw is in the records
