@@ -9,8 +9,11 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 import subprocess
 import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 from cec.config import ConfigError
@@ -60,6 +63,9 @@ def forget_ray_address(port: int) -> None:
             path.unlink()
 
 
+_LOG_PREFIX = re.compile(r"^\d{4}-\d\d-\d\d [\d:,.]+ [A-Z]+ [\w.]+: ")
+
+
 class ServiceStartError(ConfigError):
     """A service did not become ready: it `exited` first, or the time ran out; `tail`: its last lines."""
 
@@ -71,12 +77,24 @@ class ServiceStartError(ConfigError):
 
 class ServiceProcess:
     """A service in a child process (`python -m <module> ...`, a `Child`), its output appended to a log
-    file in the run directory: ready once it prints a line with `ready` (`ready_line`)."""
+    file in the run directory: ready once it prints a line with `ready` (`ready_line`). With `progress`, a
+    start that takes longer than `PROGRESS_S` seconds is reported that often, with the service's latest log
+    line (a level server compiling its generator, an evaluator its agents)."""
+
+    PROGRESS_S = 7.0
 
     def __init__(
-        self, name: str, args: list[str], log_path: Path, ready: str, timeout: float, env: dict | None = None
+        self,
+        name: str,
+        args: list[str],
+        log_path: Path,
+        ready: str,
+        timeout: float,
+        env: dict | None = None,
+        progress: Callable[[str], None] | None = None,
     ) -> None:
         self.name = name
+        self.progress = progress
         self.log_path = log_path
         self.child = Child(
             name,
@@ -96,10 +114,18 @@ class ServiceProcess:
         """The first whole line of the child's output holding `marker`; `ServiceStartError` (with the end of
         its output) if it exits or `timeout` runs out first."""
         found: list[str] = []
+        start = last = time.monotonic()
 
         def printed() -> bool:
+            nonlocal last
             lines = self.child.output().split("\n")[:-1]  # whole lines only: the last may be half written
             found.extend(line.rstrip() for line in lines if marker in line)
+            now = time.monotonic()
+            if not found and self.progress is not None and now - last >= self.PROGRESS_S:
+                latest = next((line.strip() for line in reversed(lines) if line.strip()), "no output yet")
+                latest = _LOG_PREFIX.sub("", latest)  # "2026-11-28 17:51:09,599 INFO cec.level_server: "
+                self.progress(f"{self.name:<22} starting ({now - start:.0f} s): {latest[-120:]}")
+                last = now
             return bool(found)
 
         try:

@@ -5,7 +5,9 @@
 Start-up (each step checked before the next; a failure stops everything started so far and names the fix):
 1. Redis: `store.url` (or CEC_REDIS_URL) when given, else a local `redis-server` on a free port in the run
    directory (`services.store.LocalRedis`).
-2. The level server (`python -m services.level_server`) unless `level_server_address` points at one.
+2. The level server (`python -m services.level_server`) unless `level_server_address` points at one, or the
+   preset trains on fixed kitchens (`env.levels` other than `generator`: nothing would stream from it, and
+   it would compile the kitchen generator for a minute or more first).
 3. Ray (local, or `distributed.ray_address`), then the learner and its rollout actors
    (`services.learner.driver`), streaming kitchens from the level server for procedural Overcooked runs.
 4. The evaluator (`python -m services.evaluator`), scoring each checkpoint the learner publishes.
@@ -16,6 +18,10 @@ level server, Ray, Redis and Prometheus are stopped in reverse order. The learne
 command that continues the run (`cec up --resume ...`, or `make up ARGS=--resume ...` under `make up`), also
 recorded in the run (`logs/resume_command`) for `cec status` and for the refusal of a second start. Runs
 are named `up-<preset's run name>` unless `train.name=` is given, apart from `cec train`'s.
+
+No wait is silent: a service that is slow to start gets a line every few seconds with its latest log line
+(`ServiceProcess` progress), and the learner a line every few seconds until its first update (`Heartbeat`),
+unless it printed one itself.
 """
 
 from __future__ import annotations
@@ -31,7 +37,7 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TextIO
+from typing import Any, TextIO, cast
 
 from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
@@ -40,6 +46,7 @@ from services.learner.config import DistributedConfig
 from services.monitoring import MonitoringConfig
 from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS, check_distinct, check_port
 from services.processes import ChildRecord, free_port
+from services.progress import Heartbeat, Stamped
 from services.service_process import (
     ServiceProcess,
     ensure_ray_token,
@@ -52,6 +59,7 @@ from services.store import StoreConfig
 log = logging.getLogger("cec.up")
 DEFAULT_CONFIG = "configs/up/default.yaml"
 CACHE_DIR = "JAX_COMPILATION_CACHE_DIR"  # the evaluator's compilation cache (`Stack.start`)
+PROGRESS_S = 7.0  # the longest silence while a person waits for the stack (the learner's first update)
 
 
 @dataclass(frozen=True)
@@ -139,6 +147,11 @@ class Stack:
     def say(self, text: str) -> None:
         print(text, file=self.out, flush=True)
 
+    @property
+    def starts_level_server(self) -> bool:
+        """A level server is started here: none is given and the preset streams its kitchens."""
+        return not self.config.level_server_address and self.train_config.env.levels == "generator"
+
     def start(self, resume: bool = False) -> None:
         from services.learner.driver import check_run
 
@@ -169,9 +182,17 @@ class Stack:
         self.urls["redis"] = self.store.display_url
         # 2. level server
         address = cfg.level_server_address
-        if not address:
+        if not address and not self.starts_level_server:
+            self.say(
+                f"level server           not started: the preset's kitchens (env.levels="
+                f"{self.train_config.env.levels}) are not streamed; env.levels=generator starts it"
+            )
+        elif not address:
             port, mport = _port(cfg.level_server_port), cfg.level_server_metrics_port
             mport = mport if mport < 0 else _port(mport)
+            self.say(
+                "level server           starting: it compiles the kitchen generator first (a minute or two)"
+            )
             server = ServiceProcess(
                 "level server",
                 [
@@ -184,6 +205,7 @@ class Stack:
                 logs / "level_server.log",
                 "level server ready on",
                 cfg.start_timeout_s,
+                progress=self.say,
             )
             self._started(server)
             address = server.ready_line.rsplit(" ", 1)[-1]
@@ -222,6 +244,7 @@ class Stack:
                 logs / "evaluator.log",
                 "evaluator ready",
                 cfg.start_timeout_s,
+                progress=self.say,
                 # fast restarts: JAX's compilation cache, the user's own if set, else one in the run
                 env={CACHE_DIR: os.environ.get(CACHE_DIR) or str(self.run_dir / "jax_cache")},
             )
@@ -306,7 +329,7 @@ class Stack:
     def fixed_ports(self) -> list[tuple[str, str, int]]:
         """(key, service, port) of every fixed port this stack will bind (0: a free one, -1: off)."""
         cfg, out = self.config, []
-        if not cfg.level_server_address:
+        if not cfg.level_server_address:  # checked even when not started: the preset's ports stay usable
             out.append(("level_server_port", "the level server's gRPC", cfg.level_server_port))
             metrics = cfg.level_server_metrics_port
             out.append(("level_server_metrics_port", "the level server's metrics", metrics))
@@ -344,15 +367,28 @@ class Stack:
             f"training {t.run_name}: {t.algorithm} on {t.env.name}/{t.env.levels}, "
             f"{self.dist.num_actors} actors ({self.dist.mode}); Ctrl-C stops with a checkpoint"
         )
-        return run_distributed(
-            self.train_config,
-            self.dist,
-            self.store,
-            resume=resume,
-            max_updates=max_updates,
-            log_to=self.out,
-            resume_hint=self.resume_hint,
+        out = Stamped(self.out)
+        metrics = self.run_dir / "metrics.jsonl"
+        before = metrics.stat().st_size if metrics.exists() else 0
+        heartbeat = Heartbeat(
+            out.say,
+            lambda s: (
+                f"learner                no update yet ({s:.0f} s): compiling and collecting the first batch"
+            ),
+            every_s=PROGRESS_S,
+            quiet_since=lambda: out.last,
+            done=lambda: metrics.exists() and metrics.stat().st_size > before,
         )
+        with heartbeat:
+            return run_distributed(
+                self.train_config,
+                self.dist,
+                self.store,
+                resume=resume,
+                max_updates=max_updates,
+                log_to=cast(TextIO, out),
+                resume_hint=self.resume_hint,
+            )
 
     def stop(self) -> None:
         started = bool(self.services or self.ray_started or self.monitoring or self.redis)
