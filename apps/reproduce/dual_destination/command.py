@@ -142,7 +142,7 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
         )
     mode = QUICK if args.quick else PAPER_SCALE if args.paper else FULL
     work = Path(args.work or ROOT / "runs" / "reproduce" / f"dual_destination-{mode.name}")
-    out = Path(args.out or ROOT / "benchmarks" / "results" / "dual_destination" / mode.name)
+    out = Path(args.out or ROOT / "runs" / "reproduce" / f"dual_destination-{mode.name}" / "report")
     variants = tuple(args.variants.split(",")) if args.variants else mode.variants
     unknown = [v for v in variants if v not in VARIANTS]
     if unknown:
@@ -192,7 +192,11 @@ def add_subcommand(rep_sub: Any) -> None:
     dd.add_argument(
         "--work", help="runs, zoos and result tables (default runs/reproduce/dual_destination-MODE)"
     )
-    dd.add_argument("--out", help="report folder (default benchmarks/results/dual_destination/MODE)")
+    dd.add_argument(
+        "--out",
+        help="report folder (default runs/reproduce/dual_destination-MODE/report, which git ignores; the "
+        "committed reports are --out benchmarks/results/dual_destination/MODE)",
+    )
     dd.add_argument(
         "--variants",
         help=f"comma-separated subset of {','.join(VARIANTS)} (default: all; --quick: full_obs)",

@@ -28,7 +28,8 @@
    `crossplay/report.md` is `cec report` of the agents' table (seed matrices, heatmaps, the meta-game).
 
 The work directory (`--work`, default `runs/reproduce/overcooked-<mode>`) holds the zoo (`zoo/`), its spec
-and the result tables; the report goes to `--out` (default `benchmarks/results/overcooked/<mode>`).
+and the result tables; the report goes to `--out` (default `runs/reproduce/overcooked-<mode>/report`, which
+git ignores; the committed reports were written with `--out benchmarks/results/overcooked/<mode>`).
 
 The package has the parts of every paper's reproduction (`apps.reproduce.pipeline.PARTS`):
 

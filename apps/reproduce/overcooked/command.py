@@ -90,7 +90,8 @@ def _cmd(args: argparse.Namespace) -> int:
     name = "quick" if args.quick else "paper" if args.paper else "cpu"
     mode = MODES[name]
     work = Path(args.work or f"runs/reproduce/overcooked-{name}")
-    out = Path(args.out or f"benchmarks/results/overcooked/{name}")
+    # under runs/ (which git ignores) unless told; the committed reports: --out benchmarks/results/...
+    out = Path(args.out or f"runs/reproduce/overcooked-{name}/report")
     command = "cec reproduce overcooked" + ("" if name == "cpu" else f" --{name}")
     if args.plan:
         lines = plan_lines(mode, work)
@@ -139,7 +140,11 @@ def add_subcommand(rep_sub: Any) -> None:
     size.add_argument("--paper", action="store_true", help="the paper's networks and budgets (a GPU job)")
     oc.add_argument("--plan", action="store_true", help="print the runs and their expected time, then exit")
     oc.add_argument("--work", help="runs and result tables (default runs/reproduce/overcooked-MODE)")
-    oc.add_argument("--out", help="report folder (default benchmarks/results/overcooked/MODE)")
+    oc.add_argument(
+        "--out",
+        help="report folder (default runs/reproduce/overcooked-MODE/report, which git ignores; the committed "
+        "reports are --out benchmarks/results/overcooked/MODE)",
+    )
     oc.add_argument("--quiet", action="store_true", help="no per-update progress lines")
     oc.add_argument(
         "--report-only",
