@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import datetime
 import json
+import math
 from pathlib import Path
 from typing import Any
 
@@ -97,24 +98,36 @@ def compare(
     return out
 
 
+def _fmt(x: float, spec: str) -> str:
+    """A figure, or an en dash where there is none (2 seeds: the jackknife over seeds has no error)."""
+    return "–" if math.isnan(x) else format(x, spec)
+
+
 def markdown(result: dict[str, Any]) -> str:
     lines = []
     for name, lever in result.items():
         steps = lever["row"]["env_steps_per_seed"]
+        seeds = lever["row"]["seeds"]
         lines += [
-            f"**{name}** at {steps / 1e6:.1f}M env steps per seed (seeds {lever['row']['seeds']}) against "
+            f"**{name}** at {steps / 1e6:.1f}M env steps per seed (seeds {seeds}) against "
             "the recipe without it: its time-to-skill curve at the same steps (seeds 300-307, generated "
-            "kitchens only), then the CPU reproduction's CEC (seeds 200-203) at 10.5M, every part:",
+            "kitchens only), then the CPU reproduction's CEC (seeds 200-203) at 10.5M, every part"
+            + (
+                f" ({len(seeds)} seeds: one pair, no standard error over seeds and no test; a reading):"
+                if len(seeds) < 3
+                else ":"
+            ),
             "",
             "| part | kitchens | lever XP (SP) | recipe XP (SP) | difference [95% CI] | p (Holm) |",
             "|---|---|---|---|---|---|",
         ]
         for part, v in lever["parts"].items():
             a, b = v["lever"], v["baseline"]
+            ci = "" if math.isnan(v["ci"][0]) else f" [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]"
+            p = "–" if math.isnan(v["p"]) else f"{v['p']:.3f} ({v['p_holm']:.3f})"
             lines.append(
-                f"| {part} | {a['levels']} | {a['xp']:.1f} ± {a['xp_se']:.1f} ({a['sp']:.1f}) | "
-                f"{b['xp']:.1f} ± {b['xp_se']:.1f} ({b['sp']:.1f}) | {v['diff']:+.1f} [{v['ci'][0]:+.1f}, "
-                f"{v['ci'][1]:+.1f}] | {v['p']:.3f} ({v['p_holm']:.3f}) |"
+                f"| {part} | {a['levels']} | {a['xp']:.1f} ± {_fmt(a['xp_se'], '.1f')} ({a['sp']:.1f}) | "
+                f"{b['xp']:.1f} ± {_fmt(b['xp_se'], '.1f')} ({b['sp']:.1f}) | {v['diff']:+.1f}{ci} | {p} |"
             )
         lines.append("")
     return "\n".join(lines)

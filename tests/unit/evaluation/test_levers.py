@@ -42,3 +42,16 @@ def test_the_row_at_the_steps_asked_is_compared_and_holm_adjusted(tmp_path: Path
     assert list(with_curve)[0] == levers.EQUAL_STEPS and with_curve[levers.EQUAL_STEPS]["diff"] == 5.0
     with pytest.raises(SystemExit, match="no row with parts"):
         levers.lever_row(path, 1_000)
+
+
+def test_a_lever_of_two_seeds_is_a_reading_without_an_error_or_a_test(tmp_path: Path) -> None:
+    """One pair of seeds has no jackknife error: the table says so instead of printing nan."""
+    levers = _module()
+    two = {**_part(12.0, float("nan")), "seeds": 2}
+    row = {"run": "r", "update": 1, "env_steps_per_seed": 5_000_000, "seeds": [1, 2]}
+    row["parts"] = {"generated": two}
+    path = tmp_path / "lever.json"
+    path.write_text(json.dumps({"rows": [row]}))
+    text = levers.markdown(levers.compare({"x": path}, {"generated": _part(20.0, 1.0)}, 5_000_000))
+    assert "nan" not in text and "2 seeds: one pair" in text
+    assert "| generated | 5 | 12.0 ± – (12.0) | 20.0 ± 1.0 (20.0) | -8.0 | – |" in text
