@@ -20,7 +20,14 @@ from apps.reproduce.dual_destination.modes import FULL, PAPER_SCALE, QUICK, Mode
 from apps.reproduce.dual_destination.paper import VARIANTS
 from apps.reproduce.dual_destination.plan import ROOT, plan_lines, train_only, train_variant
 from apps.reproduce.dual_destination.report import plot_curves, write_report
-from apps.reproduce.dual_destination.summary import conventions, summarise, training_stats
+from apps.reproduce.dual_destination.summary import (
+    CONVENTIONS_FILE,
+    conventions,
+    load_conventions,
+    save_conventions,
+    summarise,
+    training_stats,
+)
 from apps.reproduce.pipeline import play_seconds
 from cec.checkpoints import code_version
 from cec.config import ConfigError
@@ -39,9 +46,9 @@ def reproduce_dual_destination(
 ) -> Path:
     """Trains, evaluates and reports (see the module docstring); returns the report's path.
 
-    `report_only`: neither train nor play; the report from each variant's cross-play table, exported
-    policies (`pipeline.export_policies`, for the conventions) and training metrics in `work` (a work folder
-    kept without its training states)."""
+    `report_only`: neither train nor play; the report from each variant's cross-play table, the conventions
+    the run that played found (`conventions.json`; else from the exported policies) and training metrics in
+    `work` (a work folder kept without its policies and training states)."""
     t_start = time.perf_counter()
     commit = code_version(short=True)  # before this command writes anything (a work folder may be tracked)
     load_start = machine_info(load_average=True)["load_average_1_5_15min"]
@@ -62,18 +69,22 @@ def reproduce_dual_destination(
         stages[f"{variant}: train"] = time.perf_counter() - t0
         train_s += stages[f"{variant}: train"]
         t0 = time.perf_counter()
-        if report_only:  # the conventions from the exported policies
+        found = work / variant / CONVENTIONS_FILE
+        if report_only:  # the conventions as the run that played found them, or from its exported policies
             from apps.zoo_build import MANIFEST
 
-            table = pipeline.played_table(work / variant, "dual-destination", pipeline.POLICIES_SOURCE)
-            manifest = work / variant / pipeline.POLICIES / MANIFEST
+            exported = work / variant / pipeline.POLICIES / MANIFEST
+            need = CONVENTIONS_FILE if found.is_file() or not exported.is_file() else pipeline.POLICIES_SOURCE
+            table = pipeline.played_table(work / variant, "dual-destination", need)
+            seat0[variant] = load_conventions(found) if found.is_file() else conventions(variant, exported)
         else:
             table = cached_evaluation(mode, variant, zoo_manifest, work / variant, log=log)
             manifest = pipeline.export_policies(zoo_manifest, work / variant / pipeline.POLICIES, log=log)
+            seat0[variant] = conventions(variant, manifest)
+            save_conventions(seat0[variant], found)
         seconds = play_seconds(work / variant)
         played[variant] = None if math.isnan(seconds) else seconds
         summaries[variant] = summarise(table, variant)
-        seat0[variant] = conventions(variant, manifest)
         trained[variant] = {a: t.__dict__ for a, t in training_stats(work / variant / "zoo").items()}
         curves[variant] = plot_curves(mode, work / variant / "zoo", variant, out).name
         stages[f"{variant}: evaluate"] = time.perf_counter() - t0
@@ -215,8 +226,8 @@ def add_subcommand(rep_sub: Any) -> None:
     dd.add_argument(
         "--report-only",
         action="store_true",
-        help="neither train nor play: the report from the work folder's cross-play tables, exported "
-        "policies and training metrics (a work folder kept without its training states)",
+        help="neither train nor play: the report from the work folder's cross-play tables, conventions "
+        "and training metrics (a work folder kept without its policies and training states)",
     )
     dd.add_argument("--quiet", action="store_true", help="no per-update progress lines")
     dd.set_defaults(func=_cmd_reproduce_dd)

@@ -10,6 +10,7 @@ return at the end, from its runs' metrics. `report.write_report` writes them bes
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -156,6 +157,21 @@ def conventions(variant: str, manifest: Path) -> dict[str, dict[int, str]]:
     return out
 
 
+CONVENTIONS_FILE = "conventions.json"  # beside a variant's result table: `conventions` as it found them
+
+
+def save_conventions(found: dict[str, dict[int, str]], path: Path) -> None:
+    """Writes `conventions`' answer to `path` (JSON), for a report written without the policies."""
+    path.write_text(
+        json.dumps({a: {str(s): c for s, c in seeds.items()} for a, seeds in found.items()}, indent=1) + "\n"
+    )
+
+
+def load_conventions(path: Path) -> dict[str, dict[int, str]]:
+    """What `save_conventions` wrote: {algorithm: {seed: its convention}}."""
+    return {a: {int(s): c for s, c in seeds.items()} for a, seeds in json.loads(path.read_text()).items()}
+
+
 def goal_label(level: Any, cell: tuple[int, ...]) -> str:
     """`green (r, c)` / `pink (r, c)` when `cell` is one of `level`'s goals, else `no goal`."""
     import numpy as np
@@ -267,6 +283,9 @@ class TrainingStats:
     late_slope: float = math.nan
 
 
+_COUNTS = ("update", "env_steps", "seed", "episodes")  # logged as integers, read back from a CSV as floats
+
+
 def return_slope(curve: list[tuple[int, float]], fraction: float = 0.25) -> float:
     """The slope, per 1e6 env steps, of a least-squares line through the last `fraction` of a seed's
     (env steps, normalised return) points, in update order; NaN with fewer than 3 points there."""
@@ -278,12 +297,17 @@ def return_slope(curve: list[tuple[int, float]], fraction: float = 0.25) -> floa
 
 
 def training_stats(zoo_dir: Path) -> dict[str, TrainingStats]:
-    """Per algorithm, from its runs' `zoo_dir/runs/<algorithm>-s<first seed>/metrics.jsonl` (one run of
-    vmapped seeds, or one run per seed: their times add up, their seeds pool)."""
+    """Per algorithm, from its runs' `zoo_dir/runs/<algorithm>-s<first seed>/metrics.jsonl` (or, in a
+    committed work folder, their `metrics.csv`, plain or compressed: the same rows); one run of vmapped
+    seeds, or one run per seed: their times add up, their seeds pool."""
     runs: dict[str, list[list[dict[str, Any]]]] = {}
-    for metrics in sorted(zoo_dir.glob("runs/*/metrics.jsonl")):
-        algo = metrics.parent.name.rsplit("-s", 1)[0]
-        rows = read_metrics(metrics.parent)
+    for run in sorted(d for d in zoo_dir.glob("runs/*") if d.is_dir()):
+        algo = run.name.rsplit("-s", 1)[0]
+        # the counts as the integers `metrics.jsonl` holds (a CSV's rows read as floats)
+        rows = [
+            {k: int(v) if k in _COUNTS and isinstance(v, float) else v for k, v in r.items()}
+            for r in read_metrics(run)
+        ]
         if algo in ROWS and rows:
             runs.setdefault(algo, []).append(rows)
     out = {}

@@ -43,7 +43,8 @@ def reproduce_overcooked(
     curves and `machine.json` as the machine that trained and played wrote them (a work folder brought back
     from a GPU machine without its checkpoints); the controls, which need no trained agent, are played if
     the folder lacks them (`cached_controls`). `policies`: a manifest whose CEC entries draw the GIF
-    instead of the zoo's (the exported CEC seeds)."""
+    instead of the zoo's (the exported CEC seeds); where neither has the checkpoints, the GIF in `out` is
+    kept as it is (`figures.crossplay_gif`)."""
     commit = code_version(short=True)  # before this command writes anything into the checkout
     if report_only:
         table = pipeline.played_table(work, "overcooked", MACHINE_FILE)
@@ -151,7 +152,11 @@ def add_subcommand(rep_sub: Any) -> None:
         action="store_true",
         help="neither train nor play: the report from the work folder's cross-play table and curves",
     )
-    oc.add_argument("--policies", metavar="MANIFEST", help="with --report-only: CEC policies for the GIF")
+    oc.add_argument(
+        "--policies",
+        metavar="MANIFEST",
+        help="with --report-only: CEC policies that replay the GIF (without them, the GIF in --out is kept)",
+    )
     oc.add_argument(
         "--proxies",
         metavar="MANIFEST",

@@ -4,6 +4,7 @@ median cross-play episode of two CEC seeds in a held-out kitchen, and `cec repor
 
 from __future__ import annotations
 
+import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TextIO
@@ -42,17 +43,22 @@ def write_figures(
         title = f"cross-play at each checkpoint, held-out kitchens ({EVAL_STEPS}-step episodes)"
         plot_milestones(points, out / "curves_xp.png", title=title)
         figures["Cross-play learning curves (held-out kitchens)"] = "curves_xp.png"
-    figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif"))
+    figures.update(crossplay_gif(table, policies, out / "cec_xp_heldout.gif", log=log))
     crossplay_report(agent_games(table), out / "crossplay", sources=[str(results_file(work))])
     pipeline.note(log, f"figures: {', '.join(figures.values())}; crossplay/report.md")
     return figures
 
 
-def crossplay_gif(table: Any, policies: Path, gif: Path) -> dict[str, str]:
+def crossplay_gif(table: Any, policies: Path, gif: Path, *, log: TextIO | None = None) -> dict[str, str]:
     """{caption: file name} of a GIF of the pair and held-out kitchen of the median-return cross-play
     episode of two different CEC seeds of `policies` (a zoo manifest) in `table`: a typical episode, not the
     best, replayed (another draw of the sampled actions); its caption says how it was chosen, the table's
-    and the replay's return and the share of episodes that deliver nothing. Empty when there is none."""
+    and the replay's return and the share of episodes that deliver nothing. Empty when there is none.
+
+    Beside the GIF, `<gif>.json` records the episode it replays and the replay's return. Where `policies`
+    cannot replay it (a work folder kept without its checkpoints), the GIF already in place is kept when
+    that record names the episode `table` picks, and the caption comes from it; otherwise there is no GIF.
+    """
     import jax
 
     from cec.agents.policy import load_policies
@@ -60,24 +66,40 @@ def crossplay_gif(table: Any, policies: Path, gif: Path) -> dict[str, str]:
     from cec.envs.overcooked.render import rollout_frames, save_gif
     from cec.evaluation.crossplay import episode_states, eval_levels
 
-    cec = {p.seed: p for p in load_policies(load_zoo(policies))[0] if p.algorithm == "cec"}
     rows = table.select(
         (table.algorithm_a == "cec") & (table.algorithm_b == "cec") & (table.seed_a != table.seed_b)
         & np.char.startswith(table.level.astype(str), "generated_")
     )  # fmt: skip
-    if len(cec) < 2 or not len(rows):
+    if not len(rows):
         return {}
     i = int(np.argsort(rows.returns, kind="stable")[len(rows) // 2])  # the median episode
-    kitchen = str(rows.level[i])
-    a, b = cec[int(rows.seed_a[i])], cec[int(rows.seed_b[i])]
-    level = jax.tree.map(lambda x: x[0], eval_levels("overcooked", kitchen).levels)
-    states, ret = episode_states(a, b, level, kitchen, max_steps=EVAL_STEPS)
-    save_gif(rollout_frames(states, 24), gif, fps=10)
+    kitchen, seeds = str(rows.level[i]), [int(rows.seed_a[i]), int(rows.seed_b[i])]
+    record = gif.with_suffix(".json")
+    cec = (
+        {p.seed: p for p in load_policies(load_zoo(policies))[0] if p.algorithm == "cec"}
+        if policies.is_file()
+        else {}
+    )
+    if all(seed in cec for seed in seeds):
+        a, b = cec[seeds[0]], cec[seeds[1]]
+        level = jax.tree.map(lambda x: x[0], eval_levels("overcooked", kitchen).levels)
+        states, ret = episode_states(a, b, level, kitchen, max_steps=EVAL_STEPS)
+        save_gif(rollout_frames(states, 24), gif, fps=10)
+        replay = {"kitchen": kitchen, "seeds": seeds, "replay_return": float(ret)}
+        record.write_text(json.dumps(replay, indent=1) + "\n")
+    else:
+        replay = json.loads(record.read_text()) if record.is_file() and gif.is_file() else {}
+        if (replay.get("kitchen"), replay.get("seeds")) != (kitchen, seeds):
+            if log is not None:
+                pipeline.note(log, f"no GIF: {policies} cannot replay CEC seeds {seeds}; {gif} is not theirs")
+            return {}
+        if log is not None:
+            pipeline.note(log, f"{gif.name} kept as it is: {policies} cannot replay it (no checkpoints)")
     zero = float(np.mean(rows.returns == 0))
     caption = (
-        f"CEC seeds {a.seed} and {b.seed} (never trained together) in {kitchen}, a held-out kitchen: the "
+        f"CEC seeds {seeds[0]} and {seeds[1]} (never trained together) in {kitchen}, a held-out kitchen: the "
         f"pair and kitchen of the median-return episode of {len(rows)} cross-play episodes (return "
-        f"{rows.returns[i]:g}; {zero:.0%} of them deliver nothing), replayed: team return {ret:g} per "
-        f"{EVAL_STEPS} steps"
+        f"{rows.returns[i]:g}; {zero:.0%} of them deliver nothing), replayed: team return "
+        f"{replay['replay_return']:g} per {EVAL_STEPS} steps"
     )
     return {caption: gif.name}

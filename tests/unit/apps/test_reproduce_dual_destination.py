@@ -164,7 +164,7 @@ def test_the_committed_report_comes_back_from_its_work_folder_without_training_s
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """`cec reproduce dual-destination --report-only` on the committed full version's work folder (tables,
-    metrics, exported policies; no training state): the committed numbers and conventions."""
+    conventions, metrics; no policy, no training state): the committed numbers and conventions."""
     full = dd_plan.ROOT / "benchmarks" / "results" / "dual_destination" / "full"
     cmd = [sys.executable, "-m", "apps.cli", "reproduce", "dual-destination", "--report-only",
            "--allow-dirty", "--variants", "full_obs", "--work", str(full / "work"),
@@ -310,8 +310,7 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     monkeypatch.setattr(dd_evaluate, "oracle_partner_digest", lambda: "another oracle")
     assert dd_evaluate.evaluation_key(more, "full_obs", manifest) != key
 
-    # the work folder kept without its training states (as the committed full reproduction is): the report
-    # from the tables, the exported policies and the metrics, the same numbers and conventions
+    # the exported policies are what `cec eval` plays; the conventions found are kept beside the table
     policies = tmp_path / "work" / "full_obs" / "policies"
     assert {e["name"] for e in yaml.safe_load((policies / "zoo.yaml").read_text())["policies"]} == {
         f"{a}-s{n}" for a, seeds in (("ippo", (0, 1, 2)), ("fcp", (100, 101, 102)), ("cec", (200, 201, 202)))
@@ -323,8 +322,12 @@ def test_the_pipeline_at_a_tiny_budget_writes_the_report_beside_the_paper(
     for state in pipeline.load_zoo_policies(manifest, "zoo"):
         same = jax.tree.map(np.array_equal, state.params, exported[state.name].params)
         assert all(jax.tree.leaves(same)) and exported[state.name].network == state.network, state.name
+    # committed without them: the report from the tables, the conventions found and the metrics CSVs
     for states in (tmp_path / "work" / "full_obs" / "zoo" / "runs").glob("*/checkpoints"):
         shutil.rmtree(states)
+    shutil.rmtree(policies)
+    for logged in (tmp_path / "work" / "full_obs" / "zoo" / "runs").glob("*/metrics.jsonl"):
+        logged.unlink()
     (tmp_path / "out" / "summary.json").unlink()
     dd_command.reproduce_dual_destination(
         more, tmp_path / "out", tmp_path / "work", variants=("full_obs",), progress=False, log=io.StringIO(),

@@ -21,12 +21,13 @@ from apps import humans
 from apps.cli import main
 from apps.reproduce.overcooked import command as oc_command
 from apps.reproduce.overcooked import evaluate as oc_evaluate
+from apps.reproduce.overcooked import figures as oc_figures
 from apps.reproduce.overcooked import modes as oc_modes
 from apps.reproduce.overcooked import plan as oc_plan
 from apps.reproduce.overcooked import report as oc_report
 from apps.reproduce.overcooked import sections as oc_sections
 from apps.reproduce.overcooked import summary as oc_summary
-from apps.reproduce.pipeline import play_seconds, read_metrics, train_seconds
+from apps.reproduce.pipeline import play_seconds, read_metrics, results_file, train_seconds
 from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
 from cec.checkpoints import code_version
@@ -425,7 +426,21 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time (from metrics.csv.gz)
     assert (tmp_path / "again" / "curves_cec.png").exists()
     assert "| cec_e3t-s400 |" not in again.read_text() and "Not in this work folder" in again.read_text()
-    assert (tmp_path / "again" / "cec_xp_heldout.gif").exists()
+    gif = tmp_path / "again" / "cec_xp_heldout.gif"
+    assert gif.exists() and gif.with_suffix(".json").exists()  # the episode it replays, recorded beside it
+    # ... and without the exported seeds (committed without them): the GIF in place is kept, its caption too
+    drawn, caption = gif.read_bytes(), next(ln for ln in again.read_text().splitlines() if gif.name in ln)
+    log = io.StringIO()
+    kept = oc_command.reproduce_overcooked(earlier, work, tmp_path / "again", log=log, command="tiny",
+                                           report_only=True)  # fmt: skip
+    assert kept is not None and caption in kept.read_text().splitlines() and gif.read_bytes() == drawn
+    assert f"{gif.name} kept as it is" in log.getvalue()
+    gif.with_suffix(".json").unlink()  # a GIF whose episode is not recorded is not captioned as that one
+    log = io.StringIO()
+    assert (
+        oc_figures.crossplay_gif(read_csv(results_file(work)), work / "zoo" / "zoo.yaml", gif, log=log) == {}
+    )
+    assert "no GIF" in log.getvalue()
     with pytest.raises(ConfigError, match="results.csv"):
         oc_command.reproduce_overcooked(TINY, tmp_path / "empty", out, log=io.StringIO(), report_only=True)
 
