@@ -256,7 +256,7 @@ def _run_on_ray(
                 resume=resume or restarts > 0, max_updates=max_updates, restarts=restarts
             )
             try:
-                summary = _wait(ref)
+                summary = dict(_wait(ref))
                 break
             except ray.exceptions.RayActorError as err:
                 restarts += 1
@@ -286,25 +286,22 @@ def _restarted(actor: Any) -> bool:
     """Waits until Ray has restarted a dead actor's process (it answers); False when Ray will not."""
     import ray
 
-    ref = actor.__ray_ready__.remote()
     while True:
-        ready, _ = ray.wait([ref], timeout=0.5)  # short waits keep the main thread responsive to signals
-        if not ready:
-            continue
         try:
-            ray.get(ref)
+            _wait(actor.__ray_ready__.remote())
             return True
         except ray.exceptions.ActorDiedError:  # out of restarts, or its node is gone for good
             return False
         except ray.exceptions.ActorUnavailableError:  # still coming back: ask again
             time.sleep(0.5)
-            ref = actor.__ray_ready__.remote()
 
 
-def _wait(ref: Any) -> dict:
+def _wait(ref: Any) -> Any:
+    """The result of a Ray call, waited for in short waits that keep the main thread responsive to
+    signals."""
     import ray
 
-    while True:  # short waits keep the main thread responsive to signals
+    while True:
         ready, _ = ray.wait([ref], timeout=0.5)
         if ready:
-            return dict(ray.get(ref))
+            return ray.get(ref)

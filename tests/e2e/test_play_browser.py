@@ -126,6 +126,13 @@ class Player:
         self.click("instructions-continue")
         self.stage("round")
 
+    def enter_free_play(self) -> None:
+        """Opens the page and passes its start and instructions (free play asks no consent)."""
+        self.d.get(self.url)
+        self.click("start")
+        self.stage("instructions")
+        self.click("instructions-continue")
+
     def start_round(self) -> None:
         self.click("round-start")
         self.wait.until(EC.presence_of_element_located((By.ID, "board")))
@@ -408,10 +415,7 @@ def test_a_scripted_person_cooks_with_the_shipped_cec_partner_in_default_free_pl
     cook = jax.jit(lambda state, t: scripted_actions(jax.random.fold_in(key, t), state, epsilon=0.05))
     player = Player(server.url)
     try:
-        player.d.get(server.url)
-        player.click("start")
-        player.stage("instructions")
-        player.click("instructions-continue")
+        player.enter_free_play()
         player.stage("round")
         player.start_round()
         seat_class = player.d.find_element(By.CSS_SELECTOR, ".hud span[class^=you-]").get_attribute("class")

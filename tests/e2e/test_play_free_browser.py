@@ -48,10 +48,7 @@ def test_three_free_play_rounds_in_one_visit_with_reloads(tmp_path: Path) -> Non
     )
     player = Player(server.url)
     try:
-        player.d.get(server.url)
-        player.click("start")
-        player.stage("instructions")
-        player.click("instructions-continue")
+        player.enter_free_play()
         _round_page(player, 1)
         first = player.d.find_element(By.ID, "partner").text  # "Your partner: cec758m-s201 (cec). ..."
         assert "Your partner: cec" in first and "(cec)" in first
@@ -115,10 +112,7 @@ def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path) -> No
     server = PlayServer([str(tmp_path / "study.yaml"), "--port", "0"], "head_on")
     player = Player(server.url)
     try:
-        player.d.get(server.url)
-        player.click("start")
-        player.stage("instructions")
-        player.click("instructions-continue")
+        player.enter_free_play()
         _round_page(player, 1)
         player.click("round-start")
         player.wait.until(EC.presence_of_element_located((By.ID, "board")))
