@@ -86,6 +86,12 @@ class Game:
             Destination's steps on a goal pair) behind `returns` of episodes of `steps` steps.
         single_task_own_level: an agent trained on one fixed level meets other agents only on that level
             (Overcooked: a kitchen's agent knows only its kitchen); otherwise it plays every level.
+
+    Partners:
+        scripted(key, state, epsilon, yields) -> int32[2]: both seats' actions of the game's hand-written
+            policy, read from the full state (a training partner, `cec.training.partners`): uniformly
+            random with probability `epsilon` per seat; `yields` (static) whether it gives way where its
+            route and its partner's collide. None: the game has none.
     """
 
     name: str
@@ -107,6 +113,7 @@ class Game:
     obs_settings: Callable[[Any], tuple]
     deliveries: Callable[[np.ndarray, int, Any], np.ndarray]
     single_task_own_level: bool
+    scripted: Callable[[jax.Array, Any, Any, bool], jax.Array] | None = None
 
     @property
     def fixed_levels(self) -> tuple[str, ...]:

@@ -20,6 +20,7 @@ ALGORITHMS: dict[str, tuple[str, bool]] = {
     "fcp": ("fcp", False),
     "e3t": ("e3t", False),
     "cec_e3t": ("e3t", True),
+    "cec_scripted": ("scripted", True),
     "cec_finetune": ("self_play", False),
 }
 
@@ -60,9 +61,10 @@ class TrainConfig:
     Attributes:
         algorithm: `ippo` (self-play on one fixed level), `cec` (self-play on a procedural
             distribution), `fcp` (a population partner on one level), `e3t` (E3T's mixture partner on one
-            level), `cec_e3t` (E3T's partner on the procedural distribution) or `cec_finetune` (self-play
-            on one level starting from `init_from`, a CEC checkpoint); recorded in checkpoints and checked
-            against `env.levels` and `partner.kind`.
+            level), `cec_e3t` (E3T's partner on the procedural distribution), `cec_scripted` (the game's
+            scripted partner in a share of the episodes, on the procedural distribution) or `cec_finetune`
+            (self-play on one level starting from `init_from`, a CEC checkpoint); recorded in checkpoints
+            and checked against `env.levels` and `partner.kind`.
         seed: base seed; seed i of the run uses `seed + i`.
         num_seeds: independent seeds trained together in one process (vmapped).
         num_envs: parallel envs per seed.
@@ -128,6 +130,11 @@ class TrainConfig:
         if kind != self.partner.kind:
             raise ConfigError(
                 f"algorithm {self.algorithm} needs partner.kind {kind!r}, got {self.partner.kind!r}"
+            )
+        if kind == "scripted" and self.env.game.scripted is None:
+            raise ConfigError(
+                f"algorithm {self.algorithm} needs a scripted partner, and {self.env.name} has none: "
+                "choose another algorithm"
             )
         if self.algorithm == "cec_finetune" and not self.init_from:
             raise ConfigError("algorithm cec_finetune needs init_from (the CEC checkpoint to fine-tune)")

@@ -8,6 +8,11 @@
                learner's current policy); only the learner's own seat trains, so every trained action was
                drawn from pi and the PPO ratio needs no correction; the partner seat's stored log-prob is
                that of the mixture it acted with
+    scripted   a hand-written partner in a share of the episodes: where an episode starts, each env draws
+               the game's scripted policy (`Game.scripted`: Overcooked's cook, from the full state) with
+               probability `scripted_share` for the other seat, else the learner's own policy; only the
+               learner's seat trains. `scripted_yields` false makes the cook never give way (it walks
+               into the learner until the learner moves), so the learner meets someone it must go around
 
 Seats and partners are redrawn where an episode starts (the LSTM resets there anyway), independently per
 env, from split keys; the partner's LSTM state lives in the partner seat's slot of the rollout carry.
@@ -23,7 +28,7 @@ import jax.numpy as jnp
 
 from cec.config import ConfigError
 
-PARTNER_KINDS = ("self_play", "fcp", "e3t")
+PARTNER_KINDS = ("self_play", "fcp", "e3t", "scripted")
 CHECKPOINT_PICKS = ("first", "middle", "last")
 
 
@@ -48,19 +53,25 @@ class PartnerConfig:
     """The partner strategy of a training run (see the module docstring).
 
     Attributes:
-        kind: `self_play`, `fcp` or `e3t`.
+        kind: `self_play`, `fcp`, `e3t` or `scripted`.
         population: FCP's population, as run directories x seeds x milestone checkpoints.
         epsilon: E3T's uniform-mixing weight of the partner seat (the paper's appendix: 0.5).
         predict_partner: history length K of the partner-modelling module added to the learner's network
             (E3T's: it predicts the partner's action from the core's features and the partner's last K
             actions, feeds the prediction to the actor, and trains on the partner's actual actions with
             `ppo.partner_coef`); 0: no module.
+        scripted_share: the `scripted` kind's share of episodes whose partner is the scripted policy.
+        scripted_epsilon: the scripted partner's share of uniformly random actions.
+        scripted_yields: the scripted partner gives way where its route and the learner's collide.
     """
 
     kind: str = "self_play"
     population: tuple[PopulationEntry, ...] = ()
     epsilon: float = 0.5
     predict_partner: int = 0
+    scripted_share: float = 0.5
+    scripted_epsilon: float = 0.1
+    scripted_yields: bool = True
 
     def __post_init__(self) -> None:
         if self.kind not in PARTNER_KINDS:
@@ -71,8 +82,9 @@ class PartnerConfig:
             )
         if self.predict_partner < 0:
             raise ConfigError(f"partner.predict_partner must be >= 0, got {self.predict_partner}")
-        if not 0.0 <= self.epsilon <= 1.0:
-            raise ConfigError(f"partner.epsilon must lie in [0, 1], got {self.epsilon}")
+        for name in ("epsilon", "scripted_share", "scripted_epsilon"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ConfigError(f"partner.{name} must lie in [0, 1], got {getattr(self, name)}")
         for entry in self.population:
             bad = [c for c in entry.checkpoints if c not in CHECKPOINT_PICKS and not c.isdigit()]
             if bad:

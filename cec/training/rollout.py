@@ -225,6 +225,9 @@ def rollout(
             if partner.kind == "fcp":
                 p = jax.tree.leaves(population)[0].shape[0]
                 index = jnp.where(c.first, draw(k_partner, p), index)
+            elif partner.kind == "scripted":  # index 1: the scripted partner plays this episode
+                coin = jax.vmap(jax.random.uniform)(k_partner) < partner.scripted_share
+                index = jnp.where(c.first, coin.astype(index.dtype), index)
         lstm, logits, value = policy_step(
             network, params, c.lstm, c.obs, c.first, c.history, per_seat=per_seat
         )
@@ -235,6 +238,8 @@ def rollout(
             is_partner = (jnp.arange(NUM_SEATS)[None, :] != seat[:, None])[..., None]  # [E, 2, 1]
             log_probs = jnp.where(is_partner, mixture_log_probs(logits, partner.epsilon), log_probs)
         action = jax.vmap(select_action, in_axes=(0, 0, None))(k_act, log_probs, greedy)  # [E, 2]
+        if partner.kind == "scripted":  # the partner seat's action (not trained on) is the script's
+            action = _scripted_partner_actions(task, partner, k_partner, c.env_state, seat, index, action)
         log_prob = jnp.take_along_axis(log_probs, action[..., None], axis=-1)[..., 0]
         out = jax.vmap(task.step, in_axes=(0, 0, 0, 0, None))(k_env, c.env_state, action, levels, env_params)
         ep_return = c.episode_return + out.reward
@@ -275,6 +280,28 @@ def rollout(
         network, params, final.lstm, final.obs, final.first, final.history, per_seat=per_seat
     )
     return final, Trajectory(**steps, init_lstm=carry.lstm, last_value=last_value)
+
+
+def _scripted_partner_actions(
+    task: Task,
+    partner: PartnerConfig,
+    keys: jax.Array,
+    env_state: Any,
+    seat: jax.Array,
+    index: jax.Array,
+    action: jax.Array,
+) -> jax.Array:
+    """[E, 2] `action` with the partner seat's replaced by the game's scripted policy where this episode's
+    partner is the script (`index` 1). Its keys are folded from the partner draw's (the other partner kinds'
+    random streams are unchanged)."""
+    script = task.game.scripted
+    assert script is not None  # TrainConfig refuses the kind for a game without one
+    k_script = jax.vmap(lambda k: jax.random.fold_in(k, 1))(keys)
+    scripted = jax.vmap(lambda k, s: script(k, s, partner.scripted_epsilon, partner.scripted_yields))(
+        k_script, env_state
+    )
+    use = (jnp.arange(NUM_SEATS)[None, :] != seat[:, None]) & (index[:, None] == 1)
+    return jnp.where(use, scripted, action)
 
 
 def _push_partner_actions(history: jax.Array, action: jax.Array, done: jax.Array) -> jax.Array:

@@ -10,6 +10,7 @@ import numpy as np
 from cec.envs import base
 from cec.envs.overcooked.dynamics import initial_state, reset, transition
 from cec.envs.overcooked.observation import get_obs
+from cec.envs.overcooked.scripted import scripted_actions
 from cec.envs.overcooked.state import NUM_ACTIONS, NUM_CHANNELS, EnvParams, EnvState, StepOutput
 from cec.levels import GRID_SIZE, Level
 from cec.levels.classic import CLASSIC_ASCII
@@ -53,6 +54,7 @@ GAME = base.Game(
     obs_settings=_obs_settings,
     deliveries=_deliveries,
     single_task_own_level=True,
+    scripted=scripted_actions,
 )
 
 

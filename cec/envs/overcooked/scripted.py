@@ -167,11 +167,21 @@ def _yielding(
     return jnp.where(moving & into_partner & partner_stays, Action.STAY, action).astype(jnp.int32)
 
 
-def scripted_actions(key: jax.Array, state: EnvState, epsilon: float | jax.Array = 0.1) -> jax.Array:
-    """Both seats' actions, int32[2]: greedy, or uniform random with probability `epsilon` per seat."""
+def scripted_actions(
+    key: jax.Array, state: EnvState, epsilon: float | jax.Array = 0.1, yields: bool = True
+) -> jax.Array:
+    """Both seats' actions, int32[2]: greedy, or uniform random with probability `epsilon` per seat.
+
+    With `yields` False (static) each seat keeps its plan where it collides with its partner's: it never
+    steps aside or waits, and walks into a partner in its way until the partner moves (a person who never
+    gives way, as a training partner).
+    """
     k_coin, k_rand = jax.random.split(key)
     plans = (_plan(state, 0), _plan(state, 1))  # each seat's plan once, for itself and its partner
-    greedy = jnp.stack([_yielding(state, 0, plans[0], plans[1]), _yielding(state, 1, plans[1], plans[0])])
+    if yields:
+        greedy = jnp.stack([_yielding(state, 0, plans[0], plans[1]), _yielding(state, 1, plans[1], plans[0])])
+    else:
+        greedy = jnp.stack([plans[0][0], plans[1][0]])
     random = jax.random.randint(k_rand, (2,), 0, NUM_ACTIONS, dtype=jnp.int32)
     return jnp.where(jax.random.uniform(k_coin, (2,)) < epsilon, random, greedy)
 

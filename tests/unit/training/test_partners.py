@@ -167,6 +167,63 @@ def test_e3t_behaviour_log_probs_and_importance_ratio(tmp_path):
     assert abs(float(approx_kl)) < 1e-6 and float(clip_fraction) == 0.0
 
 
+def _scripted_config(tmp_path, **partner):
+    return _config(
+        tmp_path, "cec_scripted", {"kind": "scripted", "scripted_epsilon": 0.0, **partner},
+        env={"name": "overcooked", "levels": "generator", "overcooked": {"max_steps": EPISODE}},
+    )  # fmt: skip
+
+
+@pytest.mark.parametrize("yields", [True, False])
+def test_the_scripted_partner_plays_the_cooks_actions_and_the_learner_its_own(tmp_path, yields):
+    from cec.envs.overcooked.scripted import scripted_actions, state_from_obs
+
+    trainer = Trainer(_scripted_config(tmp_path, scripted_share=1.0, scripted_yields=yields))
+    _, traj = _rollout(trainer)
+    seat = np.asarray(traj.learner_seat)  # [T, E]
+    partner = 1 - seat
+    obs = np.take_along_axis(np.asarray(traj.obs), partner[..., None, None, None, None], axis=2)[:, :, 0]
+    # the cook, from the partner seat's observation (that seat as seat 0), is what the partner seat did
+    cook = jax.jit(
+        jax.vmap(lambda o: scripted_actions(jax.random.PRNGKey(0), state_from_obs(o), 0.0, yields))
+    )
+    expected = np.asarray(cook(obs.reshape((-1, *obs.shape[2:]))))[:, 0].reshape(seat.shape)
+    np.testing.assert_array_equal(
+        np.take_along_axis(np.asarray(traj.action), partner[..., None], 2)[..., 0], expected
+    )
+    # the learner's seat still acts with its policy: untrained, it does not copy the cook
+    mine = np.take_along_axis(np.asarray(traj.action), seat[..., None], 2)[..., 0]
+    assert (mine != expected).mean() > 0.3
+    # only the learner's seat trains
+    assert trainer.config.sequences == NUM_ENVS
+
+
+def test_scripted_partner_share_zero_is_self_play_and_share_half_draws_per_episode(tmp_path):
+    cec = Trainer(_config(tmp_path, "cec", env={"name": "overcooked", "levels": "generator",
+                                               "overcooked": {"max_steps": EPISODE}}))  # fmt: skip
+    _, a = _rollout(cec)
+    _, b = _rollout(Trainer(_scripted_config(tmp_path, scripted_share=0.0)))
+    np.testing.assert_array_equal(a.action, b.action)  # the same keys: no script, the same game
+    _, half = _rollout(Trainer(_scripted_config(tmp_path, scripted_share=0.5)))
+    _, full = _rollout(Trainer(_scripted_config(tmp_path, scripted_share=1.0)))
+    partner = 1 - np.asarray(half.learner_seat)
+    theirs = lambda t: np.take_along_axis(np.asarray(t.action), partner[..., None], 2)[..., 0]  # noqa: E731
+    # per episode (EPISODE steps), the partner seat played either the script or the policy throughout
+    same = (theirs(half) == theirs(full)).reshape(NUM_STEPS // EPISODE, EPISODE, NUM_ENVS).mean(axis=1)
+    scripted_episodes = same == 1.0
+    assert 0.3 < scripted_episodes.mean() < 0.7
+
+
+def test_a_game_without_a_script_refuses_the_scripted_partner(tmp_path):
+    with pytest.raises(ConfigError, match="dual_destination has none"):
+        _config(
+            tmp_path,
+            "cec_scripted",
+            {"kind": "scripted"},
+            env={"name": "dual_destination", "levels": "procedural"},
+        )
+
+
 def test_fcp_trains_with_a_population_of_checkpoints(ippo_run, tmp_path):
     spec = {"kind": "fcp", "population": [{"run": str(ippo_run), "seeds": [0, 1]}]}
     cfg = _config(tmp_path, "fcp", spec)

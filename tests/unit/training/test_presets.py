@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import pytest
@@ -39,6 +40,9 @@ def test_preset_loads_and_is_consistent(path):
         assert config.env.params.max_steps == cec.env.params.max_steps
     if config.algorithm in ("e3t", "cec_e3t"):
         assert 0.0 < config.partner.epsilon < 1.0
+    if config.algorithm == "cec_scripted":  # a lever on the time-to-skill recipe: everything else equal
+        recipe = _load("cec_overcooked_tts")
+        assert config == dataclasses.replace(recipe, algorithm=config.algorithm, partner=config.partner)
 
 
 def test_every_algorithm_has_presets_on_every_classic_kitchen():
