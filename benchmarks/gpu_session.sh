@@ -10,14 +10,17 @@
 #   benchmarks/gpu_session.sh wait S       # progress until the reproduction ends or S seconds pass
 #   benchmarks/gpu_session.sh crossplay    # cross-play throughput (paper preset)
 #   benchmarks/gpu_session.sh pack         # stop the paper run (checkpoint), pack results, policies, curves
-#   benchmarks/gpu_session.sh window       # ALL OF IT IN ONE CALL (<= 9 min; docs/gpu.md): the training
-#                                          # profile, the shipped CEC seeds trained further, the paper
-#                                          # preset's throughput, the new policies exported
+#   benchmarks/gpu_session.sh window       # ALL OF IT IN ONE CALL (<= 9 min; docs/gpu.md): the paper
+#                                          # preset's profile, the shipped CEC seeds trained further, the
+#                                          # paper preset's throughput at each matmul precision, the new
+#                                          # policies exported
 #
 # `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
-# end to end at tiny sizes on a CPU, 3 minutes): WINDOW_TRAIN_S (300) seconds of CEC training, stopped by
-# SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (75) of the paper preset; WINDOW_PROFILE_S (120)
-# for the profile; WINDOW_LR (1e-3; two restarts at 2e-3 each lost cross-play first, docs/gpu.md) the
+# end to end at tiny sizes on a CPU, 4 minutes): WINDOW_TRAIN_S (260) seconds of CEC training, stopped by
+# SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset at each precision of
+# WINDOW_PRECISIONS ("default bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32
+# accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
+# paper preset) with WINDOW_PROFILE_SET overrides; WINDOW_LR (1e-3; two restarts at 2e-3 each lost cross-play first, docs/gpu.md) the
 # continued seeds' LR, annealed to 0 over WINDOW_STEPS per seed (270M: what 4 seeds at 4M env-steps/s on an
 # H200 train in the time left after the compile); WINDOW_BATCH the continued seeds' and the profile's batch (1024
 # envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
@@ -113,10 +116,13 @@ pack)
     ls -la "$OUT"
     ;;
 window)
-    T_TRAIN=${WINDOW_TRAIN_S:-300} T_PAPER=${WINDOW_PAPER_S:-75} T_PROFILE=${WINDOW_PROFILE_S:-120}
+    T_TRAIN=${WINDOW_TRAIN_S:-260} T_PAPER=${WINDOW_PAPER_S:-60} T_PROFILE=${WINDOW_PROFILE_S:-90}
     STEPS=${WINDOW_STEPS:-270000000} LR=${WINDOW_LR:-0.001}
+    PROFILE_CONFIG=${WINDOW_PROFILE_CONFIG:-configs/train/cec_overcooked.yaml}
+    read -r -a PRECISIONS <<< "${WINDOW_PRECISIONS-default bfloat16}"
+    read -r -a PROFILE_SET <<< "${WINDOW_PROFILE_SET:-}"
     read -r -a EXTRA <<< "${WINDOW_SET:-}"
-    # The batch of the continued seeds and of the profile: 1024 envs per seed with the time-to-skill recipe's
+    # The batch of the continued seeds: 1024 envs per seed with the time-to-skill recipe's
     # 2 epochs (half the update's arithmetic; the same Adam steps per sample with twice the minibatches: 16 of
     # 8,192 samples): 4.04M env-steps/s for 4 seeds on an H200, against 1.0M at the CPU recipe's 128 envs x 4
     # epochs (benchmarks/results/README.md).
@@ -128,8 +134,10 @@ window)
         "$PY" -c "import jax, flax, optax; print('jax', jax.__version__, 'flax', flax.__version__, \
 'optax', optax.__version__, jax.devices())"
         if [ "$T_PROFILE" -gt 0 ]; then
-            echo "== 1. training profile (the continued seeds' step on this device, ${T_PROFILE}s at most)"
-            timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py --repeats 2 --set "${BATCH[@]}" "${EXTRA[@]}" \
+            echo "== 1. training profile of $PROFILE_CONFIG on this device (${T_PROFILE}s at most; the JSON is"
+            echo "   written after each stage, so a profile cut short keeps what it measured)"
+            XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout "$T_PROFILE" "$PY" benchmarks/train_profile.py \
+                --config "$PROFILE_CONFIG" --repeats 2 --set "${PROFILE_SET[@]}" "${EXTRA[@]}" \
                 --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
         fi
         # The shipped CEC seeds as cec/shipped/zoo.yaml names them (a directory glob also matched a replaced
@@ -161,11 +169,16 @@ PYEOF
             | split -b 15M - "$OUT/cec-window.tgz.part-"
         ls -la "$OUT"
         if [ "$T_PAPER" -gt 0 ]; then
-            echo "== 4. the paper preset's training throughput (${T_PAPER}s)"
-            XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli train \
-                --config configs/train/cec_overcooked.yaml run_dir=/tmp/window-paper "${EXTRA[@]}"
-            echo "paper preset: exit $?"
-            cp /tmp/window-paper/*/metrics.csv "$OUT/paper_metrics.csv"
+            for precision in "${PRECISIONS[@]}"; do
+                echo "== 4. the paper preset's training throughput, matmul precision $precision (${T_PAPER}s)"
+                if [ "$precision" = default ]; then prec=(env -u JAX_DEFAULT_MATMUL_PRECISION)
+                else prec=(env JAX_DEFAULT_MATMUL_PRECISION="$precision"); fi
+                "${prec[@]}" XLA_PYTHON_CLIENT_MEM_FRACTION=0.5 timeout -s TERM -k 30 "$T_PAPER" "$PY" -m apps.cli \
+                    train --config configs/train/cec_overcooked.yaml run_dir="/tmp/window-paper-$precision" \
+                    "${EXTRA[@]}"
+                echo "paper preset ($precision): exit $?"
+                cp /tmp/window-paper-"$precision"/*/metrics.csv "$OUT/paper_metrics_$precision.csv"
+            done
         fi
         date -u +%FT%TZ
     } > "$log" 2>&1

@@ -324,6 +324,9 @@ def main(argv: list[str] | None = None) -> int:
         "update_epochs": cfg.ppo.update_epochs,
         "num_minibatches": cfg.ppo.num_minibatches,
         "peak_matmul_flops_per_s": peak,
+        # JAX_DEFAULT_MATMUL_PRECISION (e.g. bfloat16: one bf16 pass, float32 accumulation) applies to the
+        # peak's matmul and to the trainer's alike
+        "matmul_precision": str(jax.config.jax_default_matmul_precision or "default"),
     }
     call = result["train_call"] = train_call_speed(trainer, args.updates, args.repeats)
     print(
