@@ -20,19 +20,32 @@ cec eval --zoo cec/shipped/zoo.yaml --levels generated --episodes 1 --max-steps 
 cec eval --zoo cec/shipped/zoo.yaml --levels classic --episodes 4 --max-steps 400 --out $S/classic.csv
 # the test set (cec.levels.heldout.test_levels): played once, after the release was chosen on validation
 cec eval --zoo cec/shipped/zoo.yaml --levels test --episodes 1 --max-steps 400 --out $S/test.csv
-"$PY" - $S > $S/parts.md <<'EOF'
+# the authors' evaluation length (their code plays 100-step episodes; issue 60, item 5): the same three
+# tables at 100 steps, kept compressed
+mkdir -p $S/steps100
+for t in classic:classic:4 heldout:generated:1 test:test:1; do
+    IFS=: read -r name levels episodes <<< "$t"
+    cec eval --zoo cec/shipped/zoo.yaml --levels "$levels" --episodes "$episodes" --max-steps 100 \
+        --out "$W/steps100-$name.csv"
+    bzip2 -9 -c "$W/steps100-$name.csv" > "$S/steps100/$name.csv.bz2"
+done
+parts() {  # the cross-play and self-play of every part of validation and test, from the tables in $1
+    "$PY" - "$1" "$2" <<'EOF'
 import sys
 from pathlib import Path
 from cec.evaluation.parts import part_scores, parts_markdown
 from cec.evaluation.results import read_csv
 from cec.levels.heldout import heldout_levels, test_levels
-S = Path(sys.argv[1])
+S, ext = Path(sys.argv[1]), sys.argv[2]
 sets = (("validation (the set that chose the checkpoint)", ("heldout", "classic"), heldout_levels()),
         ("test (nothing chosen on it)", ("test",), test_levels()))
 for title, tables, levels in sets:
-    table = read_csv([S / f"{t}.csv" for t in tables])
+    table = read_csv([S / f"{t}{ext}" for t in tables])
     print(f"## {title}\n\n{parts_markdown(part_scores(table, 'cec', dict(levels)))}\n")
 EOF
+}
+parts $S .csv > $S/parts.md
+parts $S/steps100 .csv.bz2 > $S/steps100/parts.md
 "$PY" - "$W/controls.yaml" "$W/random_init" <<'EOF'
 import sys, yaml
 from cec.agents.zoo import SHIPPED_ZOO

@@ -1,10 +1,14 @@
 """Rounds of `cec play serve --partner cec`'s default free play (Cramped Room, 200 turn-based steps, the
 agent's actions sampled) played through the play server's own `Round` by a scripted "person": the scripted
 cook, greedy, with a share `--epsilon` of uniformly random actions (0: a perfectly stubborn person; the
-evaluations' cook has 0.05). The browser test `tests/e2e/test_play_browser.py` plays one such round.
+evaluations' cook has 0.05), which steps aside where its route and the agent's collide, or with
+`--never-yield` keeps its route and walks into the agent until the agent moves (the person who never gives
+way). The browser test `tests/e2e/test_play_browser.py` plays one such round.
 
     .venv/bin/python benchmarks/results/overcooked/shipped/play_rounds.py --epsilon 0 --rounds 12 \\
-        cec/shipped/cec451m-s20? benchmarks/results/overcooked/shipped/cec64m/cec64m-s20?
+        cec/shipped/cec758m-s20?
+    .venv/bin/python benchmarks/results/overcooked/shipped/play_rounds.py --never-yield --rounds 12 \\
+        cec/shipped/cec758m-s20?
 
 Per policy: the team return per round (20 per soup) over `--rounds` round seeds x both seats.
 """
@@ -31,11 +35,13 @@ def main() -> None:
     ap.add_argument("policies", nargs="+", help="exported CEC policy folders")
     ap.add_argument("--epsilon", type=float, default=0.0, help="the person's share of random actions")
     ap.add_argument("--rounds", type=int, default=12, help="round seeds per seat")
+    ap.add_argument("--never-yield", action="store_true", help="the person never steps aside for the agent")
     args = ap.parse_args()
     study = free_play_config(parse_args(build_parser(), ["play", "serve", "--partner", "cec"]))
     _, level = resolve_level("cramped_room", Path.cwd(), np.random.default_rng(0))
     key = jax.random.PRNGKey(0)
-    person = jax.jit(lambda s, t: scripted_actions(jax.random.fold_in(key, t), s, epsilon=args.epsilon))
+    yields = not args.never_yield
+    person = jax.jit(lambda s, t: scripted_actions(jax.random.fold_in(key, t), s, args.epsilon, yields))
     for path in args.policies:
         policy = load_policy(ZooEntry(Path(path).name, path, algorithm="cec"))
         returns, collisions = [], []
