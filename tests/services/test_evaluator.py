@@ -31,13 +31,14 @@ from apps.cli import main as cec_main
 from cec import checkpoints
 from cec.config import ConfigError, from_dict, load_config
 from cec.evaluation.analysis import policies_of
+from cec.evaluation.checkpoint_results import summarize
 from cec.evaluation.crossplay import EvalConfig
 from cec.evaluation.results import make_table, read_csv
 from cec.training.config import TrainConfig
 from cec.training.run import config_dict
 from cec.training.trainer import Trainer
 from services.evaluator.config import EvaluatorConfig, LevelSetConfig, PartnerGroupConfig
-from services.evaluator.evaluator import FAILED_GROUP, TRACKED_METRICS, Evaluator, summarize
+from services.evaluator.evaluator import FAILED_GROUP, TRACKED_METRICS, Evaluator
 from services.store import CheckpointEvent, CheckpointMessage, ControlPlane, LocalRedis, PartnerRecord
 
 pytestmark = pytest.mark.skipif(
