@@ -18,8 +18,8 @@ import numpy as np
 from services.play.config import StudyConfig
 from services.play.game import PartnerPool
 
-if TYPE_CHECKING:  # the study imports this module
-    from services.play.study import Participant
+if TYPE_CHECKING:  # the plan imports this module
+    from services.play.plan import Participant
 
 CHOICES = ("same", "next")
 SUMMARY_ROWS = 50  # the latest rounds the page sums up

@@ -1,39 +1,26 @@
-"""The study flow, independent of the web: participants, their stages, input validation, rounds, records.
+"""The study flow, independent of the web: a participant's actions, from joining to the last round.
 
-A participant walks through stages: consent (if the study has consent text), info (if it asks anything),
-instructions, the practice round (if any), then for each study round the round and its survey (if the
-survey has items), and finally the completion code. In free play (`StudyConfig.free_play`) the rounds never
-end: each finished round plans the next, whose partner the person may change (`services.play.free_play`).
+The parts it composes: `services.play.admission` (who may join, the participants by session, arrival
+indices), `services.play.plan` (a participant's rounds and stages, drawn from the config and the arrival
+index), `services.play.pages` (what a page shows, input validation), `services.play.recording` (the
+records) and `services.play.game` (a round being played).
+
 `Study` holds the participants of one server process; every method validates its input and raises
 `InputError` (the web layer answers 400 with its message) for anything a client could send wrong. Every
 state change is recorded (`services.play.recording`) before the method returns, the events of one action
 together. When a store cannot record them, the method raises `RecordUnavailableError` and leaves the
 participant's stage as it was (a round being played is ended: its connection closes and the round is played
-again), so the action can be retried without being recorded
-twice; a join refused so leaves no record, and its counterbalancing index goes to the next join.
-
-The round plan of participant i (their partners in order, the human's seat, the zoo draws, the kitchen and
-the round seeds) comes from `numpy.random.default_rng([study.seed, i])`, so a study is reproducible; a
-round replayed after a dropped connection is the same round again.
-
-Size: one class, `Study`, whose methods share one lock and one participant table (join, plan, record,
-survey, export); splitting it would spread that invariant over files.
+again), so the action can be retried without being recorded twice; a join refused so leaves no record, and
+its counterbalancing index goes to the next join.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import heapq
-import json
 import logging
-import math
-import re
 import secrets
-import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -42,107 +29,27 @@ import numpy as np
 
 from cec.levels import to_ascii
 from cec.levels.named import resolve_level
-from services.play import free_play, metrics
-from services.play.config import PracticeConfig, StudyConfig
+from services.play import free_play, metrics, pages
+from services.play.admission import Admission, JoinRefusedError
+from services.play.config import StudyConfig
 from services.play.free_play import Candidate
-from services.play.game import (
-    NUM_ACTIONS,
-    PartnerPool,
-    Round,
-    RoundSetup,
-    StepResult,
-    level_json,
+from services.play.game import PartnerPool, Round, RoundSetup, StepResult, level_json
+from services.play.limits import brief
+from services.play.pages import InputError, validate_action, validate_rt
+from services.play.plan import (
+    Participant,
+    RoundPlan,
+    config_digest,
+    free_round,
+    new_participant,
+    plan_of,
+    token_hash,
 )
-from services.play.limits import RateLimiter, brief
 from services.play.recording import Recorder
 
+__all__ = ["InputError", "JoinRefusedError", "Participant", "Study", "validate_action", "validate_rt"]
+
 log = logging.getLogger("cec.play")
-
-MAX_RT_MS = 3_600_000.0
-PRACTICE = -1  # the practice round's index in the records
-FINAL_STAGES = ("done", "declined")
-
-
-class InputError(ValueError):
-    """A client sent something the study does not accept; the message says what and what is expected."""
-
-
-class JoinRefusedError(Exception):
-    """A new participant is refused by one of the study's `limits` (the existing ones go on).
-
-    Attributes:
-        limit: the config key of the bound (`limits.max_active_participants`, ...).
-        rate: True for a rate bound (HTTP 429), False when the server is full (HTTP 503).
-        retry_after: seconds after which a join may succeed (None: not foreseeable).
-    """
-
-    def __init__(self, message: str, limit: str, *, rate: bool, retry_after: float | None) -> None:
-        super().__init__(message)
-        self.limit = limit
-        self.rate = rate
-        self.retry_after = retry_after
-
-
-@dataclass(frozen=True)
-class RoundPlan:
-    """One round as planned for a participant.
-
-    Attributes:
-        index: round index (0..N-1; `PRACTICE` for the practice round).
-        partner: partner condition name.
-        policy: index of the policy drawn from the partner's pool.
-        level_spec: the level spec to play.
-        human_seat: the human's seat.
-        steps: round length.
-        mode: `turn_based` or `real_time`.
-        seed: the round's PRNG seed (env reset, sampled agent actions) and `generated:random` draw.
-    """
-
-    index: int
-    partner: str
-    policy: int
-    level_spec: str
-    human_seat: int
-    steps: int
-    mode: str
-    seed: int
-
-    @property
-    def practice(self) -> bool:
-        return self.index == PRACTICE
-
-
-@dataclass
-class Participant:
-    """One participant's progress (in memory; everything that matters is also in the records)."""
-
-    id: str
-    index: int
-    level_spec: str
-    rounds: list[RoundPlan]
-    stages: list[tuple[str, int]]
-    code: str
-    stage: int = 0
-    attempts: dict[int, int] = field(default_factory=dict)
-    round: Round | None = None
-    lock: threading.Lock = field(default_factory=threading.Lock)
-    seen: float = 0.0  # the study clock at the participant's last request
-    played: list[dict[str, Any]] = field(default_factory=list)  # free play: the rounds so far, summed up
-
-    @property
-    def current(self) -> tuple[str, int]:
-        return self.stages[self.stage]
-
-    @property
-    def finished(self) -> bool:
-        return self.current[0] in FINAL_STAGES
-
-
-def _config_digest(config: StudyConfig) -> str:
-    """A digest of everything that shapes a participant's study (where records go and the server's limits
-    do not)."""
-    data = {k: v for k, v in asdict(config).items() if k not in ("storage", "limits")}
-    return hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
 class Study:
@@ -168,21 +75,9 @@ class Study:
         self.base_dir = base_dir
         self.pools = pools
         self.recorder = recorder
-        self.digest = _config_digest(config)
+        self.digest = config_digest(config)
         self.clock = clock
-        self._by_token: dict[str, Participant] = {}
-        self._active: dict[str, Participant] = {}  # in progress, least recently seen first
-        self._joining = 0  # admitted joins whose participant is being recorded
-        self._joins = RateLimiter(
-            config.limits.joins_per_address_per_minute,
-            config.limits.joins_per_address_per_minute,
-            clock=clock,
-        )
-        self._refused = 0  # joins refused since the last log line about it
-        self._refused_logged = -math.inf
-        self._lock = threading.Lock()
-        self._next_index = 0  # arrival index of the next participant (`restore` continues the count)
-        self._free_indices: list[int] = []  # a heap: indices of refused joins, given to the next joins
+        self.admission = Admission(config.limits, clock)
 
     # --- participants ---------------------------------------------------------------------------------
 
@@ -192,137 +87,45 @@ class Study:
         `address`: the client's address, for `limits.joins_per_address_per_minute`. `JoinRefusedError` when a
         bound of `config.limits` does not admit another participant now.
         """
-        with self._lock:
-            self._admit(address)
-            self._joining += 1
-            if self._free_indices:
-                index = heapq.heappop(self._free_indices)
-            else:
-                index, self._next_index = self._next_index, self._next_index + 1
+        index = self.admission.admit(address)
+        pid = "p" + secrets.token_hex(10)
         try:
             token = secrets.token_urlsafe(24)
             code = self.config.completion_code or "C" + secrets.token_hex(4).upper()
-            p = self._participant("p" + secrets.token_hex(10), index, code)
-            try:
-                self._record(
-                    p,
-                    "participant",
-                    study=self.config.name,
-                    index=index,
-                    level=p.level_spec,
-                    plan=[r.partner for r in p.rounds if not r.practice],
-                    config_digest=self.digest,
-                    session=_token_hash(token),
-                    code=code,
-                )
-            except Exception:  # not admitted (no cookie, no file): its index goes to the next join
-                self.recorder.discard(p.id)
-                with self._lock:
-                    heapq.heappush(self._free_indices, index)
-                raise
-        finally:
-            with self._lock:
-                self._joining -= 1
-        with self._lock:
-            self._by_token[_token_hash(token)] = p
-            self._seen(p)
+            p = self._participant(pid, index, code)
+            self._record(
+                p,
+                "participant",
+                study=self.config.name,
+                index=index,
+                level=p.level_spec,
+                plan=[r.partner for r in p.rounds if not r.practice],
+                config_digest=self.digest,
+                session=token_hash(token),
+                code=code,
+            )
+        except BaseException:  # not admitted (no cookie, no file): its index goes to the next join
+            self.recorder.discard(pid)
+            self.admission.withdraw(index)
+            raise
+        self.admission.enter(token_hash(token), p)
         metrics.PARTICIPANTS.inc()
         log.info("participant %s joined (index %d, level %s)", p.id, index, p.level_spec)
         return token, p
 
-    def _admit(self, address: str) -> None:
-        """Raises `JoinRefusedError` unless the limits admit one more participant (lock held)."""
-        limits = self.config.limits
-        now = self.clock()
-        idle = limits.idle_minutes * 60.0
-        while self._active:  # least recently seen first: drop the idle ones
-            pid, oldest = next(iter(self._active.items()))
-            if now - oldest.seen <= idle:
-                break
-            del self._active[pid]
-        refusal: JoinRefusedError | None = None
-        if len(self._by_token) + self._joining >= limits.max_participants:
-            refusal = JoinRefusedError(
-                "this study takes no more participants "
-                f"(limits.max_participants = {limits.max_participants})",
-                "limits.max_participants",
-                rate=False,
-                retry_after=None,
-            )
-        elif len(self._active) + self._joining >= limits.max_active_participants:
-            first = next(iter(self._active.values()), None)
-            wait = idle - (now - first.seen) if first is not None else 60.0
-            refusal = JoinRefusedError(
-                "the study is full right now (limits.max_active_participants = "
-                f"{limits.max_active_participants} in progress); please try again later",
-                "limits.max_active_participants",
-                rate=False,
-                retry_after=max(1.0, min(wait, 60.0)),
-            )
-        else:
-            wait = self._joins.take(address)
-            if wait > 0:
-                refusal = JoinRefusedError(
-                    "too many new participants from your address (limits.joins_per_address_per_minute = "
-                    f"{limits.joins_per_address_per_minute}); try again in {math.ceil(wait)} s",
-                    "limits.joins_per_address_per_minute",
-                    rate=True,
-                    retry_after=wait,
-                )
-        if refusal is None:
-            return
-        self._refused += 1
-        if now - self._refused_logged >= 60.0:  # one line a minute at most, however many are refused
-            log.warning("refusing joins: %s (%d refused since the last such line)", refusal, self._refused)
-            self._refused, self._refused_logged = 0, now
-        raise refusal
-
-    def _seen(self, p: Participant) -> None:
-        """Marks `p` active now (the caller holds the lock); finished participants are not active."""
-        self._active.pop(p.id, None)
-        p.seen = self.clock()
-        if not p.finished:
-            self._active[p.id] = p
-
     def active_participants(self) -> int:
         """Participants counted against `limits.max_active_participants` (idle ones not yet dropped)."""
-        with self._lock:
-            return len(self._active)
+        return self.admission.active()
 
     def _participant(self, pid: str, index: int, code: str) -> Participant:
         """Participant `index`'s plan and stages (a function of the study config and the index only)."""
-        rng = np.random.default_rng([self.config.seed, index])
-        level_spec = self.config.levels[index % len(self.config.levels)]
-        free = self.config.free_play  # one round planned now, the next when it ends (`free_play`)
-        rounds = [self._free_round(index, 0, level_spec, None)] if free else self._plan(rng, level_spec)
-        stages: list[tuple[str, int]] = []
-        if self.config.consent.strip():
-            stages.append(("consent", 0))
-        if self.config.ask:
-            stages.append(("info", 0))
-        stages.append(("instructions", 0))
-        for plan in rounds:
-            stages.append(("round", plan.index))
-            if not plan.practice and self.config.survey.items:
-                stages.append(("survey", plan.index))
-        if not free:
-            stages.append(("done", 0))
-        return Participant(pid, index, level_spec, rounds, stages, code)
-
-    def _free_round(self, index: int, number: int, level_spec: str, partner: Candidate | None) -> RoundPlan:
-        """Free-play round `number` of participant `index`, with `partner` (None: the drawn one)."""
-        drawn = free_play.draw(
-            self.config, free_play.candidates(self.config, self.pools, level_spec), index, number
-        )
-        partner = partner or drawn.partner
-        steps, mode = int(self.config.env.max_steps), self.config.mode
-        return RoundPlan(number, *partner, level_spec, drawn.human_seat, steps, mode, drawn.seed)
+        return new_participant(self.config, self.pools, pid, index, code)
 
     def _free_round_ended(self, p: Participant, plan: RoundPlan, end: dict[str, Any]) -> None:
         """Free play: `plan`'s round is summed up and the next is planned, with the same partner."""
         partner = Candidate(plan.partner, plan.policy)
         p.played.append(free_play.summary_row(plan.index, free_play.describe(self.pools, partner), end))
-        p.rounds.append(self._free_round(p.index, plan.index + 1, p.level_spec, partner))
+        p.rounds.append(free_round(self.config, self.pools, p.index, plan.index + 1, p.level_spec, partner))
         p.stages.append(("round", plan.index + 1))
 
     def _choose(self, p: Participant, index: int, payload: dict[str, Any]) -> None:
@@ -355,11 +158,7 @@ class Study:
         """The participant of a session token (None for an unknown or missing one)."""
         if not token or len(token) > 128:
             return None
-        with self._lock:
-            p = self._by_token.get(_token_hash(token))
-            if p is not None:
-                self._seen(p)
-            return p
+        return self.admission.participant(token_hash(token))
 
     def restore(self, records: dict[str, list[dict[str, Any]]]) -> int:
         """Takes back the participants of earlier runs of this server from their records, so that a
@@ -372,8 +171,7 @@ class Study:
         for pid, events in records.items():
             head = events[0] if events else {}
             index = int(head.get("index", -1))
-            with self._lock:
-                self._next_index = max(self._next_index, index + 1)
+            self.admission.counted(index)
             if head.get("type") != "participant":
                 log.warning("participant %s: the records do not start with the participant event (see the "
                             "quarantined lines); cannot continue", pid)  # fmt: skip
@@ -403,36 +201,9 @@ class Study:
                     running = None
             if running is not None:  # the server stopped during this round
                 self._record(p, "round_abort", round=running, attempt=p.attempts[running] - 1, steps=-1)
-            with self._lock:
-                self._by_token[str(head["session"])] = p
+            self.admission.restore(str(head["session"]), p)
             restored += 1
         return restored
-
-    def _plan(self, rng: np.random.Generator, level_spec: str) -> list[RoundPlan]:
-        c = self.config
-        order = [name for name in (p.name for p in c.partners) for _ in range(c.rounds_per_partner)]
-        if c.shuffle_rounds:
-            order = [order[i] for i in rng.permutation(len(order))]
-        plans: list[RoundPlan] = []
-        if c.practice is not None:
-            plans.append(self._round_plan(rng, PRACTICE, c.practice, level_spec))
-        for i, name in enumerate(order):
-            plans.append(self._round_plan(rng, i, name, level_spec))
-        return plans
-
-    def _round_plan(
-        self, rng: np.random.Generator, index: int, what: str | PracticeConfig, level_spec: str
-    ) -> RoundPlan:
-        c = self.config
-        if isinstance(what, PracticeConfig):
-            partner = what.partner or c.partners[0].name
-            level_spec, steps, mode = what.level, what.steps, what.mode or c.mode
-        else:
-            partner, steps, mode = what, int(c.env.max_steps), c.mode
-        seat = int(rng.integers(2)) if c.human_seat < 0 else c.human_seat
-        eligible = self.pools[partner].eligible(level_spec)
-        policy = eligible[int(rng.integers(len(eligible)))]
-        return RoundPlan(index, partner, policy, level_spec, seat, steps, mode, int(rng.integers(2**31 - 1)))
 
     def _event(self, p: Participant, kind: str, **fields: Any) -> dict[str, Any]:
         return {"type": kind, "at": round(time.time(), 6), "participant": p.id, **fields}
@@ -448,56 +219,11 @@ class Study:
     # --- views ----------------------------------------------------------------------------------------
 
     def _plan_of(self, p: Participant, index: int) -> RoundPlan:
-        return next(r for r in p.rounds if r.index == index)
+        return plan_of(p, index)
 
     def view(self, p: Participant) -> dict[str, Any]:
         """What the participant's page shows now (never a partner's identity)."""
-        c = self.config
-        kind, index = p.current
-        base = {"stage": kind, "title": c.title, "participant": p.id}
-        if kind == "consent":
-            return {**base, "text": c.consent}
-        if kind == "info":
-            fields = [
-                {"id": f.id, "label": f.label, "max_length": f.max_length, "required": f.required}
-                for f in c.ask
-            ]
-            return {**base, "fields": fields}
-        if kind == "instructions":
-            return {
-                **base,
-                "text": c.instructions,
-                "practice": c.practice is not None,
-                "rounds": c.num_rounds,
-                "free_play": c.free_play,
-            }
-        if kind == "round" and c.free_play:
-            return {**base, **free_play.view(c, self.pools, p, index)}
-        if kind == "round":
-            plan = self._plan_of(p, index)
-            return {
-                **base,
-                "practice": plan.practice,
-                "number": index + 1,
-                "of": c.num_rounds,
-                "partner_label": "Practice partner" if plan.practice else f"Partner {index + 1}",
-                "mode": plan.mode,
-                "steps": plan.steps,
-                "ticks_per_second": c.ticks_per_second,
-            }
-        if kind == "survey":
-            items = [{"id": i.id, "text": i.text} for i in c.survey.items]
-            return {
-                **base,
-                "number": index + 1,
-                "of": c.num_rounds,
-                "prompt": c.survey.prompt,
-                "scale": list(c.survey.scale),
-                "items": items,
-            }
-        if kind == "done":
-            return {**base, "code": p.code}
-        return base  # declined
+        return pages.view(self.config, self.pools, p)
 
     # --- submissions ----------------------------------------------------------------------------------
 
@@ -522,7 +248,7 @@ class Study:
                 p.stages = stages
                 self._advance(p)
             elif kind == "info":
-                info = self._event(p, "info", fields=self.validate_info(payload.get("fields")))
+                info = self._event(p, "info", fields=pages.validate_info(self.config, payload.get("fields")))
                 self._record_all(p, [info, *self._completion(p)])
                 self._advance(p)
             elif kind == "instructions":
@@ -533,7 +259,7 @@ class Study:
             elif kind == "survey":
                 if payload.get("round") != index:
                     raise InputError(f"this survey is about round {index}, not {brief(payload.get('round'))}")
-                answers = self.validate_answers(payload.get("answers"))
+                answers = pages.validate_answers(self.config, payload.get("answers"))
                 survey = self._event(
                     p, "survey", round=index, partner=self._plan_of(p, index).partner, answers=answers
                 )
@@ -543,40 +269,6 @@ class Study:
             else:
                 raise InputError(f"stage {kind!r} takes no form submission")
             return self.view(p)
-
-    def validate_info(self, fields: Any) -> dict[str, str]:
-        """The `ask` answers: exactly the configured ids, strings within length, matching their pattern."""
-        expected = {f.id: f for f in self.config.ask}
-        if not isinstance(fields, dict) or set(fields) != set(expected):
-            raise InputError(f"info needs `fields` with exactly the keys {sorted(expected)}")
-        out: dict[str, str] = {}
-        for key, spec in expected.items():
-            value = fields[key]
-            if not isinstance(value, str):
-                raise InputError(f"{spec.label}: expected text")
-            value = value.strip()
-            if len(value) > spec.max_length:
-                raise InputError(f"{spec.label}: at most {spec.max_length} characters")
-            if spec.required and not value:
-                raise InputError(f"{spec.label}: please answer")
-            if value and spec.pattern and not re.fullmatch(spec.pattern, value):
-                raise InputError(f"{spec.label}: {brief(value)} is not in the expected format")
-            out[key] = value
-        return out
-
-    def validate_answers(self, answers: Any) -> dict[str, int]:
-        """Survey answers: every item exactly once, each an integer in 1..len(scale)."""
-        items = [i.id for i in self.config.survey.items]
-        top = len(self.config.survey.scale)
-        if not isinstance(answers, dict) or set(answers) != set(items):
-            raise InputError(f"please answer every statement (expected keys {items})")
-        out: dict[str, int] = {}
-        for key in items:
-            value = answers[key]
-            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= top:
-                raise InputError(f"answer {key!r} must be an integer from 1 to {top}, got {brief(value)}")
-            out[key] = value
-        return out
 
     def _completion(
         self, p: Participant, stages: list[tuple[str, int]] | None = None
@@ -592,8 +284,7 @@ class Study:
         """Goes on to the next stage (its events are recorded: `_completion`)."""
         p.stage = min(p.stage + 1, len(p.stages) - 1)
         if p.finished:
-            with self._lock:
-                self._active.pop(p.id, None)
+            self.admission.finished(p)
         if p.current[0] == "done":
             log.info("participant %s completed the study", p.id)
 
@@ -674,8 +365,7 @@ class Study:
             if p.round is not rnd or rnd.done:
                 raise InputError("this round is no longer running (it was restarted or has ended)")
             plan = self._plan_of(p, p.current[1])
-            with self._lock:
-                self._seen(p)
+            self.admission.seen(p)
             result = rnd.step(action, with_branches=plan.mode == "turn_based")
             attempt = p.attempts[plan.index] - 1
             events = [
@@ -743,26 +433,3 @@ class Study:
         metrics.ACTIVE_ROUNDS.dec()
         metrics.ROUNDS.labels("aborted").inc()
         log.info("participant %s: round %d aborted", p.id, index)
-
-
-def _token_hash(token: str) -> str:
-    """What the server keeps of a session token: its SHA-256 (the token itself is only in the cookie)."""
-    return hashlib.sha256(token.encode()).hexdigest()
-
-
-def validate_action(action: Any) -> int:
-    """An action index 0..5 (an int, not a bool or a float); `InputError` otherwise."""
-    if isinstance(action, bool) or not isinstance(action, int) or not 0 <= action < NUM_ACTIONS:
-        raise InputError(f"action must be an integer from 0 to {NUM_ACTIONS - 1}, got {brief(action)}")
-    return action
-
-
-def validate_rt(rt_ms: Any) -> float | None:
-    """A reaction time in milliseconds (finite, 0..1 hour), or None when not given; `InputError` otherwise."""
-    if rt_ms is None:
-        return None
-    if isinstance(rt_ms, bool) or not isinstance(rt_ms, int | float) or not math.isfinite(rt_ms):
-        raise InputError(f"rt_ms must be a number of milliseconds, got {brief(rt_ms)}")
-    if not 0.0 <= rt_ms <= MAX_RT_MS:
-        raise InputError(f"rt_ms must lie in [0, {MAX_RT_MS:.0f}], got {rt_ms}")
-    return round(float(rt_ms), 3)
