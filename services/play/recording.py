@@ -63,10 +63,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
-import redis
-
 from services.play.limits import json_depth
-from services.store import RedisClient, StoreConfig, StoreError, StoreUnavailableError
+from services.store import RedisClient, StoreConfig, StoreError, StoreKeyTypeError, StoreUnavailableError
 
 log = logging.getLogger("cec.play")
 
@@ -398,19 +396,19 @@ class RedisStore:
             raise StoreUnavailableError(str(err)) from err
 
     def _call(self, key: str, what: str, call: Callable[[], Any]) -> Any:
-        """`call()`, with Redis's errors named: `RecordError` for a key of the wrong type (someone else's
-        data), `StoreUnavailableError` when Redis cannot answer."""
+        """`call()` through the store's client, with a key of the wrong type named: `RecordError` (someone
+        else's data); `StoreUnavailableError` when Redis cannot answer."""
         try:
-            return call()
-        except redis.ResponseError as err:
+            return self.client.call(f"read {what}", call)
+        except StoreKeyTypeError as err:
             raise RecordError(
-                f"Redis key {key!r} at {self.config.display_url} is not {what} ({err}); it is not this "
-                "study's record: remove it, or choose another storage.key_prefix"
+                f"Redis key {key!r} at {self.config.display_url} is not {what} ({err.__cause__}); it is not "
+                "this study's record: remove it, or choose another storage.key_prefix"
             ) from err
-        except redis.RedisError as err:
-            raise StoreUnavailableError(
-                f"cannot read the records from Redis at {self.config.display_url}: {err}"
-            ) from err
+        except StoreUnavailableError:
+            raise
+        except StoreError as err:  # any other failure to read is the store's unavailability to the study
+            raise StoreUnavailableError(f"cannot read the records from Redis: {err}") from err
 
     def participants(self) -> list[str]:
         key = self._key("participants")

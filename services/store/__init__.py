@@ -41,7 +41,8 @@ call, so a Redis restart loses no checkpoint event.
 
 Modules (everything public is re-exported here, so `from services.store import X` works for all of them):
 
-    config.py     StoreConfig, redact_url, StoreError, StoreUnavailableError, the environment variables
+    config.py     StoreConfig, redact_url, StoreError, StoreUnavailableError, StoreKeyTypeError, the
+                  environment variables
     records.py    RunRecord, CheckpointEvent, PublishResult, FlushResult, CheckpointMessage, PartnerRecord,
                   EvalResult, checkpoint_id
     client.py     RedisClient: the connection pool and the errors, for the plane, the consumer and the study
@@ -59,6 +60,7 @@ from services.store.config import (
     MIN_REDIS_VERSION,
     StoreConfig,
     StoreError,
+    StoreKeyTypeError,
     StoreUnavailableError,
     redact_url,
 )
@@ -99,6 +101,7 @@ __all__ = [
     "RunRecord",
     "StoreConfig",
     "StoreError",
+    "StoreKeyTypeError",
     "StoreUnavailableError",
     "checkpoint_id",
     "redact_url",

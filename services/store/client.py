@@ -18,6 +18,7 @@ from services.store.config import (
     MIN_REDIS_VERSION,
     StoreConfig,
     StoreError,
+    StoreKeyTypeError,
     StoreUnavailableError,
 )
 
@@ -86,7 +87,8 @@ class RedisClient:
         )
 
     def call(self, what: str, fn: Callable[[], T]) -> T:
-        """Runs `fn` (Redis commands), translating redis-py errors into `StoreError`s naming `what` failed."""
+        """Runs `fn` (Redis commands), translating redis-py errors into `StoreError`s naming `what` failed
+        (`StoreUnavailableError`: Redis cannot be reached; `StoreKeyTypeError`: a key holds another type)."""
         try:
             return fn()
         except (redis.AuthenticationError, redis.exceptions.NoPermissionError) as err:
@@ -96,6 +98,10 @@ class RedisClient:
         except redis.ResponseError as err:
             if str(err).startswith(("NOAUTH", "WRONGPASS")):
                 raise self.auth_failed(err) from err
+            if str(err).startswith("WRONGTYPE"):
+                raise StoreKeyTypeError(
+                    f"Redis at {self.config.display_url} failed to {what}: {err}"
+                ) from err
             raise StoreError(f"Redis at {self.config.display_url} failed to {what}: {err}") from err
         except redis.RedisError as err:
             raise StoreError(f"Redis at {self.config.display_url} failed to {what}: {err}") from err

@@ -26,6 +26,10 @@ class StoreUnavailableError(StoreError):
     """Redis cannot be reached (down, restarting, wrong address or a network failure)."""
 
 
+class StoreKeyTypeError(StoreError):
+    """A Redis key holds another type than the command needs (someone else's data under the key prefix)."""
+
+
 # --- configuration -----------------------------------------------------------------------------------------
 
 
