@@ -10,7 +10,7 @@ from pathlib import Path
 
 from cec.config import ConfigError, read_user_bytes
 from cec.levels.generator import GeneratorConfig
-from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS
+from services.ports import LEVEL_SERVER_GRPC_PORT, METRICS_PORTS, check_distinct, check_port
 
 TOKEN_ENV = "CEC_LEVEL_SERVER_TOKEN"
 #: the most bytes a request without levels can need (a generator config is under 200): larger `GetLevels`,
@@ -143,10 +143,14 @@ class LevelServerConfig:
     curriculum: CurriculumConfig = field(default_factory=CurriculumConfig)
 
     def __post_init__(self) -> None:
-        for name in ("port", "metrics_port"):
-            value = getattr(self, name)
-            if not (-1 if name == "metrics_port" else 0) <= value <= 65535:
-                raise ConfigError(f"{name} must be a TCP port in 0..65535, got {value}")
+        check_port("port", self.port)
+        check_port("metrics_port", self.metrics_port, off=True)
+        check_distinct(
+            [
+                ("port", "the level server's gRPC", self.port),
+                ("metrics_port", "its metrics", self.metrics_port),
+            ]
+        )
         for name in ("chunk_levels", "cache_chunks", "workers", "max_batch_size", "max_levels_per_request",
                      "max_concurrent_streams", "max_distinct_configs", "max_message_bytes", "max_ascii_bytes",
                      "max_concurrent_validations", "max_concurrent_rpcs"):  # fmt: skip

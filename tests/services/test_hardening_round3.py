@@ -117,6 +117,20 @@ def test_two_of_the_stacks_services_on_one_port_are_refused_before_anything_star
     assert not (tmp_path / "up" / "redis").exists(), "nothing was started"
 
 
+def test_cec_level_server_refuses_one_port_for_its_grpc_and_its_metrics_before_serving(tmp_path):
+    """Both were checked for range only: the metrics server started on the port, then gRPC failed to bind
+    it with a guess that another process held it."""
+    port = free_port()
+    cmd = [sys.executable, "-m", "apps.cli", "level-server", f"port={port}", f"metrics_port={port}"]
+    proc = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert (
+        f"config error: port {port} is given to both the level server's gRPC (port) and its metrics "
+        "(metrics_port)" in proc.stderr
+    ), proc.stderr[-2000:]
+    assert "metrics at" not in proc.stderr and "Traceback" not in proc.stderr
+
+
 def test_a_non_ascii_token_in_the_environment_is_refused_like_auth_token(tmp_path, monkeypatch):
     """`auth_token=` was checked for printable ASCII, `CEC_LEVEL_SERVER_TOKEN` was not: the server started
     with a token no client can send."""
