@@ -221,8 +221,8 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
             app, log_level="warning", access_log=False, ws_max_size=MAX_WS_MESSAGE_BYTES, lifespan="off"
         )
         server = uvicorn.Server(uv)
-        print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
-        try:
+        try:  # a Ctrl-C as soon as the line is out is a clean stop too
+            print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
             server.run(sockets=[sock])
         except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it has already handled: a clean stop
             log.info("stopped by Ctrl-C")
