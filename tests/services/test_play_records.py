@@ -239,6 +239,90 @@ def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_li
     assert "Traceback" not in out.stderr
 
 
+def test_a_submit_and_a_join_refused_while_redis_is_frozen_leave_nothing_and_a_restart_agrees(
+    tmp_path: Path, own_redis: LocalRedis
+) -> None:
+    """`cec play serve` over a Redis frozen (SIGSTOP) past its socket timeout: the submit and the join it
+    answers 503 leave no line and no participant file, and the join takes no counterbalancing index. What
+    the frozen Redis applies when it thaws is replaced by the retry (the same `seq`) or, for the refused
+    join, removed by the next server's replay, so both stores read back the same records."""
+    study = tmp_path / "study.yaml"
+    study.write_text(STUDY)
+    data = tmp_path / "data"
+    args = [str(study), "--port", "0", "--data", str(data), "--redis-url", own_redis.url]
+    server = PlayServer(args, "faults")
+    try:
+        browser = _Browser(server.url)
+        status, view = browser.post("/api/join", {})
+        assert status == 200
+        pid = view["participant"]
+        os.kill(own_redis.pid, signal.SIGSTOP)
+        try:
+            status, body = browser.post("/api/submit", {"stage": "consent", "accept": True})
+            assert status == 503 and body["store"] == "Redis"
+            assert _types(FileStore(data, "faults", create=False).events(pid)) == ["participant"]
+            status, _ = _Browser(server.url).post("/api/join", {})
+            assert status == 503
+            assert [p.name for p in (data / "faults").iterdir()] == [f"{pid}.jsonl"]
+        finally:
+            os.kill(own_redis.pid, signal.SIGCONT)
+        status, view = browser.post("/api/submit", {"stage": "consent", "accept": True})
+        assert status == 200 and view["stage"] == "instructions"
+        status, second = _Browser(server.url).post("/api/join", {})
+        assert status == 200
+    finally:
+        code = server.stop(signal.SIGINT)
+    assert code == 0 and "Traceback" not in server.log, server.log
+    files = FileStore(data, "faults", create=False)
+    red = RedisStore(StoreConfig(url=own_redis.url, key_prefix="cec", retries=1), "faults")
+    assert files.events(second["participant"])[0]["index"] == 1  # the refused join took no index
+    assert files.events(pid) == red.events(pid)
+    assert [(e["type"], e["seq"]) for e in red.events(pid)] == [("participant", 0), ("consent", 1)]
+    server = PlayServer(args, "faults")  # a server that starts replays the files into Redis
+    assert server.stop(signal.SIGINT) == 0 and "Traceback" not in server.log, server.log
+    assert red.participants() == files.participants() == sorted([pid, second["participant"]])
+    assert all(red.events(q) == files.events(q) for q in files.participants())
+    red.close()
+
+
+def test_a_server_started_over_an_empty_redis_replays_the_records_into_it(
+    tmp_path: Path, own_redis: LocalRedis
+) -> None:
+    """Redis restarted without its data between two runs of `cec play serve`: the second replays the records
+    folder into it before anything new, so the participant's stream starts at its join (`seq` 0), not at the
+    first event after the restart."""
+    study = tmp_path / "study.yaml"
+    study.write_text(STUDY)
+    data = tmp_path / "data"
+    args = [str(study), "--port", "0", "--data", str(data), "--redis-url", own_redis.url]
+    server = PlayServer(args, "faults")
+    try:
+        browser = _Browser(server.url)
+        status, view = browser.post("/api/join", {})
+        assert status == 200
+        pid = view["participant"]
+        status, view = browser.post("/api/submit", {"stage": "consent", "accept": True})
+        assert status == 200 and view["stage"] == "instructions"
+    finally:
+        assert server.stop(signal.SIGINT) == 0 and "Traceback" not in server.log, server.log
+    _restart_empty(own_redis)
+    server = PlayServer(args, "faults")
+    try:
+        browser.url = server.url  # another port; the same cookie
+        status, view = browser.post("/api/submit", {"stage": "instructions"})
+        assert status == 200 and view["stage"] == "round"
+    finally:
+        assert server.stop(signal.SIGINT) == 0 and "Traceback" not in server.log, server.log
+    files = FileStore(data, "faults", create=False)
+    red = RedisStore(StoreConfig(url=own_redis.url, key_prefix="cec", retries=1), "faults")
+    assert red.participants() == files.participants() == [pid]
+    assert red.events(pid) == files.events(pid)
+    assert [(e["type"], e["seq"]) for e in red.events(pid)] == [
+        ("participant", 0), ("consent", 1), ("instructions", 2)
+    ]  # fmt: skip
+    red.close()
+
+
 def test_export_from_redis_quarantines_malformed_entries(tmp_path: Path, redis_server: LocalRedis) -> None:
     study = tmp_path / "study.yaml"
     study.write_text(STUDY + "storage: {key_prefix: rq}\n")
