@@ -160,6 +160,10 @@ class Stack:
         check_run(self.train_config, resume, self.resume_hint)  # before anything starts
         self.children.check()  # leftovers of an earlier `cec up` of this run: named, not collided with
         self.check_ports()
+        if self.starts_level_server or cfg.level_server_address:  # before Redis, as `auth_token=` would be
+            from services.level_server.config import TOKEN_ENV, check_token
+
+            check_token(os.environ.get(TOKEN_ENV, ""), f"the {TOKEN_ENV} environment variable")
         logs = self.run_dir / "logs"
         # 1. Redis
         if self.store.url_given:

@@ -131,6 +131,16 @@ def test_cec_level_server_refuses_one_port_for_its_grpc_and_its_metrics_before_s
     assert "metrics at" not in proc.stderr and "Traceback" not in proc.stderr
 
 
+def test_cec_up_refuses_a_non_ascii_token_in_the_environment_before_starting_anything(tmp_path, monkeypatch):
+    """`cec up` with a level server started Redis first; the level server then refused the variable."""
+    monkeypatch.setenv("CEC_LEVEL_SERVER_TOKEN", "schl\u00fcssel")
+    proc = _up(tmp_path, "train.algorithm=cec", "train.env.levels=generator")
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert "the CEC_LEVEL_SERVER_TOKEN environment variable must be printable ASCII" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "up" / "redis").exists(), "nothing was started"
+
+
 def test_a_non_ascii_token_in_the_environment_is_refused_like_auth_token(tmp_path, monkeypatch):
     """`auth_token=` was checked for printable ASCII, `CEC_LEVEL_SERVER_TOKEN` was not: the server started
     with a token no client can send."""
