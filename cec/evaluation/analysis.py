@@ -163,16 +163,17 @@ def pair_level_scores(
     if levels is not None:  # the policies are those that play these levels
         table = table.select(np.isin(table.level, list(levels)))
     policies = policies_of(table)
-    index = {p: i for i, p in enumerate(policies)}
     value = scores(table, metric)
-    ia = np.asarray(
-        [index[PolicyId(a, int(s))] for a, s in zip(table.algorithm_a, table.seed_a, strict=True)]
-    )
-    ib = np.asarray(
-        [index[PolicyId(a, int(s))] for a, s in zip(table.algorithm_b, table.seed_b, strict=True)]
-    )
+    # Each row's policies as indices into `policies` (sorted by algorithm, then seed, as np.unique sorts),
+    # in arrays: a million rows cost tens of MB, not a Python object per row.
+    n = len(table)
+    _, algo = np.unique(np.concatenate([table.algorithm_a, table.algorithm_b]), return_inverse=True)
+    seeds = np.concatenate([table.seed_a, table.seed_b]).astype(np.int64)
+    found, index = np.unique(np.stack([algo.reshape(-1), seeds], 1), axis=0, return_inverse=True)
+    assert len(found) == len(policies), "policies_of and the rows disagree"
+    ia, ib = index.reshape(-1)[:n], index.reshape(-1)[n:]
     lo, hi = np.minimum(ia, ib), np.maximum(ia, ib)
-    level_names, level_code = np.unique(table.level.astype(str), return_inverse=True)
+    level_names, level_code = np.unique(table.level, return_inverse=True)  # str objects: no fixed width
     # Average episodes within each seat order (who sits in seat 0) first, then the seat orders.
     seat0 = np.where(table.seat == 0, ia, ib)
     orders, order_of = np.unique(np.stack([lo, hi, level_code, seat0], 1), axis=0, return_inverse=True)

@@ -17,7 +17,11 @@ from typing import Any
 import numpy as np
 
 from cec.evaluation.plotting import distinct_colours, pyplot
-from cec.evaluation.results import open_text, stored
+from cec.evaluation.results import ResultsError, cap, open_text, stored
+
+#: The most values (rows x columns) of one run's metrics table read (a value costs about 60 bytes parsed;
+#: the committed ones hold under 1 MB of text); `CEC_METRICS_MAX_CELLS` raises it.
+METRICS_MAX_CELLS = 4_000_000
 
 #: (metrics.csv column, panel title)
 PANELS: tuple[tuple[str, str], ...] = (
@@ -33,12 +37,36 @@ def metrics_file(run_dir: str | Path) -> Path:
 
 
 def read_metrics_csv(run_dir: str | Path) -> list[dict[str, Any]]:
-    """The rows of a run directory's `metrics.csv` (`metrics_file`): numbers as floats, blanks as None."""
+    """The rows of a run directory's `metrics.csv` (`metrics_file`): numbers as floats, blanks as None.
+    Read through the results tables' bounded reader (`open_text`), at most `METRICS_MAX_CELLS` values
+    (`CEC_METRICS_MAX_CELLS`); `ResultsError` naming the file and line of a row csv cannot read."""
     path = metrics_file(run_dir)
     if not path.exists():
         raise FileNotFoundError(f"{path} does not exist: give a training run directory")
-    with open_text(path, "metrics file") as f:
-        return [{k: _value(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    limit, cells = cap("METRICS_MAX_CELLS", METRICS_MAX_CELLS), 0
+    rows: list[dict[str, Any]] = []
+    try:
+        with open_text(path, "metrics file") as f:
+            reader = csv.DictReader(f)
+            try:
+                for row in reader:
+                    cells += len(row)
+                    if cells > limit:
+                        raise ResultsError(
+                            f"{path}, line {reader.line_num}: more than {limit:,} values, the most read of "
+                            f"a metrics file ({__name__}.METRICS_MAX_CELLS); raise the cap if the file is "
+                            "genuine: CEC_METRICS_MAX_CELLS=N in the environment"
+                        )
+                    if None in row:  # DictReader's key for the fields past the header's
+                        raise ResultsError(
+                            f"{path}, line {reader.line_num}: the row has more fields than the header"
+                        )
+                    rows.append({k: _value(v) for k, v in row.items()})
+            except (csv.Error, UnicodeDecodeError) as err:  # a field over csv's limit, bytes not UTF-8
+                raise ResultsError(f"{path}, line {reader.line_num + 1}: {err}") from None
+    except (OSError, EOFError) as err:  # bad gzip or bzip2 data, a cut-off stream
+        raise ResultsError(f"{path} cannot be read as a metrics file: {err}") from err
+    return rows
 
 
 def _value(text: str | None) -> Any:

@@ -31,6 +31,8 @@ from cec.evaluation.stats import (
     sem,
 )
 
+#: Heatmaps of more rows than this show colours without a value in each cell, at this size.
+MAX_CELL_TEXT = 12
 MAX_BARS = 12  # level sets with more levels get one aggregate bar per algorithm instead of per-level bars
 
 
@@ -75,6 +77,9 @@ def _heatmap(
     ax.set_yticks(range(len(m.labels)), m.labels)
     ax.set_title(title)
     low, high = im.get_clim()
+    if len(m.labels) > MAX_CELL_TEXT:  # a value per cell is unreadable there, and costs memory per cell
+        ax.figure.colorbar(im, ax=ax, fraction=0.046)
+        return
     for i in range(len(m.labels)):
         for j in range(len(m.labels)):
             v = m.values[i, j]
@@ -232,6 +237,7 @@ class _Report:
         plt = pyplot()
         m = an.algorithm_matrix(pl)
         k = len(m.labels)
+        k = min(k, MAX_CELL_TEXT)  # the figure stops growing there (the committed tables hold 12)
         fig, ax = plt.subplots(figsize=(1.2 * k + 2.5, 1.1 * k + 1.8))
         _heatmap(ax, m, f"cross-algorithm play, {set_name}", self.digits)
         name = self.save(fig, f"algorithms_{slug}.png")
@@ -251,7 +257,8 @@ class _Report:
         if len(levels) <= MAX_BARS:
             lv_names = sorted({s.level for s in stats})
             width = 0.8 / max(len(algos), 1)
-            fig, ax = plt.subplots(figsize=(max(6.0, 1.3 * len(lv_names) * max(1, len(algos)) / 2), 4))
+            wide = min(100.0, 1.3 * len(lv_names) * max(1, len(algos)) / 2)  # 11,000 pixels at most
+            fig, ax = plt.subplots(figsize=(max(6.0, wide), 4))
             for k, (alpha, colour) in enumerate(zip(algos, distinct_colours(len(algos)), strict=True)):
                 got = {s.level: s for s in stats if s.algorithm == alpha}
                 xs = [i + k * width for i, lv in enumerate(lv_names) if lv in got]

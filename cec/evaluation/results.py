@@ -27,6 +27,8 @@ import csv
 import gzip
 import io
 import math
+import os
+from array import array
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -180,9 +182,46 @@ _MAGIC = {".gz": b"\x1f\x8b", ".bz2": b"BZh"}
 
 #: The most bytes of one table read, after decompression (the largest committed table, the CPU
 #: reproduction's, holds 34 MB in 294,000 rows): a larger one is refused, not read until memory runs out.
+#: The environment's `CEC_RESULTS_MAX_BYTES` raises it (`cap`).
 RESULTS_MAX_BYTES = 128 << 20
-#: The most rows of one table read (each costs a few hundred bytes parsed).
-RESULTS_MAX_ROWS = 1_000_000
+#: The most rows read of the tables one command reads (each costs 128 bytes parsed, `_Columns`, and a few
+#: hundred more in a report's analysis; the largest committed table holds 294,000); `CEC_RESULTS_MAX_ROWS`.
+RESULTS_MAX_ROWS = 500_000
+#: The most policies ((algorithm, seed) pairs) of the tables one command reads: a report holds several
+#: policy x policy matrices and draws one heatmap per algorithm (a zoo holds at most 512 entries;
+#: the committed tables at most 48 policies); `CEC_RESULTS_MAX_POLICIES`.
+RESULTS_MAX_POLICIES = 512
+#: The most algorithms of the tables one command reads (a report draws a seed x seed panel for each, and
+#: matplotlib's memory grows with them: 64 panels took `cec report` 560 MB past its start; the committed
+#: tables hold at most 12); `CEC_RESULTS_MAX_ALGORITHMS`.
+RESULTS_MAX_ALGORITHMS = 24
+#: The most distinct level names of the tables one command reads (a report has a row per level; the
+#: held-out, test and classic sets together are 210); `CEC_RESULTS_MAX_LEVELS`.
+RESULTS_MAX_LEVELS = 10_000
+
+
+#: The longest name (policy, algorithm, level, env, actions) of a row: a policy name is one path component
+#: of at most 255 bytes (`cec.paths`), the kitchens' names are under 40 characters.
+NAME_MAX_CHARS = 256
+
+
+def cap(name: str, default: int | None = None) -> int:
+    """The cap `name` (`RESULTS_MAX_BYTES`, ...): the environment's `CEC_<name>` where set, else `default`
+    or this module's value. `ResultsError` naming the variable when it is not a positive integer."""
+    text = os.environ.get(f"CEC_{name}")
+    if text is None:
+        return int(globals()[name]) if default is None else default
+    try:
+        value = int(text.strip().replace("_", ""))
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise ResultsError(f"CEC_{name} must be a positive integer, got {text[:40]!r}")
+    return value
+
+
+def _raise_hint(name: str) -> str:
+    return f"split the table, or raise the cap if the table is genuine: CEC_{name}=N in the environment"
 
 
 def stored(path: str | Path) -> Path:
@@ -201,7 +240,7 @@ class _Capped(io.RawIOBase):
 
     def __init__(self, inner: io.BufferedIOBase, raw: BinaryIO, path: Path, kind: str) -> None:
         self.inner, self.raw, self.path, self.kind = inner, raw, path, kind
-        self.max_bytes, self.total = RESULTS_MAX_BYTES, 0
+        self.max_bytes, self.total = cap("RESULTS_MAX_BYTES"), 0
 
     def readable(self) -> bool:
         return True
@@ -214,8 +253,7 @@ class _Capped(io.RawIOBase):
             packed = " decompressed" if self.path.suffix in COMPRESSED else ""
             raise ResultsError(
                 f"{self.kind} {str(self.path)!r} holds more than {self.max_bytes:,} bytes{packed}, the "
-                f"most read ({__name__}.RESULTS_MAX_BYTES); split the table, or raise that setting if it is "
-                "genuine"
+                f"most read ({__name__}.RESULTS_MAX_BYTES); {_raise_hint('RESULTS_MAX_BYTES')}"
             )
         return n
 
@@ -254,24 +292,27 @@ def read_csv(paths: str | Path | Sequence[str | Path]) -> EpisodeTable:
     """Reads one or more results files (as `write_csv` writes them, or as `.gz`, `.bz2`) into one table.
 
     Raises `ResultsError` naming the file and the problem when a file is missing, cannot be decompressed,
-    holds more than `RESULTS_MAX_BYTES` (decompressed) or `RESULTS_MAX_ROWS` rows, lacks a column, or holds
-    a row that is not a played episode: a value of the wrong type, a non-finite outcome, a seat other than
-    0 or 1, a negative episode or length (with its line).
+    lacks a column, holds more than `RESULTS_MAX_BYTES` (decompressed), or when the files together hold
+    more than `RESULTS_MAX_ROWS` rows, `RESULTS_MAX_POLICIES` policies or `RESULTS_MAX_LEVELS` levels (each
+    raised by its `CEC_` variable: `cap`), or a row that is not a played episode: a value of the wrong
+    type, a non-finite outcome, a seat other than 0 or 1, a negative episode or length (with its line).
     """
     if isinstance(paths, str | Path):
         paths = [paths]
-    tables = [_read_one(Path(p)) for p in paths]
-    return EpisodeTable.concat(tables)
+    columns = _Columns()
+    for p in paths:
+        _read_one(Path(p), columns)
+    return columns.table()
 
 
-def _read_one(path: Path) -> EpisodeTable:
+def _read_one(path: Path, columns: _Columns) -> None:
     if not path.is_file():
         raise ResultsError(f"results file {str(path)!r} does not exist; write one with `cec eval`")
     try:
         with open_text(path) as f:
             reader = csv.DictReader(f)
             try:
-                return _parse(path, reader)
+                _parse(path, reader, columns)
             except (csv.Error, UnicodeDecodeError) as err:  # a field over csv's limit, bytes not UTF-8
                 raise ResultsError(
                     f"{path}, line {reader.line_num + 1}: {err}; a results file holds short text fields in "
@@ -281,22 +322,101 @@ def _read_one(path: Path) -> EpisodeTable:
         raise ResultsError(f"{path} cannot be read as a results file: {err}") from err
 
 
-def _parse(path: Path, reader: csv.DictReader) -> EpisodeTable:
-    cols: dict[str, list] = {f: [] for f in ARRAY_FIELDS}
-    strings: dict[str, str] = {}  # each distinct name once in memory, however many rows repeat it
-    skipped: list[SkippedEntry] = []
+class _Columns:
+    """Rows parsed into compact columns, 8 bytes a value (a string as the index of its one copy), so rows
+    cost 128 bytes each however they are written (Python lists of floats cost 4x that: a 1.1M-row table of
+    distinct values took `cec report` 1 GB past its start); the caps (`cap`) counted as rows come."""
+
+    def __init__(self) -> None:
+        self.values = {f: array("d" if _column_of(f) in _FLOAT else "q") for f in ARRAY_FIELDS}
+        self.codes: dict[str, int] = {}  # each distinct string once, however many rows repeat it
+        self.strings: list[str] = []
+        self.policies: set[tuple[int, int]] = set()
+        self.levels: set[int] = set()
+        self.algorithms: set[int] = set()
+        self.skipped: list[SkippedEntry] = []
+        self.rows = 0
+        self.max_rows = cap("RESULTS_MAX_ROWS")
+        self.max_policies = cap("RESULTS_MAX_POLICIES")
+        self.max_levels = cap("RESULTS_MAX_LEVELS")
+        self.max_algorithms = cap("RESULTS_MAX_ALGORITHMS")
+
+    def code(self, text: str) -> int:
+        code = self.codes.get(text)
+        if code is None:
+            code = self.codes[text] = len(self.strings)
+            self.strings.append(text)
+        return code
+
+    def add(self, row: Mapping[str, str]) -> None:
+        """One played episode's row (`ValueError` naming the field that is not one)."""
+        parsed: dict[str, int | float] = {}
+        for field in ARRAY_FIELDS:
+            col = _column_of(field)
+            raw = row[col]
+            if col in _STR:
+                if len(raw) > NAME_MAX_CHARS:  # a level or policy name; a report makes fixed-width copies
+                    raise ValueError(f"{col} is longer than {NAME_MAX_CHARS} characters ({raw[:40]!r}...)")
+                parsed[field] = self.code(raw)
+            elif col in _INT:
+                parsed[field] = _integer(col, raw)
+            else:
+                v = float(raw)
+                if not math.isfinite(v):
+                    raise ValueError(f"{col} must be a finite number, got {raw[:80]!r}")
+                parsed[field] = v
+        for field, v in parsed.items():
+            self.values[field].append(v)  # type: ignore[arg-type]  # an int or float by its column's typecode
+        self.policies.add((int(parsed["algorithm_a"]), int(parsed["seed_a"])))
+        self.policies.add((int(parsed["algorithm_b"]), int(parsed["seed_b"])))
+        self.levels.add(int(parsed["level"]))
+        self.algorithms.update((int(parsed["algorithm_a"]), int(parsed["algorithm_b"])))
+        for name, n, limit, what in (
+            (
+                "RESULTS_MAX_POLICIES",
+                len(self.policies),
+                self.max_policies,
+                "policies ((algorithm, seed) pairs)",
+            ),
+            ("RESULTS_MAX_LEVELS", len(self.levels), self.max_levels, "level names"),
+            ("RESULTS_MAX_ALGORITHMS", len(self.algorithms), self.max_algorithms, "algorithms"),
+        ):
+            if n > limit:
+                raise ValueError(
+                    f"more than {limit:,} {what} with the rows read before it, the most one command reads "
+                    f"({__name__}.{name}); {_raise_hint(name)}"
+                )
+
+    def table(self) -> EpisodeTable:
+        names = np.empty(len(self.strings), dtype=object)
+        names[:] = self.strings
+        cols: dict[str, np.ndarray] = {}
+        for field, values in self.values.items():
+            if _column_of(field) in _STR:
+                cols[field] = names[np.frombuffer(values, dtype=np.int64)] if values else names[:0]
+            else:
+                cols[field] = np.array(values, dtype=np.float64 if values.typecode == "d" else np.int64)
+            del values[:]
+        seen: dict[str, SkippedEntry] = {}
+        for s in self.skipped:
+            seen.setdefault(s.name, s)
+        return EpisodeTable(**cols, skipped=tuple(seen.values()))
+
+
+def _parse(path: Path, reader: csv.DictReader, columns: _Columns) -> None:
     missing = [c for c in COLUMNS if c not in (reader.fieldnames or [])]
     if missing:
         raise ResultsError(
             f"{path} is not a cross-play results file: missing column(s) {missing} "
             f"(expected the columns of `cec eval`: {', '.join(COLUMNS)})"
         )
-    for rows, row in enumerate(reader, start=1):
+    for row in reader:
         line = reader.line_num
-        if rows > RESULTS_MAX_ROWS:
+        columns.rows += 1
+        if columns.rows > columns.max_rows:
             raise ResultsError(
-                f"{path} holds more than {RESULTS_MAX_ROWS:,} rows, the most read of one results file "
-                f"({__name__}.RESULTS_MAX_ROWS); split the table, or raise that setting if it is genuine"
+                f"{path} holds more than {columns.max_rows:,} rows (with the tables read before it), the "
+                f"most one command reads ({__name__}.RESULTS_MAX_ROWS); {_raise_hint('RESULTS_MAX_ROWS')}"
             )
         try:
             if None in row or None in row.values():  # DictReader's filler for a short row, key of a long one
@@ -308,25 +428,13 @@ def _parse(path: Path, reader: csv.DictReader) -> EpisodeTable:
                 )
             if row["status"] == "skipped":
                 seed = int(row["seed_a"]) if row["seed_a"] else -1
-                skipped.append(SkippedEntry(row["policy_a"], row["algorithm_a"], seed, row["reason"]))
+                columns.skipped.append(SkippedEntry(row["policy_a"], row["algorithm_a"], seed, row["reason"]))
                 continue
             if row["status"] != "ok":
                 raise ValueError(f"status must be ok or skipped, got {str(row['status'])[:80]!r}")
-            for field in ARRAY_FIELDS:
-                col = _column_of(field)
-                raw = row[col]
-                if col in _STR:
-                    cols[field].append(strings.setdefault(raw, raw))
-                elif col in _INT:
-                    cols[field].append(_integer(col, raw))
-                else:
-                    v = float(raw)
-                    if not math.isfinite(v):
-                        raise ValueError(f"{col} must be a finite number, got {raw[:80]!r}")
-                    cols[field].append(v)
-        except (ValueError, TypeError) as err:
+            columns.add(row)
+        except (ValueError, TypeError, OverflowError) as err:  # OverflowError: an integer past int64
             raise ResultsError(f"{path}, line {line}: {err}") from err
-    return make_table(cols, skipped)
 
 
 def _integer(col: str, raw: str) -> int:

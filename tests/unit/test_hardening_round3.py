@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import bz2
 import gzip
+import os
 import subprocess
 import sys
 import tracemalloc
@@ -190,7 +191,7 @@ def test_a_table_of_more_rows_than_the_cap_is_refused_naming_the_setting(tmp_pat
     path.write_text(HEADER + "".join(_row(i) for i in range(11)))
     monkeypatch.setattr(results, "RESULTS_MAX_ROWS", 10, raising=False)
     with pytest.raises(
-        results.ResultsError, match=r"more than 10 rows, .*\(cec.evaluation.results.RESULTS_MAX_ROWS\)"
+        results.ResultsError, match=r"more than 10 rows .*\(cec.evaluation.results.RESULTS_MAX_ROWS\)"
     ):
         results.read_csv(path)
 
@@ -229,6 +230,110 @@ def test_cec_report_refuses_compressed_bytes_under_a_plain_name_naming_the_file(
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert f"{str(path)!r} holds gz-compressed bytes but its name does not end .gz" in proc.stderr
     assert "rename it results.csv.gz" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def _peak_rss_mb(*args: str, env: dict[str, str] | None = None) -> tuple[float, str]:
+    """(peak RSS in MB, stderr) of `cec ARGS` run as the only child of a fresh Python."""
+    probe = (
+        "import resource, subprocess, sys\n"
+        f"p = subprocess.run([sys.executable, '-m', 'apps.cli', *{list(args)!r}], capture_output=True, "
+        "text=True)\n"
+        "sys.stderr.write(p.stderr[-3000:])\n"
+        "print(p.returncode, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss)\n"
+    )
+    proc = subprocess.run(
+        [sys.executable, "-c", probe], cwd=REPO, capture_output=True, text=True, timeout=900, env=env
+    )
+    code, kb = proc.stdout.split()
+    return int(kb) / 1024, f"exit {code}: {proc.stderr}"
+
+
+def _bomb_row(i: int, distinct: bool) -> str:
+    if distinct:  # every name its own: a policy, an algorithm and a level per row
+        outcomes = f"{i}.25,{i % 7},{i % 3},{i}.5"
+        return f"p{i},a{i},{i},q{i},b{i},{i},lv{i},{i % 2},{i},{outcomes},env{i},400,s{i},ok,\n"
+    a, b, seeds = i % 8, i // 64 % 8, (i // 8 % 8, i // 512 % 8)  # 64 policies, 100 levels
+    return (
+        f"p{a}_{seeds[0]},a{a},{seeds[0]},p{b}_{seeds[1]},a{b},{seeds[1]},lv{i % 100},{i % 2},{i},{i}.25,"
+        f"{i % 7},{i % 3},{i}.5,overcooked,400,s{i},ok,\n"
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    ("kind", "rows", "message"),
+    [
+        ("distinct", 1_100_000, "more than 24 algorithms with the rows read before it"),
+        ("rows", 520_000, "holds more than 500,000 rows"),
+    ],
+)
+def test_cec_report_of_a_bz2_bomb_stays_within_500_mb_of_its_start(kind, rows, message, tmp_path):
+    """A few MB of bzip2 that expand to a million valid rows: `distinct`, each with its own names, took
+    `cec report` 1.07 GB past its start (Python lists of objects, each name a string) before the row cap;
+    `rows`, past the row cap among 64 policies. Now columns of 8 bytes a value, caps on rows, policies,
+    algorithms and levels, refused at the cap the error names with the variable that raises it."""
+    bomb = tmp_path / "results.csv.bz2"
+    compressor = bz2.BZ2Compressor(1)
+    with bomb.open("wb") as f:
+        f.write(compressor.compress(HEADER.encode()))
+        for start in range(0, rows, 50_000):
+            chunk = "".join(_bomb_row(i, kind == "distinct") for i in range(start, start + 50_000))
+            f.write(compressor.compress(chunk.encode()))
+        f.write(compressor.flush())
+    small = tmp_path / "small.csv"
+    small.write_text(HEADER + "".join(_row(i) for i in range(4)))
+    base, err = _peak_rss_mb("report", str(small), "--out", str(tmp_path / "small_report"))
+    assert err.startswith("exit 0"), err
+    peak, err = _peak_rss_mb("report", str(bomb), "--out", str(tmp_path / "report"))
+    assert err.startswith("exit 2"), err
+    assert peak - base < 500, f"cec report took {peak:.0f} MB, {peak - base:.0f} MB past a small table's"
+    assert message in err and "=N in the environment" in err and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize(
+    ("variable", "value", "rows", "message"),
+    [
+        ("CEC_RESULTS_MAX_ROWS", "3", [_row(i) for i in range(4)], "holds more than 3 rows"),
+        ("CEC_RESULTS_MAX_BYTES", "500", [_row(i) for i in range(8)], "holds more than 500 bytes"),
+        (
+            "CEC_RESULTS_MAX_POLICIES",
+            "2",
+            [_row(), _row(policy="cec2").replace(",cec,0,", ",cec,2,", 1)],
+            "more than 2 policies ((algorithm, seed) pairs)",
+        ),
+    ],
+)
+def test_cec_report_names_the_cap_a_table_passes_and_its_variable_raises_it(
+    variable, value, rows, message, tmp_path, monkeypatch
+):
+    """The caps were module constants a user could not raise; the error named only the constant."""
+    path = tmp_path / "r.csv"
+    path.write_text(HEADER + "".join(rows))
+    env = {**os.environ, variable: value}
+    proc = subprocess.run(
+        [sys.executable, "-m", "apps.cli", "report", str(path), "--out", str(tmp_path / "report")],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=180,
+        env=env,
+    )
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    assert message in proc.stderr and f"{variable}=N in the environment" in proc.stderr, proc.stderr[-2000:]
+    assert "Traceback" not in proc.stderr
+    monkeypatch.setenv(variable, "10_000")
+    assert len(results.read_csv(path)) == len(rows)  # raised: read
+
+
+def test_a_metrics_table_csv_cannot_read_is_named_with_its_file_and_line(tmp_path):
+    from cec.evaluation.curves import read_metrics_csv
+
+    (tmp_path / "metrics.csv").write_text("update,seed,mean_return\n1,0,2.5\n2,0," + "9" * 200_000 + "\n")
+    with pytest.raises(results.ResultsError, match=r"metrics.csv, line 3: field larger than field limit"):
+        read_metrics_csv(tmp_path)
+    (tmp_path / "metrics.csv").write_text("update,seed\n1,0,7\n")
+    with pytest.raises(results.ResultsError, match="line 2: the row has more fields than the header"):
+        read_metrics_csv(tmp_path)
 
 
 # ---- overrides are bounded in depth like files ----------------------------------------------------------
