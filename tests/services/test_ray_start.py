@@ -55,3 +55,21 @@ def test_a_driver_that_cannot_reach_ray_names_rays_wait(monkeypatch: pytest.Monk
     message = str(caught.value)
     assert message.startswith("cannot connect to Ray at 127.0.0.1:6379 (TimeoutError: Timed out after 60")
     assert f"{RAY_WAIT_VARIABLE}=300" in message and "ray status --address 127.0.0.1:6379" in message
+
+
+def test_cec_up_names_start_timeout_s_when_rays_head_is_not_ready_in_time(tmp_path: Path) -> None:
+    """Through `cec up`: a head not ready within start_timeout_s (0.3 s: Ray's import alone takes longer)
+    is one config error naming the setting to raise, not Ray's exception text."""
+    import subprocess
+    import sys
+
+    repo = Path(__file__).resolve().parents[2]
+    cmd = [sys.executable, "-m", "apps.cli", "up", f"train.run_dir={tmp_path}", "train.name=up"]
+    cmd += ["evaluator=false", "start_timeout_s=0.3"]
+    proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2, proc.stderr[-3000:]
+    assert "config error: Ray's head did not start: it was not ready within start_timeout_s = 0.3 s" in (
+        proc.stderr
+    ), proc.stderr[-3000:]
+    assert "`cec up start_timeout_s=600 ...`" in proc.stderr and "distributed.ray_address" in proc.stderr
+    assert "Traceback" not in proc.stderr
