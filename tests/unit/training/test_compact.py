@@ -65,7 +65,6 @@ def test_compact_rollout_expands_to_the_recorded_observations(case: str) -> None
     state = trainer._init(jax.random.PRNGKey(5))
     _, k_levels, k_roll, _ = trainer.update_keys(state.key)
     levels = trainer.task.sample_levels(k_levels, state.carry.env_id, trainer.config.levels_per_env)
-    _, full = trainer.collect(state.params, state.carry, k_levels, k_roll, levels=levels)
     # two rollouts in a row, so that the second starts mid-episode on levels from the first's buffer
     carry, _ = trainer.collect(state.params, state.carry, k_levels, k_roll, levels=levels)
     k2 = jax.random.fold_in(k_roll, 1)
@@ -84,7 +83,6 @@ def test_compact_rollout_expands_to_the_recorded_observations(case: str) -> None
     assert got.state is None
     # the point of it: far fewer bytes than the observations
     assert len(wire) < 0.5 * nbytes(want)
-    del full
 
 
 def test_carry_holds_each_envs_index() -> None:
