@@ -1,0 +1,117 @@
+"""The one place reports write figures and Markdown: numbers with their uncertainty, p-values, intervals,
+tables, and templates with named holes. Every report (`cec report`, each `cec reproduce` paper) and every
+benchmark that writes a README figure formats through here, so one figure reads the same everywhere.
+
+    pm(12.34, 1.2)                  -> "12.3 ± 1.2"      (no error: "12.3"; no mean: "—")
+    pm(12.34, 1.2, n=4)             -> "12.3 ± 1.2 (n=4)"
+    table(["a", "b"], [[1, 2]])     -> "| a | b |\\n|---|---|\\n| 1 | 2 |"
+    fill(read_template(path), title="...", table="...")
+
+A template is Markdown with `string.Template` holes (`$name` or `${name}`; `$$` is a dollar sign). `fill`
+refuses a hole without a value and a value without a hole, so neither prose nor a figure goes missing
+silently.
+"""
+
+from __future__ import annotations
+
+import math
+import string
+from collections.abc import Iterable, Mapping, Sequence
+from pathlib import Path
+
+NONE = "—"  # where there is no figure (an em dash)
+
+
+def _missing(x: float | None) -> bool:
+    return x is None or (isinstance(x, float) and math.isnan(x))
+
+
+def num(x: float | None, digits: int = 1, *, signed: bool = False) -> str:
+    """`x` with `digits` decimals (`signed`: always with its sign), or `NONE` where it is None or NaN."""
+    if _missing(x):
+        return NONE
+    assert x is not None
+    return f"{x:+.{digits}f}" if signed else f"{x:.{digits}f}"
+
+
+def pm(
+    mean: float | None,
+    err: float | None,
+    digits: int = 1,
+    *,
+    n: int | None = None,
+    no_error: str | None = None,
+) -> str:
+    """A mean with its uncertainty: "mean ± err" with `digits` decimals; the mean alone where `err` is None
+    or NaN (or "mean ± `no_error`" when given); `NONE` where the mean is missing. `n`: the sample count,
+    appended as " (n=N)"."""
+    if _missing(mean):
+        return NONE
+    assert mean is not None
+    text = f"{mean:.{digits}f}"
+    if not _missing(err):
+        assert err is not None
+        text += f" ± {err:.{digits}f}"
+    elif no_error is not None:
+        text += f" ± {no_error}"
+    return text + ("" if n is None else f" (n={n})")
+
+
+def p_value(p: float | None, significant: int = 2) -> str:
+    """A p-value with `significant` significant digits, or `NONE`."""
+    if _missing(p):
+        return NONE
+    assert p is not None
+    return f"{p:.{significant}g}"
+
+
+def interval(low: float | None, high: float | None, digits: int = 1, *, signed: bool = True) -> str:
+    """A confidence interval "[low, high]" (`signed`: each with its sign), or `NONE` where it has no ends."""
+    if _missing(low) or _missing(high):
+        return NONE
+    return f"[{num(low, digits, signed=signed)}, {num(high, digits, signed=signed)}]"
+
+
+def row(cells: Iterable[object]) -> str:
+    """One Markdown table row: `| a | b |`."""
+    return "| " + " | ".join(str(c) for c in cells) + " |"
+
+
+def table_lines(headers: Sequence[object], rows: Iterable[Sequence[object]]) -> list[str]:
+    """A Markdown table as lines: the header, its rule and one line per row."""
+    return [row(headers), "|" + "---|" * len(headers), *(row(r) for r in rows)]
+
+
+def table(headers: Sequence[object], rows: Iterable[Sequence[object]]) -> str:
+    """A Markdown table (no trailing newline)."""
+    return "\n".join(table_lines(headers, rows))
+
+
+# ---- templates ---------------------------------------------------------------------------------------
+
+
+def read_template(path: Path) -> string.Template:
+    """The template at `path` (Markdown with `string.Template` holes)."""
+    return string.Template(path.read_text())
+
+
+def holes(template: string.Template) -> set[str]:
+    """The named holes of `template`; a `$` that is neither a hole nor `$$` is an error."""
+    if not template.is_valid():
+        raise ValueError(
+            f"a stray '$' in the template (write '$$' for a dollar sign): {template.template[:80]!r}"
+        )
+    return set(template.get_identifiers())
+
+
+def fill(template: string.Template, values: Mapping[str, object] | None = None, /, **more: object) -> str:
+    """`template` with every hole filled from `values` and `more`; a hole without a value or a value without
+    a hole is an error (`KeyError` / `ValueError`), so a template and its filler cannot drift apart."""
+    given = {**(values or {}), **more}
+    wanted = holes(template)
+    missing, unused = wanted - given.keys(), given.keys() - wanted
+    if missing:
+        raise KeyError(f"template holes without a value: {', '.join(sorted(missing))}")
+    if unused:
+        raise ValueError(f"values without a hole in the template: {', '.join(sorted(unused))}")
+    return template.substitute({k: str(v) for k, v in given.items()})
