@@ -120,7 +120,7 @@ def _victim(tmp_path: Path) -> Path:
     return victim
 
 
-@pytest.mark.parametrize("how", ["name", "prefix"])
+@pytest.mark.parametrize("how", ["name", "absolute", "prefix"])
 def test_cec_zoo_export_keeps_every_write_inside_its_folder(how, saved_run, tmp_path):
     """A shared manifest naming `../victim` (or an absolute path), or `--prefix ../`: the folder outside
     `--out` was removed and replaced by a checkpoint. Now exit 2 before anything is loaded or written."""
