@@ -27,6 +27,7 @@ from pathlib import Path
 
 from cec.config import ConfigError, load_config
 from cec.envs.overcooked import EnvParams
+from cec.paths import safe_name
 
 MODES = ("turn_based", "real_time")
 AGENT_ACTIONS = ("greedy", "sampled")
@@ -315,6 +316,7 @@ class StudyConfig:
             raise ConfigError("the study has no `name` (1-64 letters, digits, '_' or '-'; records go there)")
         if not _NAME.match(self.name):
             raise ConfigError(f"study name {self.name!r} must be 1-64 letters, digits, '_' or '-'")
+        safe_name(self.name, "study name", fix="name the study with 1-64 letters, digits, '_' or '-'")
         if not self.levels:
             raise ConfigError("levels is empty: list at least one level spec (e.g. counter_circuit)")
         if not self.partners:

@@ -63,6 +63,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from cec.paths import safe_name
 from services.play.limits import json_depth
 from services.store import RedisClient, StoreConfig, StoreError, StoreKeyTypeError, StoreUnavailableError
 
@@ -554,7 +555,8 @@ def open_stores(
 ) -> list[EventStore]:
     """The stores a study's storage config names (files and/or Redis); `create`: make the folder."""
     stores: list[EventStore] = []
-    if directory:
+    if directory:  # the study's name is a folder of `directory`: one plain path component
+        safe_name(study, "study name", fix="name the study with 1-64 letters, digits, '_' or '-'")
         stores.append(FileStore(directory, study, create=create))
     if redis_url:
         stores.append(RedisStore(StoreConfig(url=redis_url, key_prefix=key_prefix), study))

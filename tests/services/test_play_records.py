@@ -385,3 +385,37 @@ def test_behaviour_cloning_records_quarantine_a_bad_line(tmp_path: Path) -> None
     store.path(PID).write_text(store.path(PID).read_text() + "[]\n")
     with pytest.raises(ConfigError, match="none of its 1 participant"):
         read_play_records(tmp_path / "s")
+
+
+@pytest.mark.parametrize("study", ["../victim", "absolute", "..", ".hidden", "nul"])
+def test_a_study_name_becomes_a_records_folder_only_through_safe_name(study, tmp_path):
+    """The records folder is `<storage.dir>/<study name>`: a name that would leave `storage.dir` (or one
+    no other system can copy) is refused before any folder is made (issue 63, item 1)."""
+    from cec.paths import UnsafeNameError
+    from services.play.recording import open_stores
+
+    root = tmp_path / "records"
+    root.mkdir()
+    study = str(tmp_path / "elsewhere") if study == "absolute" else study
+    with pytest.raises(UnsafeNameError, match=r"study name .* cannot be a file or folder name: .*letters"):
+        open_stores(study, str(root), "")
+    assert sorted(tmp_path.rglob("*")) == [root], "no folder was made"
+    assert [type(s).__name__ for s in open_stores("faults", str(root), "")] == ["FileStore"]
+
+
+def test_cec_play_refuses_a_study_name_that_is_no_folder_name(tmp_path: Path) -> None:
+    """`name: nul` passed the study's letters-and-digits check, and its records folder (a device name on
+    Windows) was made; now `cec play serve` and `export` refuse it at load, naming the fix, before any
+    folder is made (issue 63, item 1)."""
+    records = tmp_path / "records"
+    study = tmp_path / "study.yaml"
+    study.write_text(STUDY.replace("name: faults", "name: nul") + f"storage: {{dir: {records}}}\n")
+    out_dir = str(tmp_path / "out")
+    for command in (["serve", str(study), "--port", "0"], ["export", str(study), "--out", out_dir]):
+        cmd = [sys.executable, "-m", "apps.cli", "play", *command]
+        out = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr[-2000:]
+        cause = "study name 'nul' cannot be a file or folder name: 'nul' is a reserved device name"
+        assert cause in out.stderr
+        assert "name the study with 1-64 letters" in out.stderr
+    assert not records.exists() and not (tmp_path / "out").exists()
