@@ -146,6 +146,15 @@ def test_what_a_frozen_redis_refused_is_in_no_store_and_a_restart_replays_the_fi
     recorder.close()
 
 
+def _serve_args(tmp_path: Path, redis: LocalRedis) -> tuple[list[str], Path]:
+    """`cec play serve`'s arguments for the test study (`STUDY`) recorded under tmp_path/data and in
+    `redis`, and that data folder."""
+    study = tmp_path / "study.yaml"
+    study.write_text(STUDY)
+    data = tmp_path / "data"
+    return [str(study), "--port", "0", "--data", str(data), "--redis-url", redis.url], data
+
+
 def _restart_empty(server: LocalRedis) -> None:
     """Restarts `server` without its data (a Redis without persistence, or whose files were lost)."""
     server.stop()
@@ -176,10 +185,7 @@ def test_parse_event_refuses_what_is_not_an_event() -> None:
 def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_lines(
     tmp_path: Path, own_redis: LocalRedis
 ) -> None:
-    study = tmp_path / "study.yaml"
-    study.write_text(STUDY)
-    data = tmp_path / "data"
-    args = [str(study), "--port", "0", "--data", str(data), "--redis-url", own_redis.url]
+    args, data = _serve_args(tmp_path, own_redis)
     server = PlayServer(args, "faults")
     try:
         browser = _Browser(server.url)
@@ -228,7 +234,7 @@ def test_submit_answers_503_with_redis_down_and_a_restart_quarantines_corrupt_li
     assert red.events(pid) == files.events(pid) and [e["seq"] for e in red.events(pid)] == [0, 1, 2]
     red.close()
 
-    out = _cli("export", str(study), "--data", str(data), "--out", str(tmp_path / "out"))
+    out = _cli("export", args[0], "--data", str(data), "--out", str(tmp_path / "out"))
     assert out.returncode == 0, out.stderr
     assert "left out 3 quarantined record line(s)" in out.stdout
     assert f"{path}, line 3: not a JSON object but a list" in out.stdout
@@ -246,10 +252,7 @@ def test_a_submit_and_a_join_refused_while_redis_is_frozen_leave_nothing_and_a_r
     answers 503 leave no line and no participant file, and the join takes no counterbalancing index. What
     the frozen Redis applies when it thaws is replaced by the retry (the same `seq`) or, for the refused
     join, removed by the next server's replay, so both stores read back the same records."""
-    study = tmp_path / "study.yaml"
-    study.write_text(STUDY)
-    data = tmp_path / "data"
-    args = [str(study), "--port", "0", "--data", str(data), "--redis-url", own_redis.url]
+    args, data = _serve_args(tmp_path, own_redis)
     server = PlayServer(args, "faults")
     try:
         browser = _Browser(server.url)
@@ -291,10 +294,7 @@ def test_a_server_started_over_an_empty_redis_replays_the_records_into_it(
     """Redis restarted without its data between two runs of `cec play serve`: the second replays the records
     folder into it before anything new, so the participant's stream starts at its join (`seq` 0), not at the
     first event after the restart."""
-    study = tmp_path / "study.yaml"
-    study.write_text(STUDY)
-    data = tmp_path / "data"
-    args = [str(study), "--port", "0", "--data", str(data), "--redis-url", own_redis.url]
+    args, data = _serve_args(tmp_path, own_redis)
     server = PlayServer(args, "faults")
     try:
         browser = _Browser(server.url)
