@@ -143,6 +143,7 @@ def flops_and_bytes(trainer: Any) -> dict[str, float]:
         f32,
         seq(jnp.int32, c.history.shape[-1]),
         i32,
+        None,
         lstm,
     )
     grad = jax.jit(jax.value_and_grad(lambda p, b: ppo_loss(p, net, b, cfg.ppo)[0]))

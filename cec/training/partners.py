@@ -12,7 +12,9 @@
                the game's scripted policy (`Game.scripted`: Overcooked's cook, from the full state) with
                probability `scripted_share` for the other seat, else the learner's own policy; only the
                learner's seat trains. `scripted_yields` false makes the cook never give way (it walks
-               into the learner until the learner moves), so the learner meets someone it must go around
+               into the learner until the learner moves), so the learner meets someone it must go around;
+               `scripted_both_seats` trains both seats of the episodes without the cook (as self-play does)
+               and masks only the cook's seat, so self-play keeps its full data
 
 Seats and partners are redrawn where an episode starts (the LSTM resets there anyway), independently per
 env, from split keys; the partner's LSTM state lives in the partner seat's slot of the rollout carry.
@@ -63,6 +65,9 @@ class PartnerConfig:
         scripted_share: the `scripted` kind's share of episodes whose partner is the scripted policy.
         scripted_epsilon: the scripted partner's share of uniformly random actions.
         scripted_yields: the scripted partner gives way where its route and the learner's collide.
+        scripted_both_seats: the `scripted` kind trains both seats of the episodes the learner plays with
+            itself, and only the learner's seat of those with the cook (the cook's seat weighs 0 in the
+            loss); false: only the learner's seat trains in every episode.
     """
 
     kind: str = "self_play"
@@ -72,6 +77,7 @@ class PartnerConfig:
     scripted_share: float = 0.5
     scripted_epsilon: float = 0.1
     scripted_yields: bool = True
+    scripted_both_seats: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in PARTNER_KINDS:
@@ -96,7 +102,12 @@ class PartnerConfig:
     @property
     def learner_seat_only(self) -> bool:
         """Only the learner's own seat trains (the other seat's actions are not the learner's)."""
-        return self.kind != "self_play"
+        return self.kind != "self_play" and not self.masks_scripted_seat
+
+    @property
+    def masks_scripted_seat(self) -> bool:
+        """Both seats are in the batch and the cook's seat of its episodes weighs 0 in the loss."""
+        return self.kind == "scripted" and self.scripted_both_seats
 
 
 SELF_PLAY = PartnerConfig()

@@ -86,6 +86,7 @@ class Batch(NamedTuple):
     target: jax.Array
     history: jax.Array  # [T, N, K] the partner's recent actions each row's policy saw (K may be 0)
     partner_action: jax.Array  # [T, N] what the partner did at that step (the partner model's target)
+    weight: jax.Array | None  # [T, N] each step's weight in the loss (None: all 1, plain means)
     init_lstm: LSTMState
 
 
@@ -132,13 +133,19 @@ def gae(
 
 
 def make_batch(
-    traj: Trajectory, shaping_weight: jax.Array, gamma: float, lam: float, learner_seat_only: bool = False
+    traj: Trajectory,
+    shaping_weight: jax.Array,
+    gamma: float,
+    lam: float,
+    learner_seat_only: bool = False,
+    mask_scripted_seat: bool = False,
 ) -> Batch:
     """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening.
 
     With `learner_seat_only` (partner strategies) the batch holds only the learner's own seat of every env
     (N = E sequences; the seat may change only where an episode starts, where the LSTM resets); otherwise
-    both seats (N = 2E).
+    both seats (N = 2E). `mask_scripted_seat` (both seats) gives the other seat of the episodes a scripted
+    partner played (`partner_index` 1) weight 0: its actions were the script's, not the policy's.
     """
     t, e = traj.reward.shape
     reward = traj.reward[..., None] + shaping_weight * traj.shaped  # [T, E, 2]
@@ -165,6 +172,12 @@ def make_batch(
         first = jnp.repeat(traj.first, NUM_SEATS, axis=1)
         init_lstm = jax.tree.map(lambda x: x.reshape((e * NUM_SEATS, -1)), traj.init_lstm)
 
+    weight = None
+    if mask_scripted_seat:
+        scripted = (jnp.arange(NUM_SEATS) != traj.learner_seat[..., None]) & (
+            traj.partner_index[..., None] == 1
+        )
+        weight = rows(jnp.where(scripted, 0.0, 1.0))
     return Batch(
         obs=rows(traj.obs),
         first=first,
@@ -175,8 +188,19 @@ def make_batch(
         target=rows(target),
         history=rows(traj.history),
         partner_action=rows(partner_action),
+        weight=weight,
         init_lstm=init_lstm,
     )
+
+
+def _mean(x: jax.Array, weight: jax.Array | None, axis: str | None) -> jax.Array:
+    """The (weighted) mean of a minibatch quantity. Inside `shard_map` (`axis`) with weights it is this
+    device's weighted sum over the mean of the devices' weight sums, so that the devices' average is the
+    whole minibatch's weighted mean (as a plain `mean` of equal shares is)."""
+    if weight is None:
+        return x.mean()
+    total = weight.sum() if axis is None else jax.lax.pmean(weight.sum(), axis)
+    return (weight * x).sum() / jnp.maximum(total, 1.0)
 
 
 def ppo_loss(
@@ -191,42 +215,50 @@ def ppo_loss(
     Returns:
         (total loss, (policy loss, value loss, entropy, approx KL, clip fraction, partner-model loss)).
     """
+    w = batch.weight
     partner_loss = jnp.float32(0.0)
     if network.config.partner_history:  # E3T: + the partner model's cross-entropy on the partner's action
         _, logits, value, partner_logits = forward_partner(
             network, params, batch.init_lstm, batch.obs, batch.first, batch.history
         )
         predicted = jax.nn.log_softmax(partner_logits)
-        partner_loss = -jnp.take_along_axis(predicted, batch.partner_action[..., None], axis=-1).mean()
+        partner_loss = -_mean(
+            jnp.take_along_axis(predicted, batch.partner_action[..., None], axis=-1), w, axis
+        )
     else:
         _, logits, value = forward(network, params, batch.init_lstm, batch.obs, batch.first)
     log_probs = jax.nn.log_softmax(logits)
     log_prob = jnp.take_along_axis(log_probs, batch.action[..., None], axis=-1)[..., 0]
-    entropy = -jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1).mean()
+    entropy = _mean(-jnp.sum(jnp.exp(log_probs) * log_probs, axis=-1), w, axis)
 
     # VALUE LOSS, optionally clipped around the behaviour value.
     value_loss = jnp.square(value - batch.target)
     if config.clip_value:
         clipped = batch.value + jnp.clip(value - batch.value, -config.clip_eps, config.clip_eps)
         value_loss = jnp.maximum(value_loss, jnp.square(clipped - batch.target))
-    value_loss = 0.5 * value_loss.mean()
+    value_loss = 0.5 * _mean(value_loss, w, axis)
 
     # POLICY LOSS.
     log_ratio = log_prob - batch.log_prob
     ratio = jnp.exp(log_ratio)
-    if axis is None:
+    if w is None and axis is None:
         adv = (batch.advantage - batch.advantage.mean()) / (batch.advantage.std() + 1e-8)
-    else:  # the whole minibatch's statistics, from every device's share
-        adv_mean = jax.lax.pmean(batch.advantage.mean(), axis)
-        adv_std = jnp.sqrt(jax.lax.pmean(jnp.square(batch.advantage - adv_mean).mean(), axis))
+    else:  # the whole minibatch's (weighted) statistics, from every device's share
+
+        def stat(x: jax.Array) -> jax.Array:
+            m = _mean(x, w, axis)
+            return m if axis is None else jax.lax.pmean(m, axis)
+
+        adv_mean = stat(batch.advantage)
+        adv_std = jnp.sqrt(stat(jnp.square(batch.advantage - adv_mean)))
         adv = (batch.advantage - adv_mean) / (adv_std + 1e-8)
     surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - config.clip_eps, 1.0 + config.clip_eps) * adv)
-    policy_loss = -surrogate.mean()
+    policy_loss = -_mean(surrogate, w, axis)
 
     total = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
     total = total + config.partner_coef * partner_loss
-    approx_kl = ((ratio - 1.0) - log_ratio).mean()
-    clip_fraction = (jnp.abs(ratio - 1.0) > config.clip_eps).mean()
+    approx_kl = _mean((ratio - 1.0) - log_ratio, w, axis)
+    clip_fraction = _mean(jnp.abs(ratio - 1.0) > config.clip_eps, w, axis)
     return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction, partner_loss)
 
 

@@ -37,7 +37,8 @@ class RolloutCarry(NamedTuple):
         episode_shaped: float32[E] shaped return (both seats summed, unscaled) of the running episodes.
         learner_seat: int32[E] the learner's seat in the running episodes (partner strategies; 0 in
             self-play, where both seats are the learner's).
-        partner_index: int32[E] the population partner of the running episodes (FCP; else 0).
+        partner_index: int32[E] the partner of the running episodes (FCP's population index; the `scripted`
+            kind's 1 where the cook plays; else 0).
         history: int32[E, 2, K] each seat's view of its partner's last K actions (-1: none yet this
             episode), the input of E3T's partner model (K = `partner_history` of the network, may be 0).
         env_id: int32[E] each env's index in the whole batch. Every random draw of an env at a step comes
@@ -73,6 +74,8 @@ class Trajectory(NamedTuple):
         episode_return: float32[T, E] the finished episode's team return where `done`, else 0.
         episode_shaped: float32[T, E] the finished episode's shaped return where `done`, else 0.
         learner_seat: int32[T, E] the learner's seat at each step (what trains when only it does).
+        partner_index: int32[T, E] the running episode's partner (FCP's population index; the `scripted`
+            kind's 1 where the cook plays the other seat; 0 otherwise).
         history: int32[T, E, 2, K] the partner-action history each seat's policy saw.
         init_lstm: `LSTMState` [E, 2, H], the carry before the first step (for replay in the update).
         last_value: float32[E, 2] critic value of the observation after the last step (bootstrap).
@@ -93,6 +96,7 @@ class Trajectory(NamedTuple):
     episode_return: jax.Array
     episode_shaped: jax.Array
     learner_seat: jax.Array
+    partner_index: jax.Array
     history: jax.Array
     init_lstm: LSTMState
     last_value: jax.Array
@@ -258,6 +262,7 @@ def rollout(
             episode_return=jnp.where(out.done, ep_return, 0.0),
             episode_shaped=jnp.where(out.done, ep_shaped, 0.0),
             learner_seat=seat,
+            partner_index=index,
             history=c.history,
         )
         zero = jnp.zeros_like(ep_return)

@@ -175,7 +175,14 @@ class Trainer:
         """The PPO update on one trajectory of a seed's envs (the trainer's and the Ray learner's)."""
         cfg = self.config
         weight = self.shaping_weight(update_index)
-        batch = make_batch(traj, weight, cfg.ppo.gamma, cfg.ppo.gae_lambda, cfg.partner.learner_seat_only)
+        batch = make_batch(
+            traj,
+            weight,
+            cfg.ppo.gamma,
+            cfg.ppo.gae_lambda,
+            cfg.partner.learner_seat_only,
+            cfg.partner.masks_scripted_seat,
+        )
         lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(
             params, opt_state, batch, k_update, network=self.network, optimizer=self.optimizer,

@@ -29,7 +29,7 @@ BASE = ["num_envs=8", "num_steps=16", "ppo.num_minibatches=2", "num_seeds=2", "t
 CHILD = textwrap.dedent(
     """
     import io, json, sys
-    import jax, numpy as np
+    import jax, jax.numpy as jnp, numpy as np, optax
     from cec.config import ConfigError, load_config
     from cec.training.config import TrainConfig
     from cec.training.run import train
@@ -43,6 +43,28 @@ CHILD = textwrap.dedent(
     def largest_difference(a, b):
         diffs = jax.tree.map(lambda x, y: float(np.max(np.abs(np.asarray(x) - np.asarray(y)))), a, b)
         return max(jax.tree.leaves(diffs))
+    def weighted_update_difference(t):
+        # one update of a random batch whose steps weigh 0 or 1 (the scripted cook's seat's mask) on 4
+        # devices and on one: the parameters' largest difference, and how far the weights moved them
+        from cec.training.ppo import Batch, update
+        p0 = jax.tree.map(lambda x: x[0], t.init())
+        rng, (steps, n) = np.random.default_rng(0), (16, 16)
+        draw = lambda dtype, high, *shape: jnp.asarray(rng.integers(0, high, (steps, n, *shape)), dtype)
+        normal = lambda: jnp.asarray(rng.standard_normal((steps, n)), jnp.float32)
+        batch = Batch(
+            jnp.asarray(rng.standard_normal((steps, n, *t.task.obs_shape)), p0.carry.obs.dtype),
+            jnp.zeros((steps, n), bool).at[0].set(True), draw(jnp.int32, 6), normal() - 1.8, normal(),
+            normal(), normal(), draw(jnp.int32, 1, 0), draw(jnp.int32, 6), draw(jnp.float32, 2),
+            jax.tree.map(lambda x: jnp.zeros((n, x.shape[-1]), x.dtype), p0.carry.lstm),
+        )
+        sgd = optax.sgd(1e-3)  # not Adam: its step would hide a wrong scale and magnify rounding
+        def step(b, mesh):
+            return update(p0.params, sgd.init(p0.params), b, jax.random.PRNGKey(0), network=t.network,
+                          optimizer=sgd, config=t.config.ppo, mesh=mesh)[0]
+        one = step(batch, None)
+        return [largest_difference(one, step(batch, t.mesh)),
+                largest_difference(one, step(batch._replace(weight=None), None))]
+
     one, four = run("one", 1), run("four", 4)
     run("moved", 4, max_updates=1)  # interrupted after one update on 4 devices, resumed on one
     resumed = run("moved", 1, resume=True)
@@ -51,8 +73,10 @@ CHILD = textwrap.dedent(
         refused = ""
     except ConfigError as err:
         refused = str(err)
+    weighted = weighted_update_difference(Trainer(config("devices=4")))
     print(json.dumps({
         "devices": len(jax.local_devices()), "sharding": str(four.state.carry.obs.sharding.spec),
+        "weighted": weighted,
         "params_four": largest_difference(one.state.params, four.state.params),
         "params_moved": largest_difference(one.state.params, resumed.state.params), "refused": refused,
     }))
@@ -75,6 +99,8 @@ def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devic
     result = json.loads(proc.stdout.strip().splitlines()[-1])
     assert result["devices"] == 4 and result["sharding"] == "P(None, 'envs')"
     assert result["params_four"] < 1e-5 and result["params_moved"] < 1e-5, result
+    # steps weighted 0 (the scripted partner's seat) are left out alike on 4 devices and on one
+    assert result["weighted"][0] < 1e-6 and result["weighted"][1] > 1e-5, result
     assert "each minibatch's 2 sequences must split evenly over the 4 devices" in result["refused"]
     rows = {n: [json.loads(x) for x in (tmp_path / n / "metrics.jsonl").read_text().splitlines()] for n in
             ("one", "four", "moved")}  # fmt: skip

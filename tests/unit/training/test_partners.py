@@ -214,6 +214,40 @@ def test_scripted_partner_share_zero_is_self_play_and_share_half_draws_per_episo
     assert 0.3 < scripted_episodes.mean() < 0.7
 
 
+def test_scripted_both_seats_trains_self_play_episodes_whole_and_masks_only_the_cooks_seat(tmp_path):
+    trainer = Trainer(_scripted_config(tmp_path, scripted_share=0.5, scripted_both_seats=True))
+    assert trainer.config.sequences == 2 * NUM_ENVS  # both seats are in the batch
+    state, traj = _rollout(trainer)
+    batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, mask_scripted_seat=True)
+    seat, cook = np.asarray(traj.learner_seat), np.asarray(traj.partner_index) == 1  # [T, E]
+    assert 0.2 < cook.mean() < 0.8
+    expected = np.ones((NUM_STEPS, NUM_ENVS, 2))
+    expected[cook, 1 - seat[cook]] = 0.0  # the cook's seat in its episodes; every other step weighs 1
+    np.testing.assert_array_equal(batch.weight, expected.reshape((NUM_STEPS, 2 * NUM_ENVS)))
+    # what the cook's seat did moves neither the loss nor its gradient; the learner's steps do
+    grad = jax.grad(lambda p, b: ppo_loss(p, trainer.network, b, PPOConfig())[0])
+
+    noise = jax.random.normal(jax.random.PRNGKey(3), batch.advantage.shape)
+
+    def shifted(where):  # other advantages on those steps (not a constant: normalising removes that)
+        return batch._replace(advantage=jnp.where(where, batch.advantage + 3.0 * noise, batch.advantage))
+
+    g = grad(state.params, batch)
+    same = grad(state.params, shifted(batch.weight == 0))
+    moved = grad(state.params, shifted(batch.weight == 1))
+    assert all(
+        np.allclose(a, b, atol=1e-6) for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(same), strict=True)
+    )
+    assert not all(
+        np.allclose(a, b, atol=1e-6) for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(moved), strict=True)
+    )
+    # weights of 1 everywhere are the plain (unweighted) loss
+    ones = batch._replace(weight=jnp.ones_like(batch.weight))
+    plain = batch._replace(weight=None)
+    a, b = (ppo_loss(state.params, trainer.network, x, PPOConfig())[1] for x in (ones, plain))
+    np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+
+
 def test_a_game_without_a_script_refuses_the_scripted_partner(tmp_path):
     with pytest.raises(ConfigError, match="dual_destination has none"):
         _config(
