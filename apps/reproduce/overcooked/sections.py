@@ -8,11 +8,12 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import yaml
 
+from apps.machine import duration
 from apps.reproduce.overcooked.evaluate import level_spec
 from apps.reproduce.overcooked.modes import (
     ALGORITHMS,
@@ -253,38 +254,90 @@ def _episode_steps(runs: Path, algo: str, kitchens: Sequence[str]) -> str:
     return "/".join(str(s) for s in sorted(steps)) or "—"
 
 
-def plateau_lines(mode: Mode, runs: Path) -> list[str]:
-    """Whether each single-kitchen algorithm's training had levelled off: its team return per training
-    episode over the last 10 updates, and how much it rose over the last quarter of the run (the mean over
-    seeds; `metrics.csv` of its runs under `runs`)."""
+#: A single-kitchen group levelled off when its training return rose by at most this share of its final
+#: value over the last quarter of its run (issue 60's criterion; a return flat at 0 counts as levelled).
+PLATEAU_SHARE = 0.05
+
+
+class _Plateau(NamedTuple):
+    """One single-kitchen group's end of training (means over its seeds)."""
+
+    last: float  # team return per training episode, the last 10 updates
+    rise: float  # its rise over the last quarter of the run
+    env_steps: int  # env steps per seed at its last update
+    seeds: int
+    seconds_per_seed: float  # training time per seed its metrics record (`pipeline.train_seconds`)
+
+    @property
+    def levelled(self) -> bool:
+        return self.rise <= PLATEAU_SHARE * abs(self.last)
+
+
+def _plateau(runs: Path, algo: str, kitchen: str) -> _Plateau | None:
+    """`algo`'s group on `kitchen` from its runs' metrics under `runs`; None without 4 updates."""
+    from apps.reproduce.pipeline import read_metrics, train_seconds
     from cec.evaluation.curves import trailing_mean
 
+    smooth = [trailing_mean(v, 10) for v in _curves(runs, algo, kitchen, "mean_return") if len(v) >= 4]
+    if not smooth:
+        return None
+    last, earlier = np.mean([(m[-1], m[(3 * len(m)) // 4 - 1]) for m in smooth], axis=0)
+    rows = [read_metrics(r) for r in _kitchen_runs(runs, algo, kitchen)]
+    seeds = sum(len({r["seed"] for r in rr}) for rr in rows)
+    steps = max((int(r["env_steps"]) for rr in rows for r in rr), default=0)
+    seconds = sum(train_seconds(rr) for rr in rows) / max(seeds, 1)
+    return _Plateau(float(last), float(last - earlier), steps, seeds, seconds)
+
+
+def plateau_lines(mode: Mode, runs: Path) -> list[str]:
+    """Whether each single-kitchen algorithm's training had levelled off: its team return per training
+    episode over the last 10 updates, how much it rose over the last quarter of the run (the mean over
+    seeds; `metrics.csv` of its runs under `runs`) and the verdict by `PLATEAU_SHARE`; then a line per
+    group that had not, with where it stopped and what another quarter of its training costs."""
     algos = [a for a in ALGORITHMS if a not in GENERALISTS]
-    cells = {}
-    for algo in algos:
-        for k in mode.kitchens:
-            smooth = [trailing_mean(v, 10) for v in _curves(runs, algo, k, "mean_return") if len(v) >= 4]
-            ends = [(m[-1], m[(3 * len(m)) // 4 - 1]) for m in smooth]
-            if ends:
-                last, earlier = np.mean(ends, axis=0)
-                cells[algo, k] = f"{last:.1f} ({last - earlier:+.1f})"
-    if not cells:
+    groups = {(a, k): g for a in algos for k in mode.kitchens if (g := _plateau(runs, a, k)) is not None}
+    if not groups:
         return []
+    rising = [(a, k, g) for (a, k), g in groups.items() if not g.levelled]
+
+    def cell(a: str, k: str) -> str:
+        g = groups.get((a, k))
+        return "—" if g is None else f"{g.last:.1f} ({g.rise:+.1f}) {'yes' if g.levelled else 'no'}"
+
+    verdict = f"{len(groups) - len(rising)} of {len(groups)} groups levelled off."
+    if rising:
+        quarter = sum(g.seconds_per_seed / 4 * g.seeds for _, _, g in rising)
+        verdict += (
+            " The others stopped, still rising, at the env steps their mode gives a single-kitchen run "
+            "(`steps` in `apps/reproduce/overcooked/modes.py`); none was trained on to a plateau. Another "
+            f"quarter of training for all of them, every seed, costs about {duration(quarter)} of the machine"
+            " that trained them:"
+        )
     return [
         "## Single-kitchen training: levelled off?",
         "",
         "Team return per training episode (of the steps given; its run's `config.yaml`) with its training "
         "partners over the last 10 updates and, in brackets, its rise over the last quarter of the run (the "
         "mean over seeds): a rise that is large beside the return means the run stopped before its "
-        "self-play levelled off.",
+        f"self-play levelled off. Levelled off (yes) when the rise is at most {PLATEAU_SHARE:.0%} of the "
+        "return.",
         "",
         "| algorithm | training episode (steps) | " + " | ".join(mode.kitchens) + " |",
         "|---" * (len(mode.kitchens) + 2) + "|",
         *(
             f"| {TITLES[a]} | {_episode_steps(runs, a, mode.kitchens)} | "
-            + " | ".join(cells.get((a, k), "—") for k in mode.kitchens)
+            + " | ".join(cell(a, k) for k in mode.kitchens)
             + " |"
             for a in algos
+        ),
+        "",
+        verdict,
+        *([""] if rising else []),
+        *(
+            f"- {TITLES[a]}, {k}: +{g.rise:.1f} over the last quarter, {g.rise / abs(g.last):.0%} of its "
+            f"{g.last:.1f}, at {g.env_steps:,} env steps per seed; another quarter costs "
+            f"{g.seconds_per_seed / 4 / 60:.1f} min per seed"
+            for a, k, g in rising
         ),
         "",
     ]

@@ -265,9 +265,16 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
         mode, runs
     )  # each algorithm's training episode as its runs recorded it
     assert (
-        "| IPPO | 128 | 15.5 (+5.0) | 30.0 (+0.0) |" in plateau
-        and "| FCP | 400 | 24.0 (+0.0) | — |" in plateau
-    )
+        "| IPPO | 128 | 15.5 (+5.0) no | 30.0 (+0.0) yes |" in plateau
+        and "| FCP | 400 | 24.0 (+0.0) yes | — |" in plateau
+    )  # levelled off: a rise of at most 5% of the return over the last quarter
+    # every group that had not, with how far it was still rising and where it stopped
+    assert "3 of 4 groups levelled off. The others stopped, still rising" in "\n".join(plateau)
+    rising = [line for line in plateau if line.startswith("- ")]
+    assert rising == [
+        "- IPPO, cramped_room: +5.0 over the last quarter, 32% of its 15.5, at 2,000 env steps per seed; "
+        "another quarter costs 0.0 min per seed"
+    ]
 
 
 @pytest.mark.slow
