@@ -50,6 +50,12 @@ def _p(p: float) -> str:
     return "—" if math.isnan(p) else f"{p:.2g}"
 
 
+def rank_order(mass: np.ndarray, labels: Sequence[str]) -> list[int]:
+    """Indices by stationary mass as the report prints it (3 decimals), ties by label: masses that print
+    alike (0.000) differ only by solver noise, and their order must not change from one run to the next."""
+    return sorted(range(len(mass)), key=lambda i: (-round(float(mass[i]), 3), labels[i]))
+
+
 def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
     lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
@@ -445,7 +451,7 @@ class _Report:
         if ar.pi is None:
             self.md.append(f"Alpha-rank: {ar.note}.\n")
         else:
-            order = np.argsort(-ar.pi)
+            order = rank_order(ar.pi, m.labels)
             self.md.append(f"Alpha-rank ({ar.note}; payoffs scaled to [0, 1]):\n")
             self.md.append(
                 _table(

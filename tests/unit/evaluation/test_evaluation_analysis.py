@@ -12,7 +12,7 @@ from scipy import stats as sps
 
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
-from cec.evaluation.report import write_report
+from cec.evaluation.report import rank_order, write_report
 from cec.evaluation.results import ResultsError, SkippedEntry, make_table, read_csv, stored, write_csv
 from cec.evaluation.stats import (
     bootstrap_diff_ci,
@@ -433,3 +433,11 @@ def test_the_same_seeds_trained_on_are_compared_paired_so_what_each_seed_brings_
     assert compare_crossplay_paired(before + (noise + noise.T) / 2, before).p > 0.05
     with pytest.raises(ValueError, match="differ in shape"):
         compare_crossplay_paired(after, before[:4, :4])
+
+
+def test_alpha_rank_rows_tied_as_printed_keep_one_order():
+    """Masses that print alike (0.000, or 0.500 twice) are ordered by name, whatever the solver's noise."""
+    labels = ["d", "b", "a", "c"]
+    assert rank_order(np.array([1e-12, 0.5, 3e-13, 0.5 - 1e-12]), labels) == [1, 3, 2, 0]
+    assert rank_order(np.array([3e-13, 0.5 - 1e-12, 1e-12, 0.5]), labels) == [1, 3, 2, 0]
+    assert rank_order(np.array([0.2, 0.3, 0.1, 0.4]), labels) == [3, 1, 0, 2]
