@@ -25,6 +25,7 @@ from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
 from services.entry import Service, override_arguments
 from services.play.config import AGENT_ACTIONS, MODES, StudyConfig, load_study
+from services.ports import check_port
 from services.progress import Heartbeat
 from services.store import StoreError  # needs redis: without it `cec X` names the package
 
@@ -232,6 +233,7 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
 
 
 def _cmd_serve(args: argparse.Namespace) -> int:
+    check_port("--port", args.port)  # 70000 would reach the socket as an OverflowError, after the loading
     free = args.partner or args.checkpoint or args.zoo or args.random_init
     if args.study and free:
         raise ConfigError(

@@ -32,6 +32,15 @@ def test_a_busy_port_is_refused_before_the_partners_load(tmp_path: Path) -> None
 
     from tests.play_server import ROOT
 
+    # a port that is no TCP port: refused by name before anything loads (was an OverflowError traceback)
+    cmd = [sys.executable, "-m", "apps.cli", "play", "serve", "--partner", "cec", "--port", "70000"]
+    proc = subprocess.run(
+        cmd + ["--data", str(tmp_path)], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert proc.returncode == 2 and "--port must be a TCP port in 1..65535" in proc.stderr, proc.stderr[
+        -2000:
+    ]
+    assert "policies loaded" not in proc.stderr and "Traceback" not in proc.stderr
     with socket.socket() as held:
         held.bind(("127.0.0.1", 0))
         held.listen()
