@@ -1,20 +1,20 @@
-"""The host loop of a training run: its directory (lock, config, resume), metrics rows and files,
-checkpoints when due, progress lines and the graceful stop; `train` runs a `Trainer` through it, and the
-distributed learner reuses `RunFiles`, `Progress` and `metrics_rows`.
+"""A training run's directory (lock, config, resume, metrics files, checkpoints: `RunFiles`, shared with the
+distributed learner) and `train`, the single-process run: the trainer's compiled calls through the update
+loop of `cec.training.loop`, stopped gracefully on SIGINT/SIGTERM.
 
     cec train --config configs/train/cramped_room_ci.yaml     # = train(load_config(...))
 """
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import dataclasses
 import json
-import math
 import sys
-import time
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Any, NamedTuple, TextIO
+from typing import NamedTuple, TextIO
 
 import jax
 import yaml
@@ -22,12 +22,12 @@ import yaml
 from cec import checkpoints
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig, split_paths
-from cec.training.ppo import LossInfo
+from cec.training.loop import UpdateSource, run_updates
 from cec.training.tracking import Tracker, describe
 from cec.training.trainer import Trainer, TrainState, UpdateMetrics
 
 # ---------------------------------------------------------------------------------------------------------
-# HOST LOOP: run directory, metrics files, checkpoints, progress, signals
+# RUN DIRECTORY: config, metrics files, checkpoints, resume; and the single-process run
 # ---------------------------------------------------------------------------------------------------------
 
 
@@ -77,40 +77,6 @@ def config_dict(config: TrainConfig) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(config)))
 
 
-def metrics_rows(config: TrainConfig, first_update: int, metrics: UpdateMetrics, sps: float) -> list[dict]:
-    """One row per (update, seed) from metrics with leading axes [S, n]."""
-    host = jax.device_get(metrics)
-    loss = host.loss
-    rows = []
-    s_count, n = host.episodes.shape
-    for j in range(n):
-        upd = first_update + j + 1
-        for s in range(s_count):
-            row: dict[str, Any] = {
-                "update": upd,
-                "env_steps": upd * config.steps_per_update,
-                "seed": config.seed + s,
-                "episodes": int(host.episodes[s, j]),
-                "mean_return": _num(host.mean_return[s, j]),
-                "mean_shaped_return": _num(host.mean_shaped_return[s, j]),
-                "collisions_per_episode": _num(host.collisions_per_episode[s, j]),
-                "shaping_weight": _num(host.shaping_weight[s, j]),
-                "learning_rate": _num(host.learning_rate[s, j]),
-                **{name: _num(getattr(loss, name)[s, j]) for name in LossInfo._fields},
-                "env_steps_per_s": round(sps, 1),
-            }
-            if config.env.game.normalised_score:  # always a column, so the CSV header has it
-                ret = row["mean_return"]
-                row["normalised_return"] = None if ret is None else ret / (2 * config.env.params.max_steps)
-            rows.append(row)
-    return rows
-
-
-def _num(x: Any) -> float | None:
-    v = float(x)
-    return None if math.isnan(v) else v
-
-
 class MetricsWriter:
     """Appends metrics rows to `metrics.jsonl` and `metrics.csv` in the run directory."""
 
@@ -147,38 +113,6 @@ class MetricsWriter:
                 writer.writerows(kept)
 
 
-class Progress:
-    """One status line per call: updates, env steps, steps/s, mean return, ETA (to stderr)."""
-
-    def __init__(self, total_updates: int, steps_per_update: int, stream: TextIO = sys.stderr) -> None:
-        self.total = total_updates
-        self.spu = steps_per_update
-        self.stream = stream
-
-    def show(self, done: int, sps: float, mean_return: float | None, eta_s: float) -> None:
-        ret = "n/a" if mean_return is None else f"{mean_return:.2f}"
-        line = (
-            f"update {done}/{self.total} ({100 * done / self.total:5.1f}%) | "
-            f"{_si(done * self.spu)}/{_si(self.total * self.spu)} steps | {_si(sps)} steps/s | "
-            f"return {ret} | ETA {_duration(eta_s)}"
-        )
-        print(line, file=self.stream, flush=True)
-
-
-def _si(x: float) -> str:
-    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
-        if abs(x) >= scale:
-            return f"{x / scale:.2f}{unit}"
-    return f"{x:.0f}"
-
-
-def _duration(seconds: float) -> str:
-    if not math.isfinite(seconds):
-        return "?"
-    s = int(seconds)
-    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
-
-
 #: A distributed run's launcher (`cec up`, `cec train --distributed`) records here the command that continues
 #: the run; a run without it is a `cec train` run (`resume_command`).
 RESUME_FILE = "logs/resume_command"
@@ -210,7 +144,8 @@ class RunFiles:
     checks the directory (a run with checkpoints continues only with `resume`), loads the latest checkpoint
     into the trainer's state template (refusing one written with another config), trims metrics rows
     written after it, and returns the state and update count to continue from (None, 0: a new run).
-    `tracker` opens the run's TensorBoard/W&B writer; `close` drops the lock.
+    `tracker` opens the run's TensorBoard/W&B writer; `close` drops the lock. `opened` is all three as one
+    context (what `train` and the learner use).
     """
 
     def __init__(self, config: TrainConfig) -> None:
@@ -241,6 +176,22 @@ class RunFiles:
 
     def close(self) -> None:
         self.lock.release()
+
+    @contextlib.contextmanager
+    def opened(
+        self, template: TrainState, resume: bool, log: TextIO
+    ) -> Iterator[tuple[TrainState | None, int, Tracker]]:
+        """`open` and the run's `tracker` after the update it continues from, both closed on leaving:
+        (the state to continue from, its update, the tracker)."""
+        loaded, done = self.open(template, resume, log)
+        try:
+            tracker = self.tracker(done)
+            try:
+                yield loaded, done, tracker
+            finally:
+                tracker.close()
+        finally:
+            self.close()
 
     def _open(self, template: TrainState, resume: bool, log: TextIO) -> tuple[TrainState | None, int]:
         if self.store.directories() and not resume:
@@ -314,71 +265,36 @@ def train(
     trainer = Trainer(config)
     trainer.load_partners()  # a bad population stops the run here, before any work
     files = RunFiles(config)
-    loaded, done = files.open(trainer.state_template(), resume, log)
-    tracker = None
-    try:
-        tracker = files.tracker(done)
+    with files.opened(trainer.state_template(), resume, log) as (loaded, done, tracker):
         for line in describe(files.run_dir, config.tracking):
             print(line, file=log, flush=True)
-        return _train_loop(trainer, files, tracker, loaded, done, max_updates, progress, log)
-    finally:
-        if tracker is not None:
-            tracker.close()
-        files.close()
+        state = trainer.init() if loaded is None else trainer.place(loaded)
+        source = _InProcess(trainer, state, progress, log)
+        with GracefulStop("finishing the current call, then saving a checkpoint") as flag:
+            outcome = run_updates(
+                source, files, tracker, done, max_updates=max_updates, stop=lambda: flag.stop,
+                progress=progress, resume_hint=f"cec train --resume {files.run_dir}", log=log,
+            )  # fmt: skip
+    return RunResult(source.state(), files.run_dir, outcome.done, interrupted=outcome.stopped)
 
 
-def _train_loop(
-    trainer: Trainer,
-    files: RunFiles,
-    tracker: Tracker,
-    loaded: TrainState | None,
-    done: int,
-    max_updates: int | None,
-    progress: bool,
-    log: TextIO,
-) -> RunResult:
-    config = files.config
-    run_dir, writer = files.run_dir, files.writer
-    state = trainer.init() if loaded is None else trainer.place(loaded)
-    total = config.num_updates
-    stop_at = total if max_updates is None else min(total, done + max_updates)
-    per_call = config.updates_per_call
-    meter = Progress(total, config.steps_per_update * config.num_seeds, log)
-    if done == 0 and 0 in files.milestones:
-        files.save(state, 0, milestone=True)
-    interrupted = False
-    with GracefulStop("finishing the current call, then saving a checkpoint") as flag:
-        while done < stop_at:
-            n = min(per_call, stop_at - done)
-            if progress and n not in trainer._calls:
-                print(f"compiling the training call ({n} update(s) per call)...", file=log, flush=True)
-            call = trainer.train_call(n)
-            t0 = time.perf_counter()
-            state, metrics = call(state)
-            jax.block_until_ready(state)
-            dt = time.perf_counter() - t0
-            sps = n * config.steps_per_update * config.num_seeds / dt
-            rows = metrics_rows(config, done, metrics, sps)
-            writer.write(rows)
-            tracker.log_rows(rows)
-            prev, done = done, done + n
-            if progress:
-                returns = [
-                    r["mean_return"] for r in rows[-config.num_seeds :] if r["mean_return"] is not None
-                ]
-                meter.show(
-                    done, sps, sum(returns) / len(returns) if returns else None, (total - done) * dt / n
-                )
-            due, crossed = files.due(prev, done)
-            interrupted = flag.stop
-            if due or done == stop_at or interrupted:
-                files.save(state, done, milestone=crossed)
-            if interrupted:
-                print(
-                    f"interrupted at update {done}; checkpoint saved. Continue with: "
-                    f"cec train --resume {run_dir}",
-                    file=log,
-                    flush=True,
-                )
-                break
-    return RunResult(state, run_dir, done, interrupted)
+class _InProcess(UpdateSource):
+    """`cec train`'s updates: the trainer's compiled calls, each `updates_per_call` updates of every seed,
+    rollouts included, in this process."""
+
+    def __init__(self, trainer: Trainer, state: TrainState, progress: bool, log: TextIO) -> None:
+        self.trainer = trainer
+        self.train_state = state
+        self.updates_per_step = trainer.config.updates_per_call
+        self.progress = progress
+        self.log = log
+
+    def step(self, done: int, n: int) -> UpdateMetrics:
+        if self.progress and n not in self.trainer._calls:
+            print(f"compiling the training call ({n} update(s) per call)...", file=self.log, flush=True)
+        self.train_state, metrics = self.trainer.train_call(n)(self.train_state)
+        jax.block_until_ready(self.train_state)
+        return metrics
+
+    def state(self) -> TrainState:
+        return self.train_state

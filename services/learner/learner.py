@@ -17,9 +17,13 @@ counters. Each update:
 
 The update is the single-process trainer's own `Trainer.learn`, keys come from the same per-update split
 (`Trainer.update_keys`), and the checkpoint is the trainer's `TrainState` with one seed, so a `sync` run
-reproduces `cec train` and either can resume the other's checkpoints. With `devices` > 1 the update is
-data-parallel over the learner's devices (the trainer's mesh: each minibatch split over them, gradients
-averaged); each actor plays its slice on one device.
+reproduces `cec train` and either can resume the other's checkpoints. The loop around the updates (metrics
+rows, progress line, checkpoints when due, the stop) is `cec train`'s too, `cec.training.loop.run_updates`:
+the learner is its `UpdateSource`, one update a step, and adds the distributed part (the actors' carries
+in each checkpoint, Prometheus metrics, Redis events).
+
+With `devices` > 1 the update is data-parallel over the learner's devices (the trainer's mesh: each
+minibatch split over them, gradients averaged); each actor plays its slice on one device.
 
 Every update's metrics row (`metrics.jsonl`, `metrics.csv`, and the TensorBoard events of
 `cec.training.tracking`) holds the trainer's columns plus the learner's own (`DISTRIBUTED_COLUMNS`): the
@@ -43,6 +47,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import jax
@@ -51,10 +56,11 @@ import numpy as np
 
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
 from cec.training.config import TrainConfig
+from cec.training.loop import UpdateSource, run_updates
 from cec.training.ppo import LossInfo
 from cec.training.rollout import RolloutCarry
-from cec.training.run import Progress, RunFiles, metrics_rows
-from cec.training.trainer import Trainer, TrainState
+from cec.training.run import RunFiles
+from cec.training.trainer import Trainer, TrainState, UpdateMetrics
 from services import metrics as M  # noqa: N812 - the metric objects, read as M.NAME
 from services.actors.actor import decode_batch
 from services.learner.config import DistributedConfig
@@ -124,7 +130,7 @@ class _Slot:
     submitted: int = 0  # async: rollouts submitted (for its keys)
 
 
-class Learner:
+class Learner(UpdateSource):
     """See the module docstring."""
 
     def __init__(
@@ -201,87 +207,84 @@ class Learner:
         """Trains to the end of the run (or `max_updates` more updates, or `stop()`); returns a summary.
 
         `restarts`: how often the driver restarted this learner (exported as a metric)."""
-        out = sys.stderr
-        cfg = self.config
-        cfg.tracking.check()
-        loaded, done = self.files.open(self.trainer.state_template(), resume, out)
-        M.LEARNER_RESTARTS.set(restarts)
-        state = self.trainer.init() if loaded is None else loaded
-        one = jax.tree.map(lambda x: x[0], state)  # the run's one seed
-        try:
-            tracker = self.files.tracker(done)
-        except BaseException:
-            self.files.close()
-            raise
-        try:
+        self.config.tracking.check()
+        with self.files.opened(self.trainer.state_template(), resume, sys.stderr) as (loaded, done, tracker):
+            M.LEARNER_RESTARTS.set(restarts)
+            state = self.trainer.init() if loaded is None else loaded
+            one = jax.tree.map(lambda x: x[0], state)  # the run's one seed
             self._connect_store(resume=loaded is not None)
             self._start_actors(one.carry)
-        except BaseException:
-            tracker.close()
-            self.files.close()
-            raise
-        total = cfg.num_updates
-        stop_at = total if max_updates is None else min(total, done + max_updates)
-        if done == 0 and 0 in self.files.milestones:
-            self._checkpoint(one, 0, True)
-        meter = Progress(total, cfg.steps_per_update, out)
-        template = self._slice_template()
-        params, opt_state = self.trainer.replicate((one.params, one.opt_state))  # for `devices` > 1
-        key = one.key
-        version = done
-        weights = self._publish(params, version)
-        pending: dict[Any, int] = {}  # async: in-flight rollout -> slot index
-        status = "finished"
-        try:
-            while done < stop_at:
-                if self._stop.is_set():
-                    status = "interrupted"
-                    break
-                t0 = time.perf_counter()
-                key, k_levels, k_roll, k_update = self.trainer.update_keys(key)
-                if self.dist.mode == "sync":
-                    parts = self._sync_batches(weights, version, k_levels, k_roll, template)
-                else:
-                    parts = self._async_batches(weights, version, key, pending, template)
-                t_update = time.perf_counter()
-                rollout = _concat_slices(parts)
-                params, opt_state, metrics = self._learn(
-                    params, opt_state, jnp.int32(done), rollout, k_update
-                )
-                jax.block_until_ready(params)
-                M.LEARNER_STAGE_SECONDS.labels("update").inc(time.perf_counter() - t_update)
-                done += 1
-                version = done
-                weights = self._publish(params, version)
-                dt = time.perf_counter() - t0
-                sps = cfg.steps_per_update / dt
-                self._record(done, metrics, sps)
-                rows = metrics_rows(cfg, done - 1, jax.tree.map(lambda x: x[None, None], metrics), sps)
-                extra = self.feed.columns()
-                for row in rows:
-                    row.update(extra)
-                self.files.writer.write(rows)
-                tracker.log_rows(rows, {c: "distributed" for c in DISTRIBUTED_COLUMNS})
-                meter.show(done, sps, rows[-1]["mean_return"], (stop_at - done) * dt)
-                due, crossed = self.files.due(done - 1, done)
-                if due or done == stop_at or self._stop.is_set():
-                    carry = self._gather_carry(key, pending)
-                    self._checkpoint(
-                        TrainState(params, opt_state, carry, key, jnp.int32(done)), done, crossed
-                    )
-                self._heartbeat()
-            if self._stop.is_set() and done < stop_at:
-                status = "interrupted"
-        except BaseException:
             status = "failed"
-            raise
-        finally:
-            partial = status == "finished" and done < total  # max_updates reached
-            self._set_status("interrupted" if partial else status)
-            self._close_actors()
-            tracker.close()
-            self.files.close()
+            try:
+                self._begin(one, done)
+                # no resume hint: the driver gives it (`cec up` and `cec train --distributed` differ)
+                outcome = run_updates(
+                    self, self.files, tracker, done, max_updates=max_updates, stop=self._stop.is_set
+                )
+                done = outcome.done
+                # a stop asked for during the last update lets the run finish
+                status = "interrupted" if outcome.stopped and done < outcome.stop_at else "finished"
+            finally:
+                partial = status == "finished" and done < self.config.num_updates  # max_updates reached
+                self._set_status("interrupted" if partial else status)
+                self._close_actors()
         return {"updates": done, "status": status, "run_dir": str(self.files.run_dir)}
+
+    # ---- the update source of `run_updates`: one update per step from the actors' batches --------------
+
+    def _begin(self, one: TrainState, done: int) -> None:
+        """The update loop's state at update `done` (attributes of a run, made here): `one`'s weights on the
+        learner's devices and published to the actors, its optimiser state and key."""
+        self._template = self._slice_template()
+        self._params, self._opt_state = self.trainer.replicate((one.params, one.opt_state))  # `devices` > 1
+        self._key = one.key
+        self._version = done
+        self._weights = self._publish(self._params, self._version)
+        self._pending: dict[Any, int] = {}  # async: in-flight rollout -> slot index
+
+    def step(self, done: int, n: int) -> UpdateMetrics:
+        """Update `done + 1` (`n` is 1): the actors' batches for the published weights, the PPO update on
+        them, the new weights published."""
+        self._key, k_levels, k_roll, k_update = self.trainer.update_keys(self._key)
+        if self.dist.mode == "sync":
+            parts = self._sync_batches(self._weights, self._version, k_levels, k_roll, self._template)
+        else:
+            parts = self._async_batches(
+                self._weights, self._version, self._key, self._pending, self._template
+            )
+        t_update = time.perf_counter()
+        rollout = _concat_slices(parts)
+        self._params, self._opt_state, metrics = self._learn(
+            self._params, self._opt_state, jnp.int32(done), rollout, k_update
+        )
+        jax.block_until_ready(self._params)
+        M.LEARNER_STAGE_SECONDS.labels("update").inc(time.perf_counter() - t_update)
+        self._version = done + 1
+        self._weights = self._publish(self._params, self._version)
+        return jax.tree.map(lambda x: x[None, None], metrics)  # [seeds, updates] of the loop's rows
+
+    def state(self) -> TrainState:
+        """The run's state with every actor's carry (gathered from them), with its one seed's axis."""
+        carry = self._gather_carry(self._key)
+        one = TrainState(self._params, self._opt_state, carry, self._key, jnp.int32(self._version))
+        return jax.tree.map(lambda x: jnp.asarray(x)[None], one)
+
+    def extra_columns(self) -> dict[str, Any]:
+        return self.feed.columns()
+
+    def sections(self) -> dict[str, str]:
+        return {c: "distributed" for c in DISTRIBUTED_COLUMNS}
+
+    def after_update(self, done: int, metrics: UpdateMetrics, sps: float) -> None:
+        self._record(jax.tree.map(lambda x: x[0, -1], metrics), sps)
+        self._heartbeat()
+
+    def on_save(self, path: Path, seconds: float) -> None:
+        M.LEARNER_CHECKPOINTS.inc()
+        M.LEARNER_LAST_CHECKPOINT.set(time.time())
+        M.LEARNER_STAGE_SECONDS.labels("checkpoint").inc(seconds)
+        log.info("checkpoint %s", path)
+        self._publish_checkpoint(path)
 
     # ---- actors -----------------------------------------------------------------------------------------
 
@@ -419,14 +422,9 @@ class Learner:
                 parts[i] = from_bytes(template, got[1])
         return [parts[i] for i in sorted(parts)]
 
-    def _gather_carry(self, key: Any, pending: dict) -> RolloutCarry:
+    def _gather_carry(self, key: Any) -> RolloutCarry:
         """Every actor's carry, concatenated in env order (for the checkpoint)."""
-        template = jax.tree.map(
-            lambda x: jax.ShapeDtypeStruct(
-                (self.config.num_envs // self.dist.num_actors, *x.shape[1:]), x.dtype
-            ),
-            jax.eval_shape(self.trainer.init_one, jax.random.PRNGKey(0)).carry,
-        )
+        template = self._carry_template()
         parts = []
         for i in range(len(self.slots)):
             while True:
@@ -450,30 +448,25 @@ class Learner:
         M.LEARNER_STAGE_SECONDS.labels("publish").inc(time.perf_counter() - t0)
         return ref
 
-    def _checkpoint(self, one: TrainState, update: int, milestone: bool) -> None:
-        t0 = time.perf_counter()
-        state = jax.tree.map(lambda x: jnp.asarray(x)[None], one)
-        path = self.files.save(state, update, milestone)
-        M.LEARNER_CHECKPOINTS.inc()
-        M.LEARNER_LAST_CHECKPOINT.set(time.time())
-        M.LEARNER_STAGE_SECONDS.labels("checkpoint").inc(time.perf_counter() - t0)
-        log.info("checkpoint %s", path)
-        if self.plane is not None:
-            from services.store import CheckpointEvent, StoreError
+    def _publish_checkpoint(self, path: Path) -> None:
+        """Tells Redis of a new checkpoint (queued in the run's outbox while Redis is down)."""
+        if self.plane is None:
+            return
+        from services.store import CheckpointEvent, StoreError
 
-            try:
-                result = self.plane.publish_checkpoint(
-                    CheckpointEvent.from_checkpoint(path, self.config.run_name)
+        try:
+            result = self.plane.publish_checkpoint(
+                CheckpointEvent.from_checkpoint(path, self.config.run_name)
+            )
+            M.LEARNER_REDIS_UP.set(result.outcome != "queued")
+            if result.outcome == "queued":
+                log.warning(
+                    "Redis unreachable: checkpoint event %s queued in the outbox", result.checkpoint_id
                 )
-                M.LEARNER_REDIS_UP.set(result.outcome != "queued")
-                if result.outcome == "queued":
-                    log.warning(
-                        "Redis unreachable: checkpoint event %s queued in the outbox", result.checkpoint_id
-                    )
-            except StoreError as err:
-                M.LEARNER_REDIS_UP.set(0)
-                log.error("could not publish checkpoint %s: %s (kept in the outbox)", path, err)
-            M.LEARNER_CHECKPOINT_EVENTS_QUEUED.set(len(self.plane.pending_outbox()))
+        except StoreError as err:
+            M.LEARNER_REDIS_UP.set(0)
+            log.error("could not publish checkpoint %s: %s (kept in the outbox)", path, err)
+        M.LEARNER_CHECKPOINT_EVENTS_QUEUED.set(len(self.plane.pending_outbox()))
 
     def _connect_store(self, resume: bool) -> None:
         if not (self.dist.publish_checkpoints and self.store is not None):
@@ -512,7 +505,8 @@ class Learner:
         except StoreError as err:
             log.warning("could not record run status %s: %s", status, err)
 
-    def _record(self, done: int, metrics: Any, sps: float) -> None:
+    def _record(self, metrics: UpdateMetrics, sps: float) -> None:
+        """An update's metrics (no leading axes) on the learner's Prometheus endpoint."""
         host = jax.device_get(metrics)
         M.LEARNER_UPDATES.inc()
         M.LEARNER_ENV_STEPS.inc(self.config.steps_per_update)

@@ -1,0 +1,212 @@
+"""The update loop of a training run, once for every way of running one: `cec train` runs the trainer's
+compiled calls in its own process, the distributed learner gathers its actors' rollouts (in its process
+with `LocalPool`, or Ray actors) and learns from them. Each hands the loop an `UpdateSource`, which says
+only where the updates come from; the loop does the rest the same way for both:
+
+    outcome = run_updates(source, files, tracker, done, max_updates=..., stop=flag.is_set)
+
+Per step it runs the source's next updates, writes their metrics rows (`metrics.jsonl`, `metrics.csv`,
+the tracker's events), shows a progress line (updates, env steps, steps/s, mean return, ETA to the run's
+end), and saves a checkpoint when one is due: every `checkpoint.every_updates`, at a milestone, at the
+last update of this process, and when it stops early. A stop asked for before a step runs none; one asked
+for during a step ends the loop after it. Either way the last update is in a checkpoint.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
+
+import jax
+
+from cec.training.config import TrainConfig
+from cec.training.ppo import LossInfo
+from cec.training.tracking import Tracker
+from cec.training.trainer import TrainState, UpdateMetrics
+
+if TYPE_CHECKING:
+    from cec.training.run import RunFiles
+
+
+class UpdateSource:
+    """Where a run's updates come from; subclasses give `step` and `state`, and override the hooks they
+    need (each does nothing here).
+
+    `updates_per_step`: the most updates one `step` runs (the loop asks for fewer at the run's end)."""
+
+    updates_per_step: int = 1
+
+    def step(self, done: int, n: int) -> UpdateMetrics:
+        """Runs `n` updates after update `done`; their metrics, with leading axes [seeds, n]."""
+        raise NotImplementedError
+
+    def state(self) -> TrainState:
+        """The run's state after the last update, with a leading seed axis: what a checkpoint holds."""
+        raise NotImplementedError
+
+    def extra_columns(self) -> dict[str, Any]:
+        """The source's own columns of this step's metrics rows (after the trainer's); asked once a step."""
+        return {}
+
+    def sections(self) -> Mapping[str, str]:
+        """The TensorBoard section of each of the source's own columns (`Tracker.log_rows`)."""
+        return {}
+
+    def after_update(self, done: int, metrics: UpdateMetrics, sps: float) -> None:
+        """Called after each step, once its rows are written and its checkpoint (if due) is saved."""
+
+    def on_save(self, path: Path, seconds: float) -> None:
+        """Called after each checkpoint, with its directory and the seconds writing it took."""
+
+
+class Outcome(NamedTuple):
+    """Where the loop ended: `done` updates, of the `stop_at` this process was to reach; `stopped`: a stop
+    was asked for (before a step, or during one, the last one included)."""
+
+    done: int
+    stop_at: int
+    stopped: bool
+
+
+def run_updates(
+    source: UpdateSource,
+    files: RunFiles,
+    tracker: Tracker,
+    done: int,
+    *,
+    max_updates: int | None = None,
+    stop: Callable[[], bool] = lambda: False,
+    progress: bool = True,
+    resume_hint: str | None = None,
+    log: TextIO = sys.stderr,
+) -> Outcome:
+    """Runs the source's updates from update `done` to the run's end (or `max_updates` more, or a stop).
+
+    `stop` is polled before and after every step. `resume_hint`: the command that continues the run,
+    printed when it stops early (None: the caller says it). `progress`: a progress line per step, to
+    `log`."""
+    config = files.config
+    total = config.num_updates
+    stop_at = total if max_updates is None else min(total, done + max_updates)
+    meter = Progress(total, config.steps_per_update * config.num_seeds, log) if progress else None
+    if done == 0 and 0 in files.milestones:
+        _save(source, files, 0, milestone=True)
+    spu = config.steps_per_update * config.num_seeds  # env steps of one update, all seeds
+    saved, stopped = done, False
+    while done < stop_at:
+        if stop():  # asked before this step (the learner's driver may ask before the first)
+            stopped = True
+            break
+        prev, done = done, done + min(source.updates_per_step, stop_at - done)
+        t0 = time.perf_counter()
+        metrics = source.step(prev, done - prev)
+        dt = time.perf_counter() - t0
+        sps = (done - prev) * spu / dt
+        rows = metrics_rows(config, prev, metrics, sps)
+        extra = source.extra_columns()
+        for row in rows:
+            row.update(extra)
+        files.writer.write(rows)
+        tracker.log_rows(rows, source.sections())
+        if meter is not None:
+            meter.show(done, sps, _mean_return(rows, config.num_seeds), (total - done) * dt / (done - prev))
+        due, crossed = files.due(prev, done)
+        stopped = stop()
+        if due or done == stop_at or stopped:
+            _save(source, files, done, milestone=crossed)
+            saved = done
+        source.after_update(done, metrics, sps)
+        if stopped:
+            break
+    if stopped and saved != done:  # asked between two steps: the last one is saved all the same
+        _save(source, files, done, milestone=False)
+    if stopped and resume_hint is not None:
+        print(
+            f"interrupted at update {done}; checkpoint saved. Continue with: {resume_hint}",
+            file=log,
+            flush=True,
+        )
+    return Outcome(done, stop_at, stopped)
+
+
+def _save(source: UpdateSource, files: RunFiles, update: int, milestone: bool) -> None:
+    state = source.state()
+    t0 = time.perf_counter()
+    path = files.save(state, update, milestone)
+    source.on_save(path, time.perf_counter() - t0)
+
+
+def _mean_return(rows: list[dict], seeds: int) -> float | None:
+    """The last update's mean return over its seeds (None: no episode ended in it)."""
+    returns = [r["mean_return"] for r in rows[-seeds:] if r["mean_return"] is not None]
+    return sum(returns) / len(returns) if returns else None
+
+
+def metrics_rows(config: TrainConfig, first_update: int, metrics: UpdateMetrics, sps: float) -> list[dict]:
+    """One row per (update, seed) from metrics with leading axes [S, n]."""
+    host = jax.device_get(metrics)
+    loss = host.loss
+    rows = []
+    s_count, n = host.episodes.shape
+    for j in range(n):
+        upd = first_update + j + 1
+        for s in range(s_count):
+            row: dict[str, Any] = {
+                "update": upd,
+                "env_steps": upd * config.steps_per_update,
+                "seed": config.seed + s,
+                "episodes": int(host.episodes[s, j]),
+                "mean_return": _num(host.mean_return[s, j]),
+                "mean_shaped_return": _num(host.mean_shaped_return[s, j]),
+                "collisions_per_episode": _num(host.collisions_per_episode[s, j]),
+                "shaping_weight": _num(host.shaping_weight[s, j]),
+                "learning_rate": _num(host.learning_rate[s, j]),
+                **{name: _num(getattr(loss, name)[s, j]) for name in LossInfo._fields},
+                "env_steps_per_s": round(sps, 1),
+            }
+            if config.env.game.normalised_score:  # always a column, so the CSV header has it
+                ret = row["mean_return"]
+                row["normalised_return"] = None if ret is None else ret / (2 * config.env.params.max_steps)
+            rows.append(row)
+    return rows
+
+
+def _num(x: Any) -> float | None:
+    v = float(x)
+    return None if math.isnan(v) else v
+
+
+class Progress:
+    """One status line per call: updates, env steps, steps/s, mean return, ETA (to stderr)."""
+
+    def __init__(self, total_updates: int, steps_per_update: int, stream: TextIO = sys.stderr) -> None:
+        self.total = total_updates
+        self.spu = steps_per_update
+        self.stream = stream
+
+    def show(self, done: int, sps: float, mean_return: float | None, eta_s: float) -> None:
+        ret = "n/a" if mean_return is None else f"{mean_return:.2f}"
+        line = (
+            f"update {done}/{self.total} ({100 * done / self.total:5.1f}%) | "
+            f"{_si(done * self.spu)}/{_si(self.total * self.spu)} steps | {_si(sps)} steps/s | "
+            f"return {ret} | ETA {_duration(eta_s)}"
+        )
+        print(line, file=self.stream, flush=True)
+
+
+def _si(x: float) -> str:
+    for unit, scale in (("G", 1e9), ("M", 1e6), ("k", 1e3)):
+        if abs(x) >= scale:
+            return f"{x / scale:.2f}{unit}"
+    return f"{x:.0f}"
+
+
+def _duration(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "?"
+    s = int(seconds)
+    return f"{s // 3600}h{s % 3600 // 60:02d}m" if s >= 3600 else f"{s // 60}m{s % 60:02d}s"
