@@ -4,7 +4,7 @@ This is the paper's own topology and the embedded default on one machine:
 
     state = init(seeds)                          # params, Adam state, env + LSTM carries, keys, counters
     repeat: state, metrics = train_call(state)   # jit(vmap over seeds(scan over `updates_per_call` updates))
-            write metrics rows, checkpoint when due, print progress   (`cec.training.run`: the host loop)
+            write metrics rows, checkpoint when due, print progress   (`cec.training.loop`: the update loop)
 
 Over several local devices (`devices`), the same program runs data-parallel: the state's env axis is
 sharded over a one-axis mesh (`envs`) and everything else (parameters, Adam state, keys) replicated; XLA's
