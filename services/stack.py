@@ -153,6 +153,12 @@ class Stack:
         return not self.config.level_server_address and self.train_config.env.levels == "generator"
 
     def start(self, resume: bool = False) -> None:
+        """Checks everything that can be checked before any process starts, then starts the stack in order:
+        Redis, the level server, the learner (Ray or in-process), the evaluator and the monitoring.
+
+        Long because it is the start-up order itself, one numbered step after another, each reading what
+        the steps before it started; `stop` undoes it in reverse.
+        """
         from services.learner.driver import check_run
 
         cfg = self.config

@@ -263,6 +263,9 @@ class Evaluator:
 
         Raises `AbandonedError` if `stop` is set before it finishes (between compiled calls), `StoreError` if
         Redis fails; a checkpoint that cannot be loaded gives a `failed` outcome.
+
+        Long because it is one checkpoint's whole scoring, in the order a restart resumes it (load, each part
+        played or found stored, the table, the mark).
         """
         cid = event.checkpoint_id
         t0 = time.perf_counter()

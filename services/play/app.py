@@ -79,7 +79,11 @@ class _ProtocolError(Exception):
 
 
 def create_app(study: Study) -> Starlette:
-    """The ASGI app serving `study`."""
+    """The ASGI app serving `study`.
+
+    Long because its handlers are closures over `study` (the routing table at its end lists them); each
+    handler is a few lines.
+    """
 
     async def index(request: Request) -> Response:
         return FileResponse(STATIC / "index.html", headers={"Cache-Control": "no-store"})

@@ -252,6 +252,9 @@ def _default_belief(me: jax.Array, partner: jax.Array, pairs: jax.Array, pair_kn
 def oracle_partner_step(memory: jax.Array, obs: jax.Array) -> tuple[jax.Array, jax.Array]:
     """One step of the oracle partner for one seat.
 
+    Long because it is the partner's rules one after another (what it remembers, where it walks), in one
+    jitted function.
+
     Args:
         memory: float32[MEMORY_SIZE] from the previous step (zeros at an episode start).
         obs: float32[5, 5, 4] this seat's observation (channels: own agent, partner, green, pink; -1 in
