@@ -322,6 +322,12 @@ def _read_one(path: Path, columns: _Columns) -> None:
         raise ResultsError(f"{path} cannot be read as a results file: {err}") from err
 
 
+#: `_Columns.add`'s plan: each parsed column in ARRAY_FIELDS order, with its kind (0 a string, 1 an integer,
+#: 2 a float); `_CAPPED`: where algorithm_a, seed_a, algorithm_b, seed_b and level sit in it.
+_PLAN = tuple((c, 0 if c in _STR else 1 if c in _INT else 2) for c in (_column_of(f) for f in ARRAY_FIELDS))
+_CAPPED = tuple(ARRAY_FIELDS.index(f) for f in ("algorithm_a", "seed_a", "algorithm_b", "seed_b", "level"))
+
+
 class _Columns:
     """Rows parsed into compact columns, 8 bytes a value (a string as the index of its one copy), so rows
     cost 128 bytes each however they are written (Python lists of floats cost 4x that: a 1.1M-row table of
@@ -329,6 +335,7 @@ class _Columns:
 
     def __init__(self) -> None:
         self.values = {f: array("d" if _column_of(f) in _FLOAT else "q") for f in ARRAY_FIELDS}
+        self._arrays = tuple(self.values.values())  # in ARRAY_FIELDS order, as `_PLAN`
         self.codes: dict[str, int] = {}  # each distinct string once, however many rows repeat it
         self.strings: list[str] = []
         self.policies: set[tuple[int, int]] = set()
@@ -349,28 +356,36 @@ class _Columns:
         return code
 
     def add(self, row: Mapping[str, str]) -> None:
-        """One played episode's row (`ValueError` naming the field that is not one)."""
-        parsed: dict[str, int | float] = {}
-        for field in ARRAY_FIELDS:
-            col = _column_of(field)
+        """One played episode's row (`ValueError` naming the field that is not one). The hot loop of reading
+        a table (a million rows): one pass over a plan made once, the caps checked only when a set grew."""
+        parsed: list[int | float] = []
+        codes = self.codes
+        for col, kind in _PLAN:
             raw = row[col]
-            if col in _STR:
+            if kind == 0:
                 if len(raw) > NAME_MAX_CHARS:  # a level or policy name; a report makes fixed-width copies
                     raise ValueError(f"{col} is longer than {NAME_MAX_CHARS} characters ({raw[:40]!r}...)")
-                parsed[field] = self.code(raw)
-            elif col in _INT:
-                parsed[field] = _integer(col, raw)
+                code = codes.get(raw)
+                parsed.append(self.code(raw) if code is None else code)
+            elif kind == 1:
+                parsed.append(_integer(col, raw))
             else:
                 v = float(raw)
                 if not math.isfinite(v):
                     raise ValueError(f"{col} must be a finite number, got {raw[:80]!r}")
-                parsed[field] = v
-        for field, v in parsed.items():
-            self.values[field].append(v)  # type: ignore[arg-type]  # an int or float by its column's typecode
-        self.policies.add((int(parsed["algorithm_a"]), int(parsed["seed_a"])))
-        self.policies.add((int(parsed["algorithm_b"]), int(parsed["seed_b"])))
-        self.levels.add(int(parsed["level"]))
-        self.algorithms.update((int(parsed["algorithm_a"]), int(parsed["algorithm_b"])))
+                parsed.append(v)
+        for values, v in zip(self._arrays, parsed, strict=True):
+            values.append(v)  # type: ignore[arg-type]  # an int or float by its column's typecode
+        alg_a, seed_a, alg_b, seed_b, level = (parsed[i] for i in _CAPPED)
+        grew = len(self.policies), len(self.levels), len(self.algorithms)
+        self.policies.add((int(alg_a), int(seed_a)))
+        self.policies.add((int(alg_b), int(seed_b)))
+        self.levels.add(int(level))
+        self.algorithms.update((int(alg_a), int(alg_b)))
+        if grew != (len(self.policies), len(self.levels), len(self.algorithms)):
+            self._check_caps()
+
+    def _check_caps(self) -> None:
         for name, n, limit, what in (
             (
                 "RESULTS_MAX_POLICIES",
