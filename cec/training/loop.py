@@ -92,10 +92,10 @@ def run_updates(
     config = files.config
     total = config.num_updates
     stop_at = total if max_updates is None else min(total, done + max_updates)
-    meter = Progress(total, config.steps_per_update * config.num_seeds, log) if progress else None
+    spu = config.steps_per_update * config.num_seeds  # env steps of one update, all seeds
+    meter = Progress(total, spu, log) if progress else None
     if done == 0 and 0 in files.milestones:
         _save(source, files, 0, milestone=True)
-    spu = config.steps_per_update * config.num_seeds  # env steps of one update, all seeds
     saved, stopped = done, False
     while done < stop_at:
         if stop():  # asked before this step (the learner's driver may ask before the first)
