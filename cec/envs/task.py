@@ -140,8 +140,12 @@ class Task:
 
         Env i's levels come from `fold_in(key, i)` alone, so a slice of the envs (a Ray actor's share)
         gets the levels those envs get in the full batch. Fixed tasks are broadcast.
+
+        One jitted function for every `Task` (static): called outside `jit` (a trainer's init, an actor's
+        level buffers), a task's sampler is compiled once per process for each number of envs, whichever
+        `Trainer` calls it; inside a traced function it is inlined as before.
         """
-        return _LEVEL_SAMPLERS[self.env](self, key, env_ids, k)
+        return _sample_levels(self, key, env_ids, k)
 
     def without_level(self, state: Any) -> Any:
         """An env state without its level (what changes step to step; `observe` puts the level back)."""
@@ -170,6 +174,11 @@ def _dual_destination_levels(task: Task, key: jax.Array, env_ids: jax.Array, k: 
     exclude = dd.held_out_dd_levels()
     one = lambda kk: dd.generate_dd_level(kk, multi, exclude)  # noqa: E731
     return jax.vmap(lambda kk: jax.vmap(one)(jax.random.split(kk, k)))(env_keys(key, env_ids))
+
+
+@functools.partial(jax.jit, static_argnums=(0, 3))
+def _sample_levels(task: Task, key: jax.Array, env_ids: jax.Array, k: int) -> Any:
+    return _LEVEL_SAMPLERS[task.env](task, key, env_ids, k)
 
 
 #: Each game's training level buffers (`Task.sample_levels`), by game name.

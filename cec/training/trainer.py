@@ -97,7 +97,7 @@ class Trainer:
             config.ppo, config.steps_per_update, config.total_env_steps
         )
         self.shaping_horizon = config.ppo.shaping_anneal_env_steps or config.total_env_steps // 2
-        self._init = jax.jit(self.init_one)
+        self._init_jit = jax.jit(self.init_one)
         self.mesh = device_mesh(config)
         self._calls: dict[int, Any] = {}
         self.population: Any = None  # FCP's partners' params (leading axis P); set by `load_partners`
@@ -113,14 +113,26 @@ class Trainer:
 
     # ---- pure, jittable pieces -------------------------------------------------------------------------
 
-    def init_one(self, key: jax.Array) -> TrainState:
-        """The initial state of one seed from its key."""
-        cfg = self.config
-        key, k_params, k_levels, k_reset = jax.random.split(key, 4)
+    def init_one(self, key: jax.Array, levels: Any = None) -> TrainState:
+        """The initial state of one seed from its key (`levels`: its first level buffers, `init_levels(key)`,
+        drawn here when not given)."""
+        if levels is None:
+            levels = self.init_levels(key)
+        key, k_params, _, k_reset = jax.random.split(key, 4)
         params = init_params(self.network, k_params, self.task.obs_shape)
-        levels = self.task.sample_levels(k_levels, self.env_ids, cfg.levels_per_env)
         carry = init_carry(self.task, self.network, self.env_params, levels, k_reset)
         return TrainState(params, self.optimizer.init(params), carry, key, jnp.zeros((), jnp.int32))
+
+    def _init(self, key: jax.Array) -> TrainState:
+        """`init_one`, compiled, for one seed; its first levels drawn outside that program, by the task's
+        one compiled sampler (`Task.sample_levels`): the generator, the costliest part of an init to compile,
+        is compiled once per process (and cached) for every Trainer of a task, not again in each init."""
+        return self._init_jit(key, self.init_levels(key))
+
+    def init_levels(self, key: jax.Array) -> Any:
+        """The level buffers `init_one` starts a seed's envs on, from the seed's key."""
+        k_levels = jax.random.split(key, 4)[2]
+        return self.task.sample_levels(k_levels, self.env_ids, self.config.levels_per_env)
 
     def shaping_weight(self, update_index: jax.Array) -> jax.Array:
         """Weight of the shaped reward at an update: 1 falling linearly to 0 over the shaping horizon."""
