@@ -25,6 +25,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from cec.evaluation.markdown import interval, num, pm, table_lines
 from cec.evaluation.parts import part_scores
 from cec.evaluation.results import read_csv
 from cec.evaluation.stats import CrossPlay, compare_estimates, holm
@@ -98,9 +99,13 @@ def compare(
     return out
 
 
-def _fmt(x: float, spec: str) -> str:
-    """A figure, or an en dash where there is none (2 seeds: the jackknife over seeds has no error)."""
-    return "–" if math.isnan(x) else format(x, spec)
+DASH = "–"  # where there is no figure: 2 seeds have no standard error over seeds and no test
+HEAD = ("part", "kitchens", "lever XP (SP)", "recipe XP (SP)", "difference [95% CI]", "p (Holm)")
+
+
+def _xp_sp(score: dict[str, Any]) -> str:
+    """A part's cross-play ± its standard error (`DASH` where there is none), self-play in brackets."""
+    return f"{pm(score['xp'], score['xp_se'], no_error=DASH)} ({score['sp']:.1f})"
 
 
 def markdown(result: dict[str, Any]) -> str:
@@ -118,18 +123,14 @@ def markdown(result: dict[str, Any]) -> str:
                 else ":"
             ),
             "",
-            "| part | kitchens | lever XP (SP) | recipe XP (SP) | difference [95% CI] | p (Holm) |",
-            "|---|---|---|---|---|---|",
         ]
+        rows = []
         for part, v in lever["parts"].items():
             a, b = v["lever"], v["baseline"]
-            ci = "" if math.isnan(v["ci"][0]) else f" [{v['ci'][0]:+.1f}, {v['ci'][1]:+.1f}]"
-            p = "–" if math.isnan(v["p"]) else f"{v['p']:.3f} ({v['p_holm']:.3f})"
-            lines.append(
-                f"| {part} | {a['levels']} | {a['xp']:.1f} ± {_fmt(a['xp_se'], '.1f')} ({a['sp']:.1f}) | "
-                f"{b['xp']:.1f} ± {_fmt(b['xp_se'], '.1f')} ({b['sp']:.1f}) | {v['diff']:+.1f}{ci} | {p} |"
-            )
-        lines.append("")
+            ci = "" if math.isnan(v["ci"][0]) else " " + interval(*v["ci"])
+            p = DASH if math.isnan(v["p"]) else f"{num(v['p'], 3)} ({num(v['p_holm'], 3)})"
+            rows.append([part, a["levels"], _xp_sp(a), _xp_sp(b), f"{num(v['diff'], signed=True)}{ci}", p])
+        lines += [*table_lines(HEAD, rows), ""]
     return "\n".join(lines)
 
 

@@ -72,19 +72,23 @@ def interval(low: float | None, high: float | None, digits: int = 1, *, signed: 
     return f"[{num(low, digits, signed=signed)}, {num(high, digits, signed=signed)}]"
 
 
-def row(cells: Iterable[object]) -> str:
-    """One Markdown table row: `| a | b |`."""
-    return "| " + " | ".join(str(c) for c in cells) + " |"
+def row(cells: Iterable[object], *, tight: bool = False) -> str:
+    """One Markdown table row: `| a | b |`; an empty cell is `|  |`, or `| |` when `tight`."""
+    return "|" + "|".join(" " if tight and str(c) == "" else f" {c} " for c in cells) + "|"
 
 
-def table_lines(headers: Sequence[object], rows: Iterable[Sequence[object]]) -> list[str]:
-    """A Markdown table as lines: the header, its rule and one line per row."""
-    return [row(headers), "|" + "---|" * len(headers), *(row(r) for r in rows)]
+def table_lines(
+    headers: Sequence[object], rows: Iterable[Sequence[object]], *, tight: bool = False
+) -> list[str]:
+    """A Markdown table as lines: the header, its rule and one line per row (`tight`: see `row`)."""
+    return [row(headers, tight=tight), "|" + "---|" * len(headers), *(row(r, tight=tight) for r in rows)]
 
 
-def table(headers: Sequence[object], rows: Iterable[Sequence[object]]) -> str:
-    """A Markdown table (no trailing newline)."""
-    return "\n".join(table_lines(headers, rows))
+def table(
+    headers: Sequence[object], rows: Iterable[Sequence[object]], *, end: str = "", tight: bool = False
+) -> str:
+    """A Markdown table, followed by `end` (by default no trailing newline; `tight`: see `row`)."""
+    return "\n".join(table_lines(headers, rows, tight=tight)) + end
 
 
 # ---- templates ---------------------------------------------------------------------------------------

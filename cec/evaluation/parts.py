@@ -14,6 +14,7 @@ from typing import NamedTuple
 import numpy as np
 
 from cec.evaluation import analysis as an
+from cec.evaluation.markdown import pm, table
 from cec.evaluation.results import EpisodeTable
 from cec.evaluation.stats import crossplay_estimate, sem
 from cec.levels.kinds import validation_parts
@@ -49,9 +50,5 @@ def part_scores(table: EpisodeTable, algorithm: str, levels: Mapping[str, Level]
 
 def parts_markdown(parts: Mapping[str, PartScore]) -> str:
     """A Markdown table of `part_scores`."""
-    lines = ["| part | kitchens | cross-play | self-play |", "|---|---|---|---|"]
-    lines += [
-        f"| {name} | {p.levels} | {p.xp:.1f} ± {p.xp_se:.1f} | {p.sp:.1f} ± {p.sp_se:.1f} |"
-        for name, p in parts.items()
-    ]
-    return "\n".join(lines)
+    rows = [[name, p.levels, pm(p.xp, p.xp_se), pm(p.sp, p.sp_se)] for name, p in parts.items()]
+    return table(["part", "kitchens", "cross-play", "self-play"], rows)

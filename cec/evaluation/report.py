@@ -20,6 +20,7 @@ import numpy as np
 from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
+from cec.evaluation.markdown import NONE, num, p_value, pm, table
 from cec.evaluation.plotting import colour_range, distinct_colours, pyplot
 from cec.evaluation.results import EpisodeTable
 from cec.evaluation.stats import (
@@ -36,30 +37,10 @@ MAX_CELL_TEXT = 12
 MAX_BARS = 12  # level sets with more levels get one aggregate bar per algorithm instead of per-level bars
 
 
-def _fmt(x: float, digits: int = 2) -> str:
-    return "—" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{digits}f}"
-
-
-def _pm(mean: float, err: float, digits: int = 2) -> str:
-    if math.isnan(mean):
-        return "—"
-    return f"{mean:.{digits}f} ± {err:.{digits}f}" if not math.isnan(err) else f"{mean:.{digits}f}"
-
-
-def _p(p: float) -> str:
-    return "—" if math.isnan(p) else f"{p:.2g}"
-
-
 def rank_order(mass: np.ndarray, labels: Sequence[str]) -> list[int]:
     """Indices by stationary mass as the report prints it (3 decimals), ties by label: masses that print
     alike (0.000) differ only by solver noise, and their order must not change from one run to the next."""
     return sorted(range(len(mass)), key=lambda i: (-round(float(mass[i]), 3), labels[i]))
-
-
-def _table(headers: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(headers) + " |", "|" + "---|" * len(headers)]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in rows]
-    return "\n".join(lines) + "\n"
 
 
 def _slug(name: str) -> str:
@@ -67,8 +48,8 @@ def _slug(name: str) -> str:
 
 
 def _matrix_md(m: an.Matrix, digits: int) -> str:
-    rows = [[m.labels[i], *(_fmt(v, digits) for v in m.values[i])] for i in range(len(m.labels))]
-    return _table(["", *m.labels], rows)
+    rows = [[m.labels[i], *(num(v, digits) for v in m.values[i])] for i in range(len(m.labels))]
+    return table(["", *m.labels], rows, end="\n")
 
 
 def _heatmap(
@@ -143,14 +124,18 @@ class _Report:
             rows = [
                 [s.name, s.algorithm or "?", str(s.seed) if s.seed >= 0 else "?", s.reason] for s in t.skipped
             ]
-            self.md.append(_table(["entry", "algorithm", "seed", "reason"], rows))
+            self.md.append(table(["entry", "algorithm", "seed", "reason"], rows, end="\n"))
         policies = an.policies_of(t)
         by_algo: dict[str, list[int]] = {}
         for p in policies:
             by_algo.setdefault(p.algorithm, []).append(p.seed)
         self.md.append("## Policies\n")
         self.md.append(
-            _table(["algorithm", "seeds"], [[a, ", ".join(map(str, s))] for a, s in sorted(by_algo.items())])
+            table(
+                ["algorithm", "seeds"],
+                [[a, ", ".join(map(str, s))] for a, s in sorted(by_algo.items())],
+                end="\n",
+            )
         )
 
     def level_set(self, name: str, levels: list[str]) -> None:
@@ -172,18 +157,18 @@ class _Report:
             row = [
                 alpha,
                 str(len(sp.get(alpha, []))),
-                _pm(*_mean_sem(sp.get(alpha)), d),
-                _pm(*crossplay_estimate(an.seed_matrix(pl, alpha).values)[:2], d),
-                _pm(*_mean_sem(adhoc.get(alpha)), d),
+                pm(*_mean_sem(sp.get(alpha)), d),
+                pm(*crossplay_estimate(an.seed_matrix(pl, alpha).values)[:2], d),
+                pm(*_mean_sem(adhoc.get(alpha)), d),
             ]
             if with_humans:
-                row.append("—" if alpha == HUMAN_PROXY else _pm(*_mean_sem(human.get(alpha)), d))
-            rows.append([*row, "—" if b is None else f"{b.iqm:.2f} [{b.q25:.2f}, {b.q75:.2f}]"])
+                row.append(NONE if alpha == HUMAN_PROXY else pm(*_mean_sem(human.get(alpha)), d))
+            rows.append([*row, NONE if b is None else f"{b.iqm:.2f} [{b.q25:.2f}, {b.q75:.2f}]"])
         heads = ["algorithm", "seeds", "SP", "XP (other seeds)", "ad hoc (other algorithms)"]
         if with_humans:
             heads.append("with human proxies")
         self.md.append("### Scores per algorithm\n")
-        self.md.append(_table([*heads, "BR-prox IQM [IQR]"], rows))
+        self.md.append(table([*heads, "BR-prox IQM [IQR]"], rows, end="\n"))
         self.md.append(
             "Mean ± standard error: SP and ad hoc over pairs; XP (the mean over every pair of two different "
             "seeds) with the leave-one-seed-out jackknife's standard error, which counts that a seed's pairs "
@@ -217,7 +202,7 @@ class _Report:
                 rows.append([lv, f"{ret:.0f}", f"{float(dd.normalised_score(ret, self.steps)):.3f}"])
         if rows:
             self.md.append("Oracle (both seats planned together; the ceiling of any pair):\n")
-            self.md.append(_table(["level", "oracle return", "oracle normalised"], rows))
+            self.md.append(table(["level", "oracle return", "oracle normalised"], rows, end="\n"))
 
     def seed_matrices(self, pl: an.PairLevel, slug: str) -> None:
         plt = pyplot()
@@ -285,8 +270,8 @@ class _Report:
             ax.legend()
             name = self.save(fig, f"per_level_{slug}.png")
             self.md.append(f"![XP per level]({name})\n")
-            rows = [[s.level, s.algorithm, _pm(s.mean, s.sem, self.digits), str(s.n)] for s in stats]
-            self.md.append(_table(["level", "algorithm", "XP mean ± SE", "pairs"], rows))
+            rows = [[s.level, s.algorithm, pm(s.mean, s.sem, self.digits), str(s.n)] for s in stats]
+            self.md.append(table(["level", "algorithm", "XP mean ± SE", "pairs"], rows, end="\n"))
         else:
             fig, ax = plt.subplots(figsize=(6, 4))
             for alpha, colour in zip(algos, distinct_colours(len(algos)), strict=True):
@@ -306,11 +291,11 @@ class _Report:
                     [
                         alpha,
                         str(means.size),
-                        _pm(float(means.mean()), sem(means), self.digits),
-                        _fmt(float(np.median(means)), self.digits),
+                        pm(float(means.mean()), sem(means), self.digits),
+                        num(float(np.median(means)), self.digits),
                     ]
                 )
-            self.md.append(_table(["algorithm", "levels", "mean ± SE over levels", "median"], rows))
+            self.md.append(table(["algorithm", "levels", "mean ± SE over levels", "median"], rows, end="\n"))
 
     def tests(self, pl: an.PairLevel) -> None:
         self.md.append("### Significance between algorithms\n")
@@ -375,21 +360,24 @@ class _Report:
             for (a, b, c, (p_exact, p_min)), h_t, h_exact in zip(found, holm_t, holm_exact, strict=True):
                 row = [
                     f"{a} vs {b}",
-                    f"{_fmt(c.mean_a, self.digits)} vs {_fmt(c.mean_b, self.digits)}",
+                    f"{num(c.mean_a, self.digits)} vs {num(c.mean_b, self.digits)}",
                     f"{c.n_a} / {c.n_b}",
-                    f"{_fmt(c.diff, d)} [{_fmt(c.ci_low, d)}, {_fmt(c.ci_high, d)}]",
-                    _fmt(c.t, 2),
-                    _fmt(c.df, 1),
-                    _p(c.p),
-                    _p(h_t),
+                    f"{num(c.diff, d)} [{num(c.ci_low, d)}, {num(c.ci_high, d)}]",
+                    num(c.t, 2),
+                    num(c.df, 1),
+                    p_value(c.p),
+                    p_value(h_t),
                 ]
                 if permutation:
-                    row += ["—" if math.isnan(p_exact) else f"{_p(p_exact)} ({_p(p_min)})", _p(h_exact)]
+                    row += [
+                        NONE if math.isnan(p_exact) else f"{p_value(p_exact)} ({p_value(p_min)})",
+                        p_value(h_exact),
+                    ]
                 rows.append(row)
             head = ["pair", "means", "seeds", "difference [95% CI]", "t", "df", "p", "Holm p"]
             if permutation:
                 head += ["exact p (smallest possible)", "Holm exact p"]
-            self.md.append(_table(head, rows))
+            self.md.append(table(head, rows, end="\n"))
             if permutation and any(math.isnan(e[0]) for *_, e in found):
                 self.md.append(
                     "Exact p '—': the two algorithms' seeds did not all play each other (no pooled seed x "
@@ -434,9 +422,10 @@ class _Report:
         name = self.save(fig, f"replicator_{slug}.png")
         self.md.append(f"![replicator dynamics]({name})\n")
         self.md.append(
-            _table(
+            table(
                 ["algorithm", "dx/dt at uniform", "share after the trajectory"],
                 [[lab, f"{grad[i]:+.4g}", f"{traj[-1, i]:.3f}"] for i, lab in enumerate(m.labels)],
+                end="\n",
             )
         )
         rows = []
@@ -446,7 +435,7 @@ class _Report:
                 [mix, r.stability, "yes" if r.nash else "no", "yes" if r.isolated else "no (a continuum)"]
             )
         self.md.append("Rest points (stability from the Jacobian on the simplex):\n")
-        self.md.append(_table(["mixture", "stability", "Nash", "isolated"], rows))
+        self.md.append(table(["mixture", "stability", "Nash", "isolated"], rows, end="\n"))
         ar = egta.alpha_rank(payoff)
         if ar.pi is None:
             self.md.append(f"Alpha-rank: {ar.note}.\n")
@@ -454,9 +443,10 @@ class _Report:
             order = rank_order(ar.pi, m.labels)
             self.md.append(f"Alpha-rank ({ar.note}; payoffs scaled to [0, 1]):\n")
             self.md.append(
-                _table(
+                table(
                     ["rank", "algorithm", "stationary mass"],
                     [[str(n + 1), m.labels[i], f"{ar.pi[i]:.3f}"] for n, i in enumerate(order)],
+                    end="\n",
                 )
             )
 

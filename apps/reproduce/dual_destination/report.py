@@ -39,6 +39,7 @@ from apps.reproduce.dual_destination.reasons import (
     ordering_reason,
 )
 from apps.reproduce.dual_destination.summary import ALPHA, LEARNED, Score, check_ablations, check_claims
+from cec.evaluation.markdown import NONE, interval, p_value, pm, table
 from cec.evaluation.plotting import pyplot
 
 if TYPE_CHECKING:
@@ -50,15 +51,9 @@ if TYPE_CHECKING:
 # ---------------------------------------------------------------------------------------------------------
 
 
-def _pm(s: Score | None) -> str:
-    if s is None:
-        return "—"
-    err = "" if math.isnan(s.sem) else f" ± {s.sem:.3f}"
-    return f"{s.mean:.3f}{err}"
-
-
-def _p(p: float) -> str:
-    return "—" if math.isnan(p) else f"{p:.2g}"
+def _score(s: Score | None) -> str:
+    """A score: its mean ± its standard error (3 decimals), or `NONE` where there is none."""
+    return NONE if s is None else pm(s.mean, s.sem, 3)
 
 
 def _paper_cell(p: PaperNumber | None) -> str:
@@ -66,7 +61,7 @@ def _paper_cell(p: PaperNumber | None) -> str:
         return "not reported"
     if p.mean is None:
         return f"({p.text})"
-    return f"{p.mean:.3f}" + (f" ± {p.sem:.3f}" if p.sem is not None else "")
+    return pm(p.mean, p.sem, 3)
 
 
 def _verdict(ours: Score | None, p: PaperNumber | None) -> str:
@@ -82,6 +77,38 @@ def _fits(raw: Score | None, clipped: Score | None, p: PaperNumber | None) -> st
     if abs(raw.mean - clipped.mean) < 0.01:
         return "either"
     return "raw" if abs(raw.mean - p.mean) < abs(clipped.mean - p.mean) else "clipped"
+
+
+ORDERINGS_HEAD = (
+    "variant", "task set", "ordering", "difference [95% CI]", "p", "holds", "significant",
+    "learned seeds only: difference, p, holds",
+)  # fmt: skip
+NUMBERS_HEAD = (
+    "variant", "task set", "algorithm", "ours: XP mean ± SE", "XP clipped", "greedy XP", "greedy SP", "seeds",
+    "paper", "ours − paper", "fits", "XP, learned seeds",
+)  # fmt: skip
+
+
+def _number_rows(summaries: dict[str, dict[str, dict[str, dict[str, Score]]]]) -> list[list[str]]:
+    """The rows of `NUMBERS_HEAD`: each variant, task set and algorithm with an XP score."""
+    rows = []
+    for variant in [v for v in VARIANTS if v in summaries]:
+        for level_set in LEVEL_SETS:
+            kinds = summaries.get(variant, {}).get(level_set, {})
+            for algo in ROWS:
+                s = kinds.get("xp", {}).get(algo)
+                if s is None:
+                    continue
+                clipped = kinds.get("xp_clipped", {}).get(algo)
+                p = paper_number(variant, level_set, algo)
+                greedy = [_score(kinds.get(k, {}).get(algo)) for k in ("greedy_xp", "greedy_sp")]
+                learned = kinds.get("xp_learned", {}).get(algo)
+                rows.append([
+                    VARIANT_TITLES[variant], LEVEL_SET_TITLES[level_set], algo.upper(), _score(s),
+                    _score(clipped), *greedy, str(s.n), _paper_cell(p), _verdict(s, p), _fits(s, clipped, p),
+                    _score(learned) + ("" if learned is None else f" ({learned.n})"),
+                ])  # fmt: skip
+    return rows
 
 
 def bar_plot(summary: dict[str, dict[str, dict[str, Score]]], variant: str, path: Path) -> Path:
@@ -138,9 +165,36 @@ def _recorded_times(meta: dict[str, Any]) -> str:
     return text + (f"; cross-play {per_variant(played)}.\n" if played else ".\n")
 
 
+TRAINING_HEAD = (
+    "variant", "algorithm", "seeds", "env steps per seed", "training time", "return at the end",
+    "entropy at the end", "first positive return (seed: env steps)",
+)  # fmt: skip
+
+
+def _training_rows(training: dict[str, dict[str, Any]]) -> list[list[str]]:
+    """The rows of `TRAINING_HEAD`: each variant's trained algorithms."""
+    return [
+        [
+            VARIANT_TITLES[variant],
+            algo.upper(),
+            t["seeds"],
+            f"{t['env_steps']:,}",
+            f"{t['seconds'] / 60:.1f} min",
+            f"{t['final_return']:.3f}",
+            f"{t.get('final_entropy', math.nan):.2f}",
+            _take_off(t.get("positive_at", {})),
+        ]  # fmt: skip
+        for variant, per in training.items()
+        for algo in ROWS
+        if (t := per.get(algo)) is not None
+    ]
+
+
 def _take_off(positive_at: Mapping[str, int | None]) -> str:
     """`200: 1.2e6, 201: never`: where each seed's training return first turned positive."""
-    return ", ".join(f"{s}: {'never' if at is None else f'{at:.1e}'}" for s, at in positive_at.items()) or "—"
+    return (
+        ", ".join(f"{s}: {'never' if at is None else f'{at:.1e}'}" for s, at in positive_at.items()) or NONE
+    )
 
 
 def write_report(
@@ -205,30 +259,7 @@ def write_report(
         f"{LEARNED} (how many in brackets): a seed that never learned the task lowers XP for a reason "
         "other than conventions.\n"
     )
-    md.append(
-        "| variant | task set | algorithm | ours: XP mean ± SE | XP clipped | greedy XP | greedy SP | seeds "
-        "| paper | ours − paper | fits | XP, learned seeds |"
-    )
-    md.append("|---|---|---|---|---|---|---|---|---|---|---|---|")
-    for variant in [v for v in VARIANTS if v in summaries]:
-        for level_set in LEVEL_SETS:
-            kinds = summaries.get(variant, {}).get(level_set, {})
-            for algo in ROWS:
-                s = kinds.get("xp", {}).get(algo)
-                if s is None:
-                    continue
-                clipped = kinds.get("xp_clipped", {}).get(algo)
-                p = paper_number(variant, level_set, algo)
-                n = "—" if s is None else str(s.n)
-                where = f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo.upper()} |"
-                greedy = " | ".join(_pm(kinds.get(k, {}).get(algo)) for k in ("greedy_xp", "greedy_sp"))
-                learned = kinds.get("xp_learned", {}).get(algo)
-                md.append(
-                    f"{where} {_pm(s)} | {_pm(clipped)} | {greedy} | {n} | {_paper_cell(p)} | "
-                    f"{_verdict(s, p)} | {_fits(s, clipped, p)} | "
-                    f"{_pm(learned)}{'' if learned is None else f' ({learned.n})'} |"
-                )
-    md.append("")
+    md.append(table(NUMBERS_HEAD, _number_rows(summaries), end="\n"))
     md.append("## The paper's orderings\n")
     md.append(
         "Seeds are the units, and a seed's cross-play pairs are shared with the other seeds: the "
@@ -238,24 +269,21 @@ def write_report(
         f"*Learned seeds only*: the same test on XP among the seeds whose self-play reached {LEARNED} "
         "(an ordering that holds only with the seeds that never learned rests on them, not on conventions).\n"
     )
-    md.append(
-        "| variant | task set | ordering | difference [95% CI] | p | holds | significant | learned seeds "
-        "only: difference, p, holds |"
-    )
-    md.append("|---|---|---|---|---|---|---|---|")
     by_learned = {
         (c.variant, c.level_set, c.better, c.worse): c for c in check_claims(summaries, "xp_learned")
     }
+    rows = []
     for c in claims:
-        ci = "—" if math.isnan(c.ci_low) else f"[{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
         lc = by_learned.get((c.variant, c.level_set, c.better, c.worse))
-        among = "—" if lc is None else f"{lc.diff:+.3f}, p {_p(lc.p)}, {'yes' if lc.holds else '**no**'}"
-        md.append(
-            f"| {VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]} | {c.better.upper()} > "
-            f"{c.worse.upper()} | {c.diff:+.3f} {ci} | {_p(c.p)} | {'yes' if c.holds else '**no**'} | "
-            f"{'yes' if c.significant else 'no'} | {among} |"
+        among = (
+            NONE if lc is None else f"{lc.diff:+.3f}, p {p_value(lc.p)}, {'yes' if lc.holds else '**no**'}"
         )
-    md.append("")
+        rows.append([
+            VARIANT_TITLES[c.variant], LEVEL_SET_TITLES[c.level_set],
+            f"{c.better.upper()} > {c.worse.upper()}", f"{c.diff:+.3f} {interval(c.ci_low, c.ci_high, 3)}",
+            p_value(c.p), "yes" if c.holds else "**no**", "yes" if c.significant else "no", among,
+        ])  # fmt: skip
+    md.append(table(ORDERINGS_HEAD, rows, end="\n"))
     held = sum(c.holds for c in claims)
     sig = sum(c.significant for c in claims)
     md.append(f"{held} of {len(claims)} orderings hold, {sig} of them significantly.\n")
@@ -340,21 +368,7 @@ def write_report(
             "self-play, on the fixed task and on generated tasks; FCP with its population, untrained "
             "first milestones included).\n"
         )
-        md.append(
-            "| variant | algorithm | seeds | env steps per seed | training time | return at the end | "
-            "entropy at the end | first positive return (seed: env steps) |"
-        )
-        md.append("|---|---|---|---|---|---|---|---|")
-        for variant, per in meta["training"].items():
-            for algo in ROWS:
-                t = per.get(algo)
-                if t is not None:
-                    md.append(
-                        f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {t['seeds']} | {t['env_steps']:,} | "
-                        f"{t['seconds'] / 60:.1f} min | {t['final_return']:.3f} | "
-                        f"{t.get('final_entropy', math.nan):.2f} | {_take_off(t.get('positive_at', {}))} |"
-                    )
-        md.append("")
+        md.append(table(TRAINING_HEAD, _training_rows(meta["training"]), end="\n"))
         md.append(
             "Entropy in nats (log 5 = 1.61: uniform over the five actions). A seed with high entropy samples "
             "often off its convention, and a partner that sees it re-plans: sampled XP then hides a "
@@ -372,8 +386,7 @@ def write_report(
             "bottom one), and in brackets the seed's sampled self-play there. Seeds that differ here cannot "
             "all coordinate with each other greedily.\n"
         )
-        md.append("| variant | algorithm | seed: seat 0's goal (SP) | distinct conventions |")
-        md.append("|---|---|---|---|")
+        rows = []
         for variant, per in meta["conventions"].items():
             for algo in ROWS:
                 seeds = per.get(algo, {})
@@ -385,8 +398,9 @@ def write_report(
                         for seed, goal in sorted(seeds.items())
                     )
                     distinct = len({g for g in seeds.values() if g != "no goal"})
-                    md.append(f"| {VARIANT_TITLES[variant]} | {algo.upper()} | {listed} | {distinct} |")
-        md.append("")
+                    rows.append([VARIANT_TITLES[variant], algo.upper(), listed, str(distinct)])
+        head = ["variant", "algorithm", "seed: seat 0's goal (SP)", "distinct conventions"]
+        md.append(table(head, rows, end="\n"))
     md.append("## Reference points: self-play and the oracle partner\n")
     md.append(
         "SP: each seed with itself. With oracle: each seed with the scripted oracle partner (`dd_oracle`: "
@@ -394,8 +408,7 @@ def write_report(
         "dual_destination.md); mean ± SE over seeds. The oracle partner with itself scores the oracle's "
         "return with the full view.\n"
     )
-    md.append("| variant | task set | algorithm | SP | with oracle partner |")
-    md.append("|---|---|---|---|---|")
+    rows = []
     for variant in VARIANTS:
         for level_set in LEVEL_SETS:
             kinds = summaries.get(variant, {}).get(level_set, {})
@@ -403,11 +416,9 @@ def write_report(
                 sp, wo = kinds.get("sp", {}).get(algo), kinds.get("oracle", {}).get(algo)
                 if sp is None and wo is None:
                     continue
-                md.append(
-                    f"| {VARIANT_TITLES[variant]} | {LEVEL_SET_TITLES[level_set]} | {algo} | {_pm(sp)} | "
-                    f"{'—' if algo == ORACLE else _pm(wo)} |"
-                )
-    md.append("")
+                partner = NONE if algo == ORACLE else _score(wo)
+                rows.append([VARIANT_TITLES[variant], LEVEL_SET_TITLES[level_set], algo, _score(sp), partner])
+    md.append(table(["variant", "task set", "algorithm", "SP", "with oracle partner"], rows, end="\n"))
     md.append("## Bar plots\n")
     for variant in VARIANTS:
         if variant in summaries:
@@ -415,10 +426,9 @@ def write_report(
             bar_plot(summaries[variant], variant, out / name)
             md.append(f"![{VARIANT_TITLES[variant]}]({name})\n")
     md.append("## Timings\n")
-    md.append("| stage | seconds |")
-    md.append("|---|---|")
-    md.extend(f"| {k} | {v:.0f} |" for k, v in meta.get("stages", {}).items())
-    md.append("")
+    md.append(
+        table(["stage", "seconds"], [[k, f"{v:.0f}"] for k, v in meta.get("stages", {}).items()], end="\n")
+    )
     path = out / "report.md"
     path.write_text("\n".join(md) + "\n")
     (out / "summary.json").write_text(
@@ -492,30 +502,30 @@ def ablation_section(
             )
         )
         if trained:
-            md.append(
-                f"| variant | env steps per seed: {b} / {a} | training return: {b}, best / at the end | "
-                f"{a}, best / at the end | positive reward reached |"
-            )
-            md.append("|---|---|---|---|---|")
+            head = [
+                "variant", f"env steps per seed: {b} / {a}", f"training return: {b}, best / at the end",
+                f"{a}, best / at the end", "positive reward reached",
+            ]  # fmt: skip
+            rows = []
             for variant, t, base in trained:
-                other = "—" if base is None else f"{base['best_return']:.3f} / {base['final_return']:.3f}"
-                steps = f"{t['env_steps']:,} / " + ("—" if base is None else f"{base['env_steps']:,}")
+                other = NONE if base is None else f"{base['best_return']:.3f} / {base['final_return']:.3f}"
+                steps = f"{t['env_steps']:,} / " + (NONE if base is None else f"{base['env_steps']:,}")
                 mine_t = f"{t['best_return']:.3f} / {t['final_return']:.3f}"
-                md.append(f"| {VARIANT_TITLES[variant]} | {steps} | {mine_t} | {other} | {_positive(t)} |")
-            md.append("")
+                rows.append([VARIANT_TITLES[variant], steps, mine_t, other, _positive(t)])
+            md.append(table(head, rows, end="\n"))
         if mine:
             md.append(f"XP of {a} and of {b} (the jackknife over seeds, as for the orderings):\n")
-            md.append(f"| variant | task set | {a} XP | {b} XP | difference [95% CI] | p | {a} better |")
-            md.append("|---|---|---|---|---|---|---|")
+            head = ["variant", "task set", f"{a} XP", f"{b} XP", "difference [95% CI]", "p", f"{a} better"]
+            rows = []
             for c in mine:
                 xp = summaries[c.variant][c.level_set]["xp"]
                 verdict = ("yes" if c.holds else "**no**") + (" (significant)" if c.significant else "")
-                where = f"{VARIANT_TITLES[c.variant]} | {LEVEL_SET_TITLES[c.level_set]}"
                 diff = f"{c.diff:+.3f} [{c.ci_low:+.3f}, {c.ci_high:+.3f}]"
-                md.append(
-                    f"| {where} | {_pm(xp[c.better])} | {_pm(xp[c.worse])} | {diff} | {_p(c.p)} | {verdict} |"
-                )
-            md.append("")
+                rows.append([
+                    VARIANT_TITLES[c.variant], LEVEL_SET_TITLES[c.level_set], _score(xp[c.better]),
+                    _score(xp[c.worse]), diff, p_value(c.p), verdict,
+                ])  # fmt: skip
+            md.append(table(head, rows, end="\n"))
     return md
 
 

@@ -27,11 +27,31 @@ from apps.reproduce.overcooked.modes import (
 from apps.reproduce.overcooked.paper import HUMAN_STUDY, paper_values
 from apps.reproduce.overcooked.summary import ALPHA, MEASURES, SeedScores, comparisons, finite
 from cec.agents.zoo import HUMAN_PROXY
+from cec.evaluation.markdown import NONE, interval, num, p_value, pm, table_lines
 
 TABLE_HEAD = (
-    "| algorithm | self-play | cross-play (unseen partners) | XP / SP | with the cook | with human proxies "
-    "| paper (XP) |"
+    "algorithm",
+    "self-play",
+    "cross-play (unseen partners)",
+    "XP / SP",
+    "with the cook",
+    "with human proxies",
+    "paper (XP)",
 )
+
+TEST_HEAD = (
+    "level set",
+    "score",
+    "CEC −",
+    "difference",
+    "95% CI",
+    "p",
+    "Holm p",
+    "exact p (smallest possible)",
+    "Holm exact p",
+    "reading (p < 0.05)",
+)
+TRAINING_HEAD = ("run", "seeds", "env steps per seed", "updates", "recorded time")
 
 
 def write_report(
@@ -80,18 +100,7 @@ def write_report(
         title = (
             f"{len(mode.kitchens)} classic" if level_set == "classic" else f"{mode.generated_levels} held-out"
         )
-        lines += [f"## The {title} kitchens", "", TABLE_HEAD, "|---|---|---|---|---|---|---|"]
-        for algo in [*ALGORITHMS, UNTRAINED, NOOP, COOK]:
-            if algo not in scores:
-                continue
-            s = scores[algo]
-            sp, xp = finite(s.sp), finite(s.xp)
-            ratio = f"{xp.mean() / sp.mean():.2f}" if xp.size and sp.size and sp.mean() > 0 else "—"
-            lines.append(
-                f"| {TITLES.get(algo, algo)} | {_cell(s.sp)} | {_xp_cell(s)} | {ratio} | "
-                f"{_cell(s.cook) if algo != COOK else '—'} | {_cell(s.human)} | "
-                f"{_paper_cell(level_set, algo, paper, paper_text)} |"
-            )
+        lines += [f"## The {title} kitchens", "", *table_lines(TABLE_HEAD, _score_rows(level_set, scores))]
         absent = {a: v for a, v in paper_text[level_set].items() if a not in scores}
         if absent:
             named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
@@ -116,24 +125,11 @@ def write_report(
     if not tests:
         lines += ["No test: too few seeds, or no spread between them.", ""]
     else:
-        lines += ["| level set | score | CEC − | difference | 95% CI | p | Holm p | "
-                  "exact p (smallest possible) | Holm exact p | reading (p < 0.05) |",
-                  "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
-        for t in tests:
-            exact = "—" if math.isnan(t["p_exact"]) else f"{_p(t['p_exact'])} ({_p(t['p_min'])})"
-            lines.append(
-                f"| {t['level_set']} | {MEASURES[t['measure']]} | {TITLES[t['worse']]} | {t['diff']:+.1f} | "
-                f"[{t['ci_low']:+.1f}, {t['ci_high']:+.1f}] | {t['p']:.3g} | {_p(t['p_holm'])} | {exact} | "
-                f"{_p(t['p_exact_holm'])} | {_reading(t)} |"
-            )
-        lines += ["", *_floor_lines(tests)]
+        lines += [*table_lines(TEST_HEAD, (_test_row(t) for t in tests)), "", *_floor_lines(tests)]
     lines += sections
-    lines += ["## Training", "", "| run | seeds | env steps per seed | updates | recorded time |",
-              "|---|---|---|---|---|"]  # fmt: skip
     recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
-    lines += [
-        f"| {p.run} | {p.seeds} | {p.env_steps:,} | {p.updates} | {recorded.get(p.run, '—')} |" for p in plan
-    ]
+    training = [[p.run, p.seeds, f"{p.env_steps:,}", p.updates, recorded.get(p.run, NONE)] for p in plan]
+    lines += ["## Training", "", *table_lines(TRAINING_HEAD, training)]
     lines += ["", *budget_lines(mode, plan)]
     if missing:
         lines += ["", f"Not in this work folder (trained before the mode had them; the tables have none of "
@@ -152,23 +148,47 @@ def write_report(
     return report
 
 
+def _score_rows(level_set: str, scores: dict[str, SeedScores]) -> list[list[str]]:
+    """The rows of a level set's table (`TABLE_HEAD`): each algorithm and control the summary has."""
+    paper, paper_text = paper_values(), paper_values("text")
+    rows = []
+    for algo in [*ALGORITHMS, UNTRAINED, NOOP, COOK]:
+        if algo not in scores:
+            continue
+        s = scores[algo]
+        sp, xp = finite(s.sp), finite(s.xp)
+        ratio = num(xp.mean() / sp.mean(), 2) if xp.size and sp.size and sp.mean() > 0 else NONE
+        cook = _cell(s.cook) if algo != COOK else NONE
+        paper_cell = _paper_cell(level_set, algo, paper, paper_text)
+        rows.append(
+            [TITLES.get(algo, algo), _cell(s.sp), _xp_cell(s), ratio, cook, _cell(s.human), paper_cell]
+        )
+    return rows
+
+
+def _test_row(t: dict[str, Any]) -> list[str]:
+    """One comparison of `comparisons` as a row of `TEST_HEAD`."""
+    exact = NONE if math.isnan(t["p_exact"]) else f"{p_value(t['p_exact'], 3)} ({p_value(t['p_min'], 3)})"
+    return [
+        t["level_set"], MEASURES[t["measure"]], TITLES[t["worse"]], num(t["diff"], signed=True),
+        interval(t["ci_low"], t["ci_high"]), p_value(t["p"], 3), p_value(t["p_holm"], 3), exact,
+        p_value(t["p_exact_holm"], 3), _reading(t),
+    ]  # fmt: skip
+
+
 def _cell(values: Sequence[float]) -> str:
     from cec.evaluation.stats import sem
 
     arr = finite(values)
     if not arr.size:
-        return "—"
-    return _pm(float(arr.mean()), sem(arr), arr.size)
+        return NONE
+    return pm(float(arr.mean()), sem(arr), n=arr.size)
 
 
 def _xp_cell(scores: SeedScores) -> str:
     """Cross-play: the mean over every pair of two different seeds ± its jackknife standard error."""
     est = scores.crossplay()
-    return "—" if math.isnan(est.mean) else _pm(est.mean, est.se, est.seeds)
-
-
-def _pm(mean: float, err: float, n: int) -> str:
-    return f"{mean:.1f}" + ("" if math.isnan(err) else f" ± {err:.1f}") + f" (n={n})"
+    return pm(est.mean, est.se, n=est.seeds)
 
 
 def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]], text: dict) -> str:
@@ -176,7 +196,7 @@ def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]],
     if exact is not None:
         return f"{exact} (text)"
     ref = figures.get(level_set, {}).get(algo)
-    return "—" if ref is None else f"≈{ref} (figure)"
+    return NONE if ref is None else f"≈{ref} (figure)"
 
 
 def _reading(test: dict[str, Any]) -> str:
@@ -187,10 +207,6 @@ def _reading(test: dict[str, Any]) -> str:
     reading = "CEC ahead" if test["diff"] > 0 else "CEC behind"
     held = test.get("p_holm", test["p"]) < ALPHA
     return reading if held else f"{reading}; not after Holm"
-
-
-def _p(p: float) -> str:
-    return "—" if math.isnan(p) else f"{p:.3g}"
 
 
 def _floor_lines(tests: Sequence[dict[str, Any]]) -> list[str]:

@@ -5,7 +5,6 @@ curves, whether the single-kitchen runs levelled off, and the baselines without 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -28,6 +27,7 @@ from apps.reproduce.overcooked.modes import (
 from apps.reproduce.overcooked.plan import run_name
 from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation.curves import metrics_file
+from cec.evaluation.markdown import NONE, num, pm, table_lines
 
 
 def analysis_lines(mode: Mode, table: Any, runs: Path, controls: Any = None) -> list[str]:
@@ -53,8 +53,15 @@ def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
     kitchens = [k for k in mode.kitchens if any(_of_kitchen(table.policy_a[held], a, k).any() for a in algos)]
 
     def mean(values: np.ndarray, mask: np.ndarray, fmt: str = "{:.1f}") -> str:
-        return fmt.format(float(values[mask].mean())) if mask.any() else "—"
+        return fmt.format(float(values[mask].mean())) if mask.any() else NONE
 
+    rows = []
+    for algo in algos:
+        mine = table.algorithm_a == algo
+        cells = (
+            f"{mean(table.returns, mine & xp & m)} ({mean(table.returns, mine & sp & m)})" for _, m in columns
+        )
+        rows.append([TITLES[algo], *cells])
     lines = [
         "## Per kitchen, collisions and episodes without a soup",
         "",
@@ -65,15 +72,8 @@ def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
         + ", ".join(kitchens or ["none"])
         + " (as in the tables above; by training kitchen below).",
         "",
-        "| algorithm | " + " | ".join(k for k, _ in columns) + " |",
-        "|---" * (len(columns) + 1) + "|",
+        *table_lines(["algorithm", *(k for k, _ in columns)], rows),
     ]
-    for algo in algos:
-        mine = table.algorithm_a == algo
-        cells = [
-            f"{mean(table.returns, mine & xp & m)} ({mean(table.returns, mine & sp & m)})" for _, m in columns
-        ]
-        lines.append(f"| {TITLES[algo]} | " + " | ".join(cells) + " |")
     lines += [
         "",
         "Collisions per cross-play episode (steps where the two cooks move to the same cell or try to swap "
@@ -82,26 +82,30 @@ def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
         "moves more, so it has more steps to collide on. The untrained CEC network (the control; its seeds "
         "with each other) is the baseline of an agent that learned nothing:",
         "",
-        "| algorithm | collisions, classic | collisions, held-out | no soup, classic | no soup, held-out "
-        "| per soup, classic | per soup, held-out |",
-        "|---|---|---|---|---|---|---|",
     ]
-    rows = [(TITLES[a], table, a) for a in algos]
+    who = [(TITLES[a], table, a) for a in algos]
     if controls is not None and np.any(controls.algorithm_a == UNTRAINED):
-        rows.append((TITLES[UNTRAINED], controls, UNTRAINED))
-    for title, t, algo in rows:
+        who.append((TITLES[UNTRAINED], controls, UNTRAINED))
+    rows = []  # the collisions
+    for title, t, algo in who:
         t_xp, t_held = _xp_sp(t)[0], _held_out(mode, t)
         sets = [(t.algorithm_a == algo) & t_xp & m for m in (~t_held, t_held)]
         coll = [mean(t.collisions, m) for m in sets]
         none = [mean((t.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
         per_soup = [_per_soup(t.collisions[m].sum(), t.deliveries[m].sum()) for m in sets]
-        lines.append(f"| {title} | {' | '.join(coll)} | {' | '.join(none)} | {' | '.join(per_soup)} |")
-    return [*lines, ""]
+        rows.append([title, *coll, *none, *per_soup])
+    return [*lines, *table_lines(COLLISION_HEAD, rows), ""]
+
+
+COLLISION_HEAD = (
+    "algorithm", "collisions, classic", "collisions, held-out", "no soup, classic", "no soup, held-out",
+    "per soup, classic", "per soup, held-out",
+)  # fmt: skip
 
 
 def _per_soup(collisions: float, soups: float) -> str:
     if not soups:
-        return "—"
+        return NONE
     ratio = float(collisions) / float(soups)
     return f"{ratio:.1f}" if ratio < 1000 else f"{ratio:,.0f}"
 
@@ -142,28 +146,22 @@ def curve_points(curves: Any) -> tuple[list[Any], int]:
 def curve_lines(points: Sequence[Any], kitchens: int) -> list[str]:
     """The cross-play learning curves (`curve_points`) as a table: each checkpoint's cross-play and
     self-play on the held-out kitchens."""
-    head = "## Cross-play learning curves (held-out kitchens)"
+    title = "## Cross-play learning curves (held-out kitchens)"
     if not points:
         missing = "Not measured: the work folder has neither the runs' milestone checkpoints nor their games."
-        return [head, "", missing, ""]
+        return [title, "", missing, ""]
     about = (
         "At each checkpoint a generator-trained run saved (its milestones and its last), its seeds with each "
         f"other on the {kitchens} held-out kitchens, {EVAL_STEPS}-step episodes: cross-play "
         "(every pair of two different seeds) ± its jackknife standard error over seeds, and self-play ± "
         "the standard error over seeds (`curves_xp.png`)."
     )
-    lines = [head, "", about, "", "| algorithm | env steps per seed | seeds | cross-play | self-play |",
-             "|---|---|---|---|---|"]  # fmt: skip
-
-    def cell(mean: float, se: float) -> str:
-        return "—" if math.isnan(mean) else f"{mean:.1f}" + ("" if math.isnan(se) else f" ± {se:.1f}")
-
-    for p in points:
-        lines.append(
-            f"| {TITLES.get(p.name, p.name)} | {p.env_steps:,} | {len(p.seeds)} | {cell(p.xp, p.xp_se)} | "
-            f"{cell(p.sp, p.sp_se)} |"
-        )
-    return [*lines, ""]
+    rows = [
+        [TITLES.get(p.name, p.name), f"{p.env_steps:,}", len(p.seeds), pm(p.xp, p.xp_se), pm(p.sp, p.sp_se)]
+        for p in points
+    ]
+    head = ["algorithm", "env steps per seed", "seeds", "cross-play", "self-play"]
+    return [title, "", about, "", *table_lines(head, rows), ""]
 
 
 def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
@@ -189,10 +187,8 @@ def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
         if not m.labels:
             continue
         titles = [TITLES.get(a, a) for a in m.labels]
-        lines += [f"**{level_set}**", "", "| | " + " | ".join(titles) + " |", "|---" * len(titles) + "|---|"]
-        for title, row in zip(titles, m.values, strict=True):
-            cells = ("—" if math.isnan(v) else f"{v:.1f}" for v in row)
-            lines.append(f"| {title} | " + " | ".join(cells) + " |")
+        rows = ([title, *(num(v) for v in values)] for title, values in zip(titles, m.values, strict=True))
+        lines += [f"**{level_set}**", "", *table_lines(["", *titles], rows, tight=True)]
         off = m.values[~np.eye(len(m.labels), dtype=bool)]
         if off.size and np.isnan(off).all():
             lines += ["", "No two algorithms met in this table (it was played before every agent met every "
@@ -216,19 +212,18 @@ def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
         "cross-play (two different seeds of one algorithm, both trained on the column's kitchen) and, in "
         "brackets, self-play; — where that kitchen's agents did not play them.",
         "",
-        "| algorithm | " + " | ".join(mode.kitchens) + " |",
-        "|---" * (len(mode.kitchens) + 1) + "|",
     ]
+    rows = []
     for algo in algos:
         cells = []
         for k in mode.kitchens:
             mine = held & _of_kitchen(table.policy_a, algo, k) & _of_kitchen(table.policy_b, algo, k)
             cells.append(
                 f"{table.returns[mine & xp].mean():.1f} ({table.returns[mine & sp].mean():.1f})"
-                if (mine & xp).any() and (mine & sp).any() else "—"
+                if (mine & xp).any() and (mine & sp).any() else NONE
             )  # fmt: skip
-        lines.append(f"| {TITLES[algo]} | " + " | ".join(cells) + " |")
-    return [*lines, ""]
+        rows.append([TITLES[algo], *cells])
+    return [*lines, *table_lines(["algorithm", *mode.kitchens], rows), ""]
 
 
 def _kitchen_runs(runs: Path, algo: str, kitchen: str) -> list[Path]:
@@ -302,7 +297,7 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
 
     def cell(a: str, k: str) -> str:
         g = groups.get((a, k))
-        return "—" if g is None else f"{g.last:.1f} ({g.rise:+.1f}) {'yes' if g.levelled else 'no'}"
+        return NONE if g is None else f"{g.last:.1f} ({g.rise:+.1f}) {'yes' if g.levelled else 'no'}"
 
     verdict = f"{len(groups) - len(rising)} of {len(groups)} groups levelled off."
     if rising:
@@ -322,14 +317,13 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
         f"self-play levelled off. Levelled off (yes) when the rise is at most {PLATEAU_SHARE:.0%} of the "
         "return.",
         "",
-        "| algorithm | training episode (steps) | " + " | ".join(mode.kitchens) + " |",
-        "|---" * (len(mode.kitchens) + 2) + "|",
-        *(
-            f"| {TITLES[a]} | {_episode_steps(runs, a, mode.kitchens)} | "
-            + " | ".join(cell(a, k) for k in mode.kitchens)
-            + " |"
-            for a in algos
-        ),
+        *table_lines(
+            ["algorithm", "training episode (steps)", *mode.kitchens],
+            (
+                [TITLES[a], _episode_steps(runs, a, mode.kitchens), *(cell(a, k) for k in mode.kitchens)]
+                for a in algos
+            ),
+        ),  # fmt: skip
         "",
         verdict,
         *([""] if rising else []),
@@ -343,6 +337,12 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
     ]
 
 
+FAILING_HEAD = (
+    "algorithm", "kitchen", "self-play", "cross-play", "training episode (steps)",
+    "training return, first → last", "shaped, last", "reading",
+)  # fmt: skip
+
+
 def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
     """Every single-kitchen algorithm and kitchen whose self-play there delivers nothing, with what its
     training recorded (`metrics.csv` of its runs under `runs`): the team return per training episode with
@@ -351,7 +351,7 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
     from cec.evaluation.curves import trailing_mean
 
     xp, sp = _xp_sp(table)
-    rows = []
+    rows: list[list[str]] = []
     for algo in (a for a in ALGORITHMS if a not in GENERALISTS):
         for k in mode.kitchens:
             own = (table.algorithm_a == algo) & (table.level == k)
@@ -359,8 +359,8 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
                 continue
             curves = {c: _curves(runs, algo, k, c) for c in ("mean_return", "mean_shaped_return")}
             if not curves["mean_return"]:
-                rows.append(f"| {TITLES[algo]} | {k} | 0.0 | — | — | — | — | its training metrics are not in "
-                            "the work folder |")  # fmt: skip
+                rows.append([TITLES[algo], k, "0.0", NONE, NONE, NONE, NONE,
+                             "its training metrics are not in the work folder"])  # fmt: skip
                 continue
             first = float(np.mean([v[0] for v in curves["mean_return"]]))
             last, shaped = (float(np.mean([trailing_mean(v, 10)[-1] for v in curves[c]])) for c in curves)
@@ -375,9 +375,10 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
                 )
             else:
                 reading = "it learned to deliver with its training partners, but not with a copy of itself"
-            xp_k = f"{table.returns[own & xp].mean():.1f}" if (own & xp).any() else "—"
-            rows.append(f"| {TITLES[algo]} | {k} | 0.0 | {xp_k} | {_episode_steps(runs, algo, [k])} | "
-                        f"{first:.1f} → {last:.1f} | {shaped:.1f} | {reading} |")  # fmt: skip
+            xp_k = num(float(table.returns[own & xp].mean())) if (own & xp).any() else NONE
+            trained = f"{first:.1f} → {last:.1f}"
+            rows.append([TITLES[algo], k, "0.0", xp_k, _episode_steps(runs, algo, [k]), trained, num(shaped),
+                         reading])  # fmt: skip
     if not rows:
         return ["## Baselines in their own kitchen", "", "Every single-kitchen algorithm delivers in "
                 "self-play in its own kitchen (self-play > 0 in each).", ""]  # fmt: skip
@@ -390,9 +391,6 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
         "itself mixed with random moves) at the first update and over the last 10 (the mean over seeds), "
         "and the shaped return over the last 10.",
         "",
-        "| algorithm | kitchen | self-play | cross-play | training episode (steps) | training return, first "
-        "→ last | shaped, last | reading |",
-        "|---|---|---|---|---|---|---|---|",
-        *rows,
+        *table_lines(FAILING_HEAD, rows),
         "",
     ]
