@@ -119,3 +119,27 @@ def fill(template: string.Template, values: Mapping[str, object] | None = None, 
     if unused:
         raise ValueError(f"values without a hole in the template: {', '.join(sorted(unused))}")
     return template.substitute({k: str(v) for k, v in given.items()})
+
+
+class Templates:
+    """The Markdown templates of one folder (`NAME.md`), filled by name. It remembers which it filled, so a
+    test can render a report on small inputs and check that every template of its folder was filled (`fill`
+    already refuses a hole without a value and a value without a hole)."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.filled: set[str] = set()
+
+    def names(self) -> set[str]:
+        """Every template of the folder, by name."""
+        return {p.stem for p in self.folder.glob("*.md")}
+
+    def fill(self, name: str, values: Mapping[str, object] | None = None, /, **more: object) -> str:
+        """The template `name` filled with `values` and `more` (see `fill`)."""
+        text = fill(read_template(self.folder / f"{name}.md"), values, **more)
+        self.filled.add(name)
+        return text
+
+    def lines(self, name: str, values: Mapping[str, object] | None = None, /, **more: object) -> list[str]:
+        """`fill`'s text as lines (a template that ends with a newline ends with an empty line)."""
+        return self.fill(name, values, **more).split("\n")

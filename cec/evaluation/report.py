@@ -20,7 +20,7 @@ import numpy as np
 from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation import analysis as an
 from cec.evaluation import egta
-from cec.evaluation.markdown import NONE, num, p_value, pm, table
+from cec.evaluation.markdown import NONE, Templates, num, p_value, pm, table
 from cec.evaluation.plotting import colour_range, distinct_colours, pyplot
 from cec.evaluation.results import EpisodeTable
 from cec.evaluation.stats import (
@@ -31,6 +31,8 @@ from cec.evaluation.stats import (
     permutation_crossplay,
     sem,
 )
+
+TEMPLATES = Templates(Path(__file__).parent / "templates")
 
 #: Heatmaps of more rows than this show colours without a value in each cell, at this size.
 MAX_CELL_TEXT = 12
@@ -102,19 +104,17 @@ class _Report:
     def header(self) -> None:
         t = self.table
         actions = ", ".join(sorted(set(t.actions.tolist())))
-        self.md.append("# Cross-play report\n")
         self.md.append(
-            f"Game: **{self.env}**, episodes of {self.steps} steps, actions {actions}; "
-            f"{len(t)} episodes from {len(self.sources) or 1} file(s): {', '.join(self.sources) or '-'}. "
-            f"Scores are the {self.unit}.\n"
-        )
-        self.md.append(
-            "Aggregation: a pair's score on a level is the mean over its episodes and both seat orders; a "
-            "pair's score on a level set is the mean over the set's levels both policies play. SP = a "
-            "policy with itself; XP = two different seeds of one algorithm; ad hoc = with policies of the "
-            "other algorithms. Seeds are the units of every test; XP's uncertainty is a jackknife over "
-            "seeds (each seed's pairs are shared with the other seeds), the others' standard errors are "
-            "over pairs and describe spread, not evidence.\n"
+            TEMPLATES.fill(
+                "header",
+                env=self.env,
+                steps=self.steps,
+                actions=actions,
+                episodes=len(t),
+                files=len(self.sources) or 1,
+                sources=", ".join(self.sources) or "-",
+                unit=self.unit,
+            )  # fmt: skip
         )
         if t.skipped:
             self.md.append("## Skipped zoo entries\n")
@@ -169,21 +169,9 @@ class _Report:
             heads.append("with human proxies")
         self.md.append("### Scores per algorithm\n")
         self.md.append(table([*heads, "BR-prox IQM [IQR]"], rows, end="\n"))
-        self.md.append(
-            "Mean ± standard error: SP and ad hoc over pairs; XP (the mean over every pair of two different "
-            "seeds) with the leave-one-seed-out jackknife's standard error, which counts that a seed's pairs "
-            "are shared with the other seeds (NaN below 3 seeds). BR-prox: score with a partner divided by "
-            "the best score any zoo policy reached with that partner on that level (capped at 1), "
-            "interquartile mean over (policy, partner, level).\n"
-        )
+        self.md.append(TEMPLATES.fill("scores"))
         if with_humans:
-            self.md.append(
-                f"Human proxies (algorithm `{HUMAN_PROXY}`: behaviour-cloned from recorded human-human "
-                "games, `cec humans bc`) are people-like partners, kept out of the ad-hoc column: with "
-                "human proxies = a policy with each proxy, on the levels the proxy plays. The paper's human "
-                "study (Counter Circuit and Coordination Ring, score with real people): E3T ahead, CEC and "
-                "CEC-Finetune next, FCP and IPPO behind (CEC ahead of FCP, p < 0.001).\n"
-            )
+            self.md.append(TEMPLATES.fill("human_proxies", proxy=HUMAN_PROXY))
         self.seed_matrices(pl, slug)
         self.algorithm_heatmap(pl, name, slug)
         self.per_level(pl, levels, name, slug)
@@ -298,20 +286,7 @@ class _Report:
             self.md.append(table(["algorithm", "levels", "mean ± SE over levels", "median"], rows, end="\n"))
 
     def tests(self, pl: an.PairLevel) -> None:
-        self.md.append("### Significance between algorithms\n")
-        self.md.append(
-            "Seeds are the units; the interval is the headline, the p-values second. XP: the difference of "
-            "the algorithms' cross-play, its jackknife standard error over seeds (a seed's pairs are shared "
-            "with the other seeds, so per-seed means are not independent), a t-test with "
-            "Welch-Satterthwaite degrees of freedom and its 95% t interval; beside it the exact permutation "
-            "test over seeds (`stats.permutation_crossplay`: every split of the two algorithms' seeds, from "
-            "their pooled seed x seed matrix, which needs every seed of one to have played every seed of the "
-            "other) with the smallest p it can give at these seed counts. The other partners (ad hoc, "
-            "proxies): each seed's mean with the same partners, a two-sided Welch t-test over seeds and a "
-            "95% percentile bootstrap interval (10,000 resamples); no permutation p, as these partners are "
-            "not seeds of either algorithm (no pooled matrix). Holm: the p-values adjusted for every test of "
-            "the same table (one family per table and level set).\n"
-        )
+        self.md.append(TEMPLATES.fill("tests"))
         algos = [a for a in an.algorithms_of(pl.policies) if a != HUMAN_PROXY]
         matrices = {a: an.seed_matrix(pl, a).values for a in algos}
         scores = an.pair_scores(pl)

@@ -39,7 +39,7 @@ from apps.reproduce.dual_destination.reasons import (
     ordering_reason,
 )
 from apps.reproduce.dual_destination.summary import ALPHA, LEARNED, Score, check_ablations, check_claims
-from cec.evaluation.markdown import NONE, interval, p_value, pm, table
+from cec.evaluation.markdown import NONE, Templates, interval, p_value, pm, table
 from cec.evaluation.plotting import pyplot
 
 if TYPE_CHECKING:
@@ -79,6 +79,8 @@ def _fits(raw: Score | None, clipped: Score | None, p: PaperNumber | None) -> st
     return "raw" if abs(raw.mean - p.mean) < abs(clipped.mean - p.mean) else "clipped"
 
 
+TEMPLATES = Templates(Path(__file__).parent / "templates")
+Summaries = dict[str, dict[str, dict[str, dict[str, Score]]]]  # variant -> task set -> kind -> algorithm
 ORDERINGS_HEAD = (
     "variant", "task set", "ordering", "difference [95% CI]", "p", "holds", "significant",
     "learned seeds only: difference, p, holds",
@@ -197,16 +199,52 @@ def _take_off(positive_at: Mapping[str, int | None]) -> str:
     )
 
 
-def write_report(
-    out: Path,
-    mode: Mode,
-    summaries: dict[str, dict[str, dict[str, dict[str, Score]]]],
-    meta: dict[str, Any],
-) -> Path:
+def write_report(out: Path, mode: Mode, summaries: Summaries, meta: dict[str, Any]) -> Path:
     """Writes `report.md`, `summary.json` and one bar plot per variant into `out`; returns the report."""
     out.mkdir(parents=True, exist_ok=True)
     claims = check_claims(summaries)
-    md: list[str] = [f"# Dual Destination: the paper's results reproduced ({mode.name} version)\n"]
+    training = meta.get("training", {})
+    md = [
+        *_header(mode, meta), *_numbers(summaries), *_orderings(summaries, claims, meta),
+        *_cec_full(summaries, training), *ablation_section(summaries, training),
+        *_differences(mode, summaries, meta), *_training(meta), *_conventions(summaries, meta),
+        *_reference(summaries), *_bars(summaries, out), "## Timings\n",
+        table(["stage", "seconds"], [[k, f"{v:.0f}"] for k, v in meta.get("stages", {}).items()], end="\n"),
+    ]  # fmt: skip
+    path = out / "report.md"
+    path.write_text("\n".join(md) + "\n")
+    (out / "summary.json").write_text(
+        json.dumps(
+            {
+                "meta": meta,
+                "mode": {
+                    "name": mode.name,
+                    "seeds": mode.seeds,
+                    "steps": mode.steps,
+                    "episodes": mode.episodes,
+                },
+                "summaries": {
+                    v: {
+                        ls: {k: {a: s.__dict__ for a, s in d.items()} for k, d in kinds.items()}
+                        for ls, kinds in per.items()
+                    }
+                    for v, per in summaries.items()
+                },  # fmt: skip
+                "claims": [c.__dict__ for c in claims],
+                "ablations": [c.__dict__ for c in check_ablations(summaries)],
+                "paper": [p.__dict__ for p in PAPER],
+            },
+            indent=1,
+            default=float,
+        )
+        + "\n"
+    )
+    return path
+
+
+def _header(mode: Mode, meta: dict[str, Any]) -> list[str]:
+    """The title, the command and machine, the recorded times, how to read a score and the budget."""
+    md = [f"# Dual Destination: the paper's results reproduced ({mode.name} version)\n"]
     m = meta["machine"]
     md.append(
         f"Command: `{meta['command']}`. Machine: {m['cpu']} ({m['cpu_count']} cores, {m['device']}), host "
@@ -221,16 +259,7 @@ def write_report(
             f"Training runs found finished by an earlier invocation and not trained again: "
             f"{', '.join(meta['skipped_runs'])} (their training time is in the Training section).\n"
         )
-    md.append(
-        "Score: the paper's normalised score, return / (2 x 100 steps); the oracle reaches 0.955 on the "
-        "fixed task. **XP** (the paper's measure, zero-shot coordination): per seed, the mean score with "
-        "each other seed of its algorithm (both seat orders, all episodes, all levels of the set), then the "
-        "mean over seeds; its ± is the leave-one-seed-out jackknife standard error (seeds are the units, "
-        "and a seed's pairs are shared with the other seeds); the other scores' ± is the standard error "
-        "over seeds. "
-        "The multi-task variant's fixed task is its two-pair layout. CEC never trains on either task set "
-        "(both fixed tasks and the 100 generated evaluation tasks are excluded from its generator).\n"
-    )
+    md.append(TEMPLATES.fill("score"))
     budget = ", ".join(
         f"{a.upper()} {len(mode.seeds[a])} seeds x {mode.steps['full_obs'][a]:,} steps "
         f"({mode.presets[algorithm_of(a)]}"
@@ -246,29 +275,21 @@ def write_report(
         f"{mode.episodes['generated']} on each of {min(mode.generated_levels, 100)} held-out generated "
         "tasks. FCP's population: every IPPO seed at its first, middle and last milestone.\n"
     )
-    md.append("## Our numbers beside the paper's\n")
+    return md
+
+
+def _numbers(summaries: Summaries) -> list[str]:
+    """Our numbers beside the paper's, a row per variant, task set and algorithm."""
+    md = ["## Our numbers beside the paper's\n"]
     missing = [VARIANT_TITLES[v] for v in VARIANTS if v not in summaries]
     if missing:
         md.append(f"Not run for this report: {', '.join(missing)} (`--variants`).\n")
-    md.append(
-        "XP is played as the paper plays it, with sampled actions; *clipped*: the same episodes with each "
-        "return clipped at 0 before normalising (a pair that never meets on a goal pair scores 0, not "
-        "-0.5); *greedy*: every seed acting with its most likely action, which shows its convention without "
-        "the re-planning that sampling allows after a clash. *fits*: the scale (raw or clipped) whose XP is "
-        "nearer the paper's number. *XP, learned seeds*: XP among the seeds whose self-play reached "
-        f"{LEARNED} (how many in brackets): a seed that never learned the task lowers XP for a reason "
-        "other than conventions.\n"
-    )
-    md.append(table(NUMBERS_HEAD, _number_rows(summaries), end="\n"))
-    md.append("## The paper's orderings\n")
-    md.append(
-        "Seeds are the units, and a seed's cross-play pairs are shared with the other seeds: the "
-        "difference of XP with its leave-one-seed-out jackknife standard error, a two-sided t-test with "
-        "Welch-Satterthwaite degrees of freedom and the 95% t interval (`cec.evaluation.stats."
-        f"compare_crossplay`; NaN below 3 seeds); *significant* = the ordering holds and p < {ALPHA}. "
-        f"*Learned seeds only*: the same test on XP among the seeds whose self-play reached {LEARNED} "
-        "(an ordering that holds only with the seeds that never learned rests on them, not on conventions).\n"
-    )
+    md.append(TEMPLATES.fill("numbers", learned=LEARNED, table=table(NUMBERS_HEAD, _number_rows(summaries))))
+    return md
+
+
+def _orderings(summaries: Summaries, claims: list[Any], meta: dict[str, Any]) -> list[str]:
+    """The paper's orderings tested over seeds, and why each that does not hold fails."""
     by_learned = {
         (c.variant, c.level_set, c.better, c.worse): c for c in check_claims(summaries, "xp_learned")
     }
@@ -283,7 +304,7 @@ def write_report(
             f"{c.better.upper()} > {c.worse.upper()}", f"{c.diff:+.3f} {interval(c.ci_low, c.ci_high, 3)}",
             p_value(c.p), "yes" if c.holds else "**no**", "yes" if c.significant else "no", among,
         ])  # fmt: skip
-    md.append(table(ORDERINGS_HEAD, rows, end="\n"))
+    md = [TEMPLATES.fill("orderings", alpha=ALPHA, learned=LEARNED, table=table(ORDERINGS_HEAD, rows))]
     held = sum(c.holds for c in claims)
     sig = sum(c.significant for c in claims)
     md.append(f"{held} of {len(claims)} orderings hold, {sig} of them significantly.\n")
@@ -303,6 +324,11 @@ def write_report(
         md.append("Where an ordering does not hold, what the same seeds' self-play (SP) shows:\n")
         md.extend(failed)
         md.append("")
+    return md
+
+
+def _cec_full(summaries: Summaries, training: dict[str, Any]) -> list[str]:
+    """CEC, fully observable, against the paper's values (none without them)."""
     cec_full = [
         (
             ls,
@@ -323,12 +349,12 @@ def write_report(
                 + f" {TOLERANCE}."
                 + ("" if ok else f" Why: {why}")
             )
-    if lines:
-        md.append("## CEC, fully observable, against the paper's values\n")
-        md.extend(lines)
-        md.append("")
-    md.extend(ablation_section(summaries, training))
-    md.append("## Where our numbers differ from the paper's by more than 0.05\n")
+    return ["## CEC, fully observable, against the paper's values\n", *lines, ""] if lines else []
+
+
+def _differences(mode: Mode, summaries: Summaries, meta: dict[str, Any]) -> list[str]:
+    """Each XP that differs from the paper's by more than the tolerance, with its reason."""
+    md = ["## Where our numbers differ from the paper's by more than 0.05\n"]
     diffs = []
     for variant in VARIANTS:
         for level_set in LEVEL_SETS:
@@ -359,55 +385,41 @@ def write_report(
     if diffs and why:
         md.append(why)
         md.append("")
-    if meta.get("training"):
-        md.append("## Training\n")
-        md.append(
-            "From each run's metrics (also for runs this invocation found finished and skipped): the "
-            "training time (env steps over env steps/s of each update, without compilation) and the "
-            "normalised training return at the end (last 5 updates, mean over seeds; IPPO and CEC in "
-            "self-play, on the fixed task and on generated tasks; FCP with its population, untrained "
-            "first milestones included).\n"
-        )
-        md.append(table(TRAINING_HEAD, _training_rows(meta["training"]), end="\n"))
-        md.append(
-            "Entropy in nats (log 5 = 1.61: uniform over the five actions). A seed with high entropy samples "
-            "often off its convention, and a partner that sees it re-plans: sampled XP then hides a "
-            "mismatch that greedy XP shows. The last column: the env steps of each seed's first update with "
-            "a positive training return (`never` within its budget); the seeds of one algorithm take off at "
-            "very different steps.\n"
-        )
-        for variant, name in meta.get("curves", {}).items():
-            md.append(f"![{VARIANT_TITLES[variant]}: learning curves]({name})\n")
-    if meta.get("conventions"):
-        md.append("## Conventions\n")
-        md.append(
-            "The goal seat 0 stands on at the end of each seed's greedy self-play on the variant's fixed "
-            "task (row, column; `green (0, 2)` is the top goal of the fixed task, `green (4, 2)` the "
-            "bottom one), and in brackets the seed's sampled self-play there. Seeds that differ here cannot "
-            "all coordinate with each other greedily.\n"
-        )
-        rows = []
-        for variant, per in meta["conventions"].items():
-            for algo in ROWS:
-                seeds = per.get(algo, {})
-                sp = summaries.get(variant, {}).get("fixed", {}).get("sp", {}).get(algo)
-                own = {} if sp is None else dict(zip(sp.seeds, sp.samples, strict=False))
-                if seeds:
-                    listed = ", ".join(
-                        f"{seed}: {goal}" + (f" ({own[int(seed)]:.2f})" if int(seed) in own else "")
-                        for seed, goal in sorted(seeds.items())
-                    )
-                    distinct = len({g for g in seeds.values() if g != "no goal"})
-                    rows.append([VARIANT_TITLES[variant], algo.upper(), listed, str(distinct)])
-        head = ["variant", "algorithm", "seed: seat 0's goal (SP)", "distinct conventions"]
-        md.append(table(head, rows, end="\n"))
-    md.append("## Reference points: self-play and the oracle partner\n")
-    md.append(
-        "SP: each seed with itself. With oracle: each seed with the scripted oracle partner (`dd_oracle`: "
-        "the oracle's joint plan until the partner shows a choice, then a best response to it; docs/"
-        "dual_destination.md); mean ± SE over seeds. The oracle partner with itself scores the oracle's "
-        "return with the full view.\n"
-    )
+    return md
+
+
+def _training(meta: dict[str, Any]) -> list[str]:
+    """Each run's training from its metrics, and the learning curves (none without training records)."""
+    if not meta.get("training"):
+        return []
+    md = [TEMPLATES.fill("training", table=table(TRAINING_HEAD, _training_rows(meta["training"])))]
+    md += [f"![{VARIANT_TITLES[v]}: learning curves]({name})\n" for v, name in meta.get("curves", {}).items()]
+    return md
+
+
+def _conventions(summaries: Summaries, meta: dict[str, Any]) -> list[str]:
+    """The goal each seed's greedy self-play settles on (none without recorded conventions)."""
+    if not meta.get("conventions"):
+        return []
+    rows = []
+    for variant, per in meta["conventions"].items():
+        for algo in ROWS:
+            seeds = per.get(algo, {})
+            sp = summaries.get(variant, {}).get("fixed", {}).get("sp", {}).get(algo)
+            own = {} if sp is None else dict(zip(sp.seeds, sp.samples, strict=False))
+            if seeds:
+                listed = ", ".join(
+                    f"{seed}: {goal}" + (f" ({own[int(seed)]:.2f})" if int(seed) in own else "")
+                    for seed, goal in sorted(seeds.items())
+                )
+                distinct = len({g for g in seeds.values() if g != "no goal"})
+                rows.append([VARIANT_TITLES[variant], algo.upper(), listed, str(distinct)])
+    head = ["variant", "algorithm", "seed: seat 0's goal (SP)", "distinct conventions"]
+    return [TEMPLATES.fill("conventions", table=table(head, rows))]
+
+
+def _reference(summaries: Summaries) -> list[str]:
+    """Self-play and the score with the oracle partner: what a seed can do with itself and with the best."""
     rows = []
     for variant in VARIANTS:
         for level_set in LEVEL_SETS:
@@ -418,46 +430,19 @@ def write_report(
                     continue
                 partner = NONE if algo == ORACLE else _score(wo)
                 rows.append([VARIANT_TITLES[variant], LEVEL_SET_TITLES[level_set], algo, _score(sp), partner])
-    md.append(table(["variant", "task set", "algorithm", "SP", "with oracle partner"], rows, end="\n"))
-    md.append("## Bar plots\n")
+    head = ["variant", "task set", "algorithm", "SP", "with oracle partner"]
+    return [TEMPLATES.fill("reference", table=table(head, rows))]
+
+
+def _bars(summaries: Summaries, out: Path) -> list[str]:
+    """One bar plot per variant, written into `out`."""
+    md = ["## Bar plots\n"]
     for variant in VARIANTS:
         if variant in summaries:
             name = f"bars_{variant}.png"
             bar_plot(summaries[variant], variant, out / name)
             md.append(f"![{VARIANT_TITLES[variant]}]({name})\n")
-    md.append("## Timings\n")
-    md.append(
-        table(["stage", "seconds"], [[k, f"{v:.0f}"] for k, v in meta.get("stages", {}).items()], end="\n")
-    )
-    path = out / "report.md"
-    path.write_text("\n".join(md) + "\n")
-    (out / "summary.json").write_text(
-        json.dumps(
-            {
-                "meta": meta,
-                "mode": {
-                    "name": mode.name,
-                    "seeds": mode.seeds,
-                    "steps": mode.steps,
-                    "episodes": mode.episodes,
-                },
-                "summaries": {
-                    v: {
-                        ls: {k: {a: s.__dict__ for a, s in d.items()} for k, d in kinds.items()}
-                        for ls, kinds in per.items()
-                    }
-                    for v, per in summaries.items()
-                },  # fmt: skip
-                "claims": [c.__dict__ for c in claims],
-                "ablations": [c.__dict__ for c in check_ablations(summaries)],
-                "paper": [p.__dict__ for p in PAPER],
-            },
-            indent=1,
-            default=float,
-        )
-        + "\n"
-    )
-    return path
+    return md
 
 
 def _positive(t: dict[str, Any]) -> str:

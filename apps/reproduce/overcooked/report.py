@@ -25,6 +25,7 @@ from apps.reproduce.overcooked.modes import (
     Mode,
 )
 from apps.reproduce.overcooked.paper import HUMAN_STUDY, paper_values
+from apps.reproduce.overcooked.sections import TEMPLATES  # the folder's templates, one instance
 from apps.reproduce.overcooked.summary import ALPHA, MEASURES, SeedScores, comparisons, finite
 from cec.agents.zoo import HUMAN_PROXY
 from cec.evaluation.markdown import NONE, interval, num, p_value, pm, table_lines
@@ -83,17 +84,7 @@ def write_report(
         f"Report written on: {_machine_text(machine)}; commit {commit}; {time.strftime('%Y-%m-%d %H:%M')}.",
         "",
         *_time_lines(train_s or {}, played_s),
-        f"Team return per {EVAL_STEPS}-step episode (20 per soup), sampled actions, common random numbers, "
-        "both seat orders. SP, cook and proxies: the mean over seeds of each seed's mean (SP: with itself; "
-        "cook: with the scripted cook), ± the standard error over seeds, n = seeds. XP: the mean over every "
-        "pair of two different seeds of the algorithm ± its leave-one-seed-out jackknife standard error (a "
-        "seed's pairs are shared with the other seeds, so a standard error over per-seed means would "
-        "understate it about 3x for 4 seeds). The controls are partners that learned nothing: the CEC "
-        "network at its random initialisation (one per CEC seed) and an agent that always stays; what an "
-        "algorithm adds with the cook is its score there minus theirs. The paper's values are read off its "
-        "figures (approximate, marked 'figure') or, where its text prints one, that value ('text'; "
-        "`apps/reproduce/paper_overcooked.yaml`).",
-        "",
+        *TEMPLATES.lines("about", eval_steps=EVAL_STEPS),
         *_human_lines(mode, summary, skipped),
     ]
     for level_set, scores in summary.items():
@@ -106,26 +97,13 @@ def write_report(
             named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
             lines += ["", f"Not trained here; the paper's text gives: {named}."]
         lines.append("")
-    lines += ["## CEC against the baselines (seeds as units)", "",
-              "Cross-play: the difference of the algorithms' cross-play, a t-test with the jackknife "
-              "standard errors over seeds (Welch-Satterthwaite degrees of freedom) and its 95% t "
-              "interval. With human proxies: a Welch t-test over per-seed scores and a 95% bootstrap "
-              "interval. No test is printed where a side has too few seeds to estimate its spread "
-              "(the jackknife needs 3).", "",
-              "The interval is the headline; the p-values come second. Beside the t-test's p, for "
-              "cross-play, the exact permutation test over seeds (`cec.evaluation.stats."
-              "permutation_crossplay`: every split of CEC's and the baseline's seeds into two groups of "
-              "their sizes, from the pooled seed x seed matrix, as every CEC seed played every seed of "
-              "the baseline), valid at any seed count, with the smallest p it can give at these seed "
-              "counts in brackets: with 4 seeds each it cannot go below 0.0286 whatever the difference. "
-              "None with human proxies: the proxies are the same fixed partners for every seed, not seeds "
-              "of either algorithm, so there is no pooled matrix to permute. Holm: each p adjusted for the "
-              "tests of its family, one level set and one score (CEC against each baseline).",
-              ""]  # fmt: skip
     if not tests:
-        lines += ["No test: too few seeds, or no spread between them.", ""]
+        results = ["No test: too few seeds, or no spread between them."]
     else:
-        lines += [*table_lines(TEST_HEAD, (_test_row(t) for t in tests)), "", *_floor_lines(tests)]
+        results = table_lines(TEST_HEAD, (_test_row(t) for t in tests))
+        floor = _floor_lines(tests)  # a line and a blank one, or none
+        results += ["", floor[0]] if floor else []
+    lines += TEMPLATES.lines("tests", results="\n".join(results))
     lines += sections
     recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
     training = [[p.run, p.seeds, f"{p.env_steps:,}", p.updates, recorded.get(p.run, NONE)] for p in plan]
@@ -261,13 +239,7 @@ def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped:
     """What the human-proxy column holds, the paper's human study beside it, or why it is empty."""
     played = any(finite(s.human).size for scores in summary.values() for s in scores.values())
     if played:
-        return [
-            f"With human proxies: each seed with every `{HUMAN_PROXY}` entry of `{mode.proxies}` "
-            "(behaviour-cloned from recorded human-human games, `cec humans bc`; each plays its own "
-            "kitchen), the mean over the proxies. The paper's human study (score with real people, "
-            f"Counter Circuit and Coordination Ring): {HUMAN_STUDY}",
-            "",
-        ]
+        return TEMPLATES.lines("human", proxy=HUMAN_PROXY, proxies=mode.proxies, study=HUMAN_STUDY)
     reasons = sorted({s.reason for s in skipped if s.algorithm == HUMAN_PROXY})
     why = f"they could not play with the agents: {'; '.join(reasons)}" if reasons else "none in the table"
     return [f"With human proxies: not played ({why}).", ""]

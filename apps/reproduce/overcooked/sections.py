@@ -26,8 +26,12 @@ from apps.reproduce.overcooked.modes import (
 )
 from apps.reproduce.overcooked.plan import run_name
 from cec.agents.zoo import HUMAN_PROXY
+from cec.evaluation import markdown as md
 from cec.evaluation.curves import metrics_file
-from cec.evaluation.markdown import NONE, num, pm, table_lines
+from cec.evaluation.markdown import NONE, Templates, num, pm, table_lines
+
+#: The report's templates (`templates/*.md`), this module's and `report`'s.
+TEMPLATES = Templates(Path(__file__).parent / "templates")
 
 
 def analysis_lines(mode: Mode, table: Any, runs: Path, controls: Any = None) -> list[str]:
@@ -62,39 +66,24 @@ def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
             f"{mean(table.returns, mine & xp & m)} ({mean(table.returns, mine & sp & m)})" for _, m in columns
         )
         rows.append([TITLES[algo], *cells])
-    lines = [
-        "## Per kitchen, collisions and episodes without a soup",
-        "",
-        f"Team return per {EVAL_STEPS}-step episode, the mean over episodes: cross-play (two different seeds "
-        "of the algorithm) and, in brackets, self-play, in each classic kitchen and over the held-out ones. "
-        "The baselines of a classic kitchen are that kitchen's agents; on the held-out kitchens the "
-        "single-kitchen agents that played are those trained on "
-        + ", ".join(kitchens or ["none"])
-        + " (as in the tables above; by training kitchen below).",
-        "",
-        *table_lines(["algorithm", *(k for k, _ in columns)], rows),
-    ]
-    lines += [
-        "",
-        "Collisions per cross-play episode (steps where the two cooks move to the same cell or try to swap "
-        "cells), the share of cross-play episodes that deliver no soup, and the collisions per soup (every "
-        "collision of those episodes over every soup they delivered; — where none): an agent that cooks "
-        "moves more, so it has more steps to collide on. The untrained CEC network (the control; its seeds "
-        "with each other) is the baseline of an agent that learned nothing:",
-        "",
-    ]
     who = [(TITLES[a], table, a) for a in algos]
     if controls is not None and np.any(controls.algorithm_a == UNTRAINED):
         who.append((TITLES[UNTRAINED], controls, UNTRAINED))
-    rows = []  # the collisions
+    collisions = []
     for title, t, algo in who:
         t_xp, t_held = _xp_sp(t)[0], _held_out(mode, t)
         sets = [(t.algorithm_a == algo) & t_xp & m for m in (~t_held, t_held)]
         coll = [mean(t.collisions, m) for m in sets]
         none = [mean((t.deliveries == 0).astype(float), m, "{:.0%}") for m in sets]
         per_soup = [_per_soup(t.collisions[m].sum(), t.deliveries[m].sum()) for m in sets]
-        rows.append([title, *coll, *none, *per_soup])
-    return [*lines, *table_lines(COLLISION_HEAD, rows), ""]
+        collisions.append([title, *coll, *none, *per_soup])
+    return TEMPLATES.lines(
+        "per_kitchen",
+        eval_steps=EVAL_STEPS,
+        kitchens=", ".join(kitchens or ["none"]),
+        returns=md.table(["algorithm", *(k for k, _ in columns)], rows),
+        collisions=md.table(COLLISION_HEAD, collisions),
+    )
 
 
 COLLISION_HEAD = (
@@ -146,22 +135,15 @@ def curve_points(curves: Any) -> tuple[list[Any], int]:
 def curve_lines(points: Sequence[Any], kitchens: int) -> list[str]:
     """The cross-play learning curves (`curve_points`) as a table: each checkpoint's cross-play and
     self-play on the held-out kitchens."""
-    title = "## Cross-play learning curves (held-out kitchens)"
     if not points:
         missing = "Not measured: the work folder has neither the runs' milestone checkpoints nor their games."
-        return [title, "", missing, ""]
-    about = (
-        "At each checkpoint a generator-trained run saved (its milestones and its last), its seeds with each "
-        f"other on the {kitchens} held-out kitchens, {EVAL_STEPS}-step episodes: cross-play "
-        "(every pair of two different seeds) ± its jackknife standard error over seeds, and self-play ± "
-        "the standard error over seeds (`curves_xp.png`)."
-    )
+        return ["## Cross-play learning curves (held-out kitchens)", "", missing, ""]
     rows = [
         [TITLES.get(p.name, p.name), f"{p.env_steps:,}", len(p.seeds), pm(p.xp, p.xp_se), pm(p.sp, p.sp_se)]
         for p in points
     ]
     head = ["algorithm", "env steps per seed", "seeds", "cross-play", "self-play"]
-    return [title, "", about, "", *table_lines(head, rows), ""]
+    return TEMPLATES.lines("curves", kitchens=kitchens, eval_steps=EVAL_STEPS, table=md.table(head, rows))
 
 
 def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
@@ -171,30 +153,20 @@ def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
     from cec.evaluation import analysis as an
 
     agents = agent_games(table, with_proxies=False)
-    lines = [
-        "## Cross-algorithm play (ad-hoc teamplay)",
-        "",
-        "Team return per 400-step episode of an agent of the row's algorithm with a different agent of the "
-        "column's (the diagonal is cross-play), each pair's score the mean over the kitchens both play: on "
-        "the classic kitchens a single-kitchen agent meets the others of its kitchen and the "
-        "generator-trained agents, on the held-out kitchens its kitchen's agents and the generator-trained "
-        "ones. Means over pairs (descriptive; seeds as units for tests above). Heatmaps, seed matrices and "
-        "the meta-game (replicator dynamics): [crossplay/report.md](crossplay/report.md).",
-        "",
-    ]
+    blocks = []
     for level_set in LEVEL_SETS:
         m = an.algorithm_matrix(an.pair_level_scores(agents, level_spec(mode, level_set).split(",")))
         if not m.labels:
             continue
         titles = [TITLES.get(a, a) for a in m.labels]
         rows = ([title, *(num(v) for v in values)] for title, values in zip(titles, m.values, strict=True))
-        lines += [f"**{level_set}**", "", *table_lines(["", *titles], rows, tight=True)]
+        lines = [f"**{level_set}**", "", *table_lines(["", *titles], rows, tight=True)]
         off = m.values[~np.eye(len(m.labels), dtype=bool)]
         if off.size and np.isnan(off).all():
             lines += ["", "No two algorithms met in this table (it was played before every agent met every "
                       "other): the cells off the diagonal are empty."]  # fmt: skip
-        lines.append("")
-    return lines
+        blocks.append("\n".join(lines))
+    return TEMPLATES.lines("cross_algorithm", matrices="\n\n".join(blocks))
 
 
 def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
@@ -205,14 +177,6 @@ def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
     algos = [a for a in ALGORITHMS if a not in GENERALISTS and np.any(table.algorithm_a == a)]
     if not algos:
         return []
-    lines = [
-        "## The held-out kitchens by training kitchen",
-        "",
-        f"Team return per {EVAL_STEPS}-step episode on the held-out kitchens, the mean over episodes: "
-        "cross-play (two different seeds of one algorithm, both trained on the column's kitchen) and, in "
-        "brackets, self-play; — where that kitchen's agents did not play them.",
-        "",
-    ]
     rows = []
     for algo in algos:
         cells = []
@@ -223,7 +187,9 @@ def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
                 if (mine & xp).any() and (mine & sp).any() else NONE
             )  # fmt: skip
         rows.append([TITLES[algo], *cells])
-    return [*lines, *table_lines(["algorithm", *mode.kitchens], rows), ""]
+    return TEMPLATES.lines(
+        "heldout", eval_steps=EVAL_STEPS, table=md.table(["algorithm", *mode.kitchens], rows)
+    )
 
 
 def _kitchen_runs(runs: Path, algo: str, kitchen: str) -> list[Path]:
@@ -308,33 +274,21 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
             f"quarter of training for all of them, every seed, costs about {duration(quarter)} of the machine"
             " that trained them:"
         )
-    return [
-        "## Single-kitchen training: levelled off?",
-        "",
-        "Team return per training episode (of the steps given; its run's `config.yaml`) with its training "
-        "partners over the last 10 updates and, in brackets, its rise over the last quarter of the run (the "
-        "mean over seeds): a rise that is large beside the return means the run stopped before its "
-        f"self-play levelled off. Levelled off (yes) when the rise is at most {PLATEAU_SHARE:.0%} of the "
-        "return.",
-        "",
-        *table_lines(
-            ["algorithm", "training episode (steps)", *mode.kitchens],
-            (
-                [TITLES[a], _episode_steps(runs, a, mode.kitchens), *(cell(a, k) for k in mode.kitchens)]
-                for a in algos
-            ),
-        ),  # fmt: skip
-        "",
-        verdict,
-        *([""] if rising else []),
-        *(
-            f"- {TITLES[a]}, {k}: +{g.rise:.1f} over the last quarter, {g.rise / abs(g.last):.0%} of its "
-            f"{g.last:.1f}, at {g.env_steps:,} env steps per seed; another quarter costs "
-            f"{g.seconds_per_seed / 4 / 60:.1f} min per seed"
-            for a, k, g in rising
-        ),
-        "",
+    head = ["algorithm", "training episode (steps)", *mode.kitchens]
+    rows = [
+        [TITLES[a], _episode_steps(runs, a, mode.kitchens), *(cell(a, k) for k in mode.kitchens)]
+        for a in algos
     ]
+    still = [
+        f"- {TITLES[a]}, {k}: +{g.rise:.1f} over the last quarter, {g.rise / abs(g.last):.0%} of its "
+        f"{g.last:.1f}, at {g.env_steps:,} env steps per seed; another quarter costs "
+        f"{g.seconds_per_seed / 4 / 60:.1f} min per seed"
+        for a, k, g in rising
+    ]
+    return TEMPLATES.lines(
+        "plateau", share=f"{PLATEAU_SHARE:.0%}", table=md.table(head, rows),
+        verdict="\n".join([verdict, *([""] if rising else []), *still]),
+    )  # fmt: skip
 
 
 FAILING_HEAD = (
@@ -382,15 +336,4 @@ def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
     if not rows:
         return ["## Baselines in their own kitchen", "", "Every single-kitchen algorithm delivers in "
                 "self-play in its own kitchen (self-play > 0 in each).", ""]  # fmt: skip
-    return [
-        "## Baselines without a soup in their own kitchen",
-        "",
-        "Each algorithm and kitchen whose self-play there (every seed with itself, 400-step episodes) "
-        "delivers nothing, with what its training recorded: the team return per training episode (of the "
-        "steps given) with its training partners (IPPO and CEC-Finetune: itself; FCP: its population; E3T: "
-        "itself mixed with random moves) at the first update and over the last 10 (the mean over seeds), "
-        "and the shaped return over the last 10.",
-        "",
-        *table_lines(FAILING_HEAD, rows),
-        "",
-    ]
+    return TEMPLATES.lines("failing", table=md.table(FAILING_HEAD, rows))
