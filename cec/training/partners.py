@@ -68,6 +68,9 @@ class PartnerConfig:
         scripted_both_seats: the `scripted` kind trains both seats of the episodes the learner plays with
             itself, and only the learner's seat of those with the cook (the cook's seat weighs 0 in the
             loss); false: only the learner's seat trains in every episode.
+        scripted_normalise_apart: the advantages of the steps with the scripted partner and of those
+            without it are standardised apart (`cec.training.ppo.make_batch`), so the cook's episodes, whose
+            returns spread several times wider, do not carry most of the policy gradient.
     """
 
     kind: str = "self_play"
@@ -78,6 +81,7 @@ class PartnerConfig:
     scripted_epsilon: float = 0.1
     scripted_yields: bool = True
     scripted_both_seats: bool = False
+    scripted_normalise_apart: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in PARTNER_KINDS:
@@ -88,6 +92,11 @@ class PartnerConfig:
             )
         if self.predict_partner < 0:
             raise ConfigError(f"partner.predict_partner must be >= 0, got {self.predict_partner}")
+        if self.kind != "scripted" and (self.scripted_both_seats or self.scripted_normalise_apart):
+            raise ConfigError(
+                "partner.scripted_both_seats and partner.scripted_normalise_apart apply to kind scripted; "
+                f"this partner is {self.kind!r}: drop them or set partner.kind: scripted"
+            )
         for name in ("epsilon", "scripted_share", "scripted_epsilon"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ConfigError(f"partner.{name} must lie in [0, 1], got {getattr(self, name)}")

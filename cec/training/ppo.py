@@ -139,6 +139,7 @@ def make_batch(
     lam: float,
     learner_seat_only: bool = False,
     mask_scripted_seat: bool = False,
+    normalise_apart: bool = False,
 ) -> Batch:
     """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening.
 
@@ -146,6 +147,10 @@ def make_batch(
     (N = E sequences; the seat may change only where an episode starts, where the LSTM resets); otherwise
     both seats (N = 2E). `mask_scripted_seat` (both seats) gives the other seat of the episodes a scripted
     partner played (`partner_index` 1) weight 0: its actions were the script's, not the policy's.
+    `normalise_apart`: the advantages of the steps played with the scripted partner and of those played
+    without it are each brought to mean 0 and deviation 1 over the batch, so that neither kind of episode
+    outweighs the other by the spread of its returns (a competent partner's episodes have several times
+    self-play's; the minibatch normalisation of the loss then leaves them about as they are).
     """
     t, e = traj.reward.shape
     reward = traj.reward[..., None] + shaping_weight * traj.shaped  # [T, E, 2]
@@ -178,19 +183,37 @@ def make_batch(
             traj.partner_index[..., None] == 1
         )
         weight = rows(jnp.where(scripted, 0.0, 1.0))
+    advantage = rows(advantage)
+    if normalise_apart:
+        with_script = rows(jnp.broadcast_to((traj.partner_index == 1)[..., None], reward.shape))
+        trained = jnp.ones_like(advantage) if weight is None else weight
+        advantage = jnp.where(
+            with_script,
+            _standardise(advantage, trained * with_script),
+            _standardise(advantage, trained * ~with_script),
+        )
     return Batch(
         obs=rows(traj.obs),
         first=first,
         action=rows(traj.action),
         log_prob=rows(traj.log_prob),
         value=rows(traj.value),
-        advantage=rows(advantage),
+        advantage=advantage,
         target=rows(target),
         history=rows(traj.history),
         partner_action=rows(partner_action),
         weight=weight,
         init_lstm=init_lstm,
     )
+
+
+def _standardise(x: jax.Array, weight: jax.Array) -> jax.Array:
+    """`x` less its `weight`-ed mean, over its `weight`-ed deviation (the statistics of the steps with
+    weight; where none has any, `x` over 1e-8)."""
+    total = jnp.maximum(weight.sum(), 1.0)
+    mean = (weight * x).sum() / total
+    std = jnp.sqrt((weight * jnp.square(x - mean)).sum() / total)
+    return (x - mean) / (std + 1e-8)
 
 
 def _mean(x: jax.Array, weight: jax.Array | None, axis: str | None) -> jax.Array:

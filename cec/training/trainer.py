@@ -194,6 +194,7 @@ class Trainer:
             cfg.ppo.gae_lambda,
             cfg.partner.learner_seat_only,
             cfg.partner.masks_scripted_seat,
+            cfg.partner.scripted_normalise_apart,
         )
         lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(

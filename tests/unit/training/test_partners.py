@@ -241,11 +241,25 @@ def test_scripted_both_seats_trains_self_play_episodes_whole_and_masks_only_the_
     assert not all(
         np.allclose(a, b, atol=1e-6) for a, b in zip(jax.tree.leaves(g), jax.tree.leaves(moved), strict=True)
     )
+    # normalised apart, the trained steps with the cook and those without it have mean 0 and deviation 1
+    # each (the cook's spread no longer outweighs self-play's); the cook's own seat is left out of both
+    apart = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, mask_scripted_seat=True, normalise_apart=True)
+    with_cook = np.repeat(cook, 2, axis=1)
+    trained, adv = np.asarray(batch.weight) == 1, np.asarray(apart.advantage)
+    for group in (trained & with_cook, trained & ~with_cook):
+        assert abs(adv[group].mean()) < 1e-4 and abs(adv[group].std() - 1.0) < 1e-3
+    raw = np.asarray(batch.advantage)
+    assert raw[trained & with_cook].std() != pytest.approx(raw[trained & ~with_cook].std(), rel=0.05)
     # weights of 1 everywhere are the plain (unweighted) loss
     ones = batch._replace(weight=jnp.ones_like(batch.weight))
     plain = batch._replace(weight=None)
     a, b = (ppo_loss(state.params, trainer.network, x, PPOConfig())[1] for x in (ones, plain))
     np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-5, atol=1e-6)
+
+
+def test_the_scripted_settings_are_refused_for_another_partner_kind():
+    with pytest.raises(ConfigError, match="apply to kind scripted; this partner is 'e3t'"):
+        PartnerConfig(kind="e3t", scripted_normalise_apart=True)
 
 
 def test_a_game_without_a_script_refuses_the_scripted_partner(tmp_path):
