@@ -22,6 +22,9 @@ are named `up-<preset's run name>` unless `train.name=` is given, apart from `ce
 No wait is silent: a service that is slow to start gets a line every few seconds with its latest log line
 (`ServiceProcess` progress), and the learner a line every few seconds until its first update (`Heartbeat`),
 unless it printed one itself.
+
+Size: one stack's checks, start-up and shutdown, which all read the same state (the children started so
+far, their ports and logs); split, each part would take that whole state as arguments.
 """
 
 from __future__ import annotations
@@ -153,12 +156,7 @@ class Stack:
         return not self.config.level_server_address and self.train_config.env.levels == "generator"
 
     def start(self, resume: bool = False) -> None:
-        """Checks everything that can be checked before any process starts, then starts the stack in order:
-        Redis, the level server, the learner (Ray or in-process), the evaluator and the monitoring.
-
-        Long because it is the start-up order itself, one numbered step after another, each reading what
-        the steps before it started; `stop` undoes it in reverse.
-        """
+        """Long because it is the module docstring's start-up, step by step; `stop` undoes it in reverse."""
         from services.learner.driver import check_run
 
         cfg = self.config
