@@ -6,6 +6,8 @@ benchmark that writes a README figure formats through here, so one figure reads 
     pm(12.34, 1.2, n=4)             -> "12.3 ± 1.2 (n=4)"
     table(["a", "b"], [[1, 2]])     -> "| a | b |\\n|---|---|\\n| 1 | 2 |"
     fill(read_template(path), title="...", table="...")
+    TEMPLATES = Templates(Path(__file__).parent / "templates")   # a report's folder of NAME.md templates
+    TEMPLATES.fill("header", title="...")                           # one of them, filled by name
 
 A template is Markdown with `string.Template` holes (`$name` or `${name}`; `$$` is a dollar sign). `fill`
 refuses a hole without a value and a value without a hole, so neither prose nor a figure goes missing
