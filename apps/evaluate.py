@@ -13,7 +13,6 @@ import logging
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 log = logging.getLogger("cec")
 
@@ -90,7 +89,7 @@ def _cmd_report(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_subcommands(sub: Any) -> None:
+def add_subcommands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Adds `eval` and `report` to the `cec` command's subparsers."""
     ev = sub.add_parser(
         "eval",

@@ -13,13 +13,16 @@ paper_<game>.yaml        the paper's numbers each reproduction reports beside it
 
 from __future__ import annotations
 
-from typing import Any
+from typing import TYPE_CHECKING
 
 from apps.reproduce.dual_destination import command as dual_destination
 from apps.reproduce.overcooked import command as overcooked
 
+if TYPE_CHECKING:
+    import argparse
 
-def add_subcommands(sub: Any) -> None:
+
+def add_subcommands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers `cec reproduce dual-destination` and `cec reproduce overcooked` on the `cec` command."""
     rep = sub.add_parser("reproduce", help="reproduce the paper's results end to end (docs/reproduce.md)")
     rep_sub = rep.add_subparsers(dest="reproduce_command", required=True)

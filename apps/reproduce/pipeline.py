@@ -29,7 +29,7 @@ from __future__ import annotations
 import json
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -44,6 +44,8 @@ from cec.evaluation.results import COMPRESSED, read_csv, stored, write_csv
 
 if TYPE_CHECKING:
     from apps.zoo_build import BuildResult, PlannedRun
+    from cec.agents.policy import Policy
+    from cec.evaluation.results import EpisodeTable
 
 
 PARTS = (
@@ -63,8 +65,8 @@ def note(out: TextIO, msg: str) -> None:
 
 
 def cached_table(
-    folder: Path, key: dict[str, Any], play: Callable[[], Any], *, label: str, log: TextIO
-) -> Any:
+    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], *, label: str, log: TextIO
+) -> EpisodeTable:
     """The result table `folder/results.csv` an earlier invocation wrote when `key` (what it depends on,
     stored beside it in `results.key.json`) is unchanged, else `play()`'s table, written there with the time
     `play()` took (`PLAY_TIME_FILE`) unless it recorded its own (a table of cached parts: the parts' times).
@@ -139,7 +141,7 @@ class Zoo:
     the comment line `# Written by <header>.`, built into `folder/zoo`."""
 
     folder: Path
-    spec: dict[str, Any]
+    spec: dict[str, object]
     header: str
 
     @property
@@ -202,7 +204,7 @@ def generated_levels(n: int) -> str:
     return ",".join(f"generated_{i:03d}" for i in range(n))
 
 
-def load_zoo_policies(manifest: str | Path, where: str) -> list[Any]:
+def load_zoo_policies(manifest: str | Path, where: str) -> list[Policy]:
     """Every policy of a zoo manifest; a `ConfigError` (`<where>: ...`) naming each entry that cannot be
     loaded."""
     from cec.agents.policy import load_policies
@@ -248,7 +250,7 @@ def export_policies(zoo_manifest: Path, folder: Path, *, log: TextIO) -> Path:
     return manifest
 
 
-def played_table(work: Path, command: str, *needs: str) -> Any:
+def played_table(work: Path, command: str, *needs: str) -> EpisodeTable:
     """The cross-play table that a complete `cec reproduce <command>` left in `work` (for `--report-only`),
     checking that it and `needs` (paths under `work`) are there; a `ConfigError` naming what is missing."""
     # the key is written after the table (`cached_table`): its presence says the playing finished

@@ -10,7 +10,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
@@ -129,7 +129,7 @@ def _cmd(args: argparse.Namespace) -> int:
     return 0 if report is not None else 130
 
 
-def add_subcommand(rep_sub: Any) -> None:
+def add_subcommand(rep_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers `overcooked` on the `cec reproduce` subparsers."""
     oc = rep_sub.add_parser(
         "overcooked",

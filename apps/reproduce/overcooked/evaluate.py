@@ -13,7 +13,7 @@ import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from apps.machine import machine_info
 from apps.reproduce import pipeline
@@ -33,6 +33,12 @@ from apps.reproduce.overcooked.plan import generalist_run
 from apps.reproduce.pipeline import play_seconds, results_file
 from cec.agents.zoo import HUMAN_PROXY
 
+if TYPE_CHECKING:
+    from cec.agents.policy import Policy
+    from cec.evaluation.crossplay import EvalConfig, EvalLevels
+    from cec.evaluation.results import EpisodeTable
+    from cec.training.config import TrainConfig
+
 
 def level_spec(mode: Mode, level_set: str) -> str:
     if level_set == "classic":
@@ -40,7 +46,7 @@ def level_spec(mode: Mode, level_set: str) -> str:
     return pipeline.generated_levels(mode.generated_levels)
 
 
-def human_proxies(mode: Mode) -> list[Any]:
+def human_proxies(mode: Mode) -> list[Policy]:
     """The `human_proxy` policies of `mode.proxies` (none when it is ''), numbered 0, 1, ... as their seeds:
     result tables tell policies apart by algorithm and seed, and `cec humans bc` gives its `bc_` and `hp_`
     proxies of a kitchen the same training seed."""
@@ -52,7 +58,7 @@ def human_proxies(mode: Mode) -> list[Any]:
     return [dataclasses.replace(p, seed=i) for i, p in enumerate(proxies)]
 
 
-def eval_config(mode: Mode, level_set: str, seed: int = 0) -> Any:
+def eval_config(mode: Mode, level_set: str, seed: int = 0) -> EvalConfig:
     """How every policy plays on a level set: the mode's episodes per pair, seat order and kitchen, the
     paper's episode length, common random numbers from `seed` (per level and episode: the same games
     whatever the games per call, 8 on a CPU and 64 on an accelerator, which plays them side by side)."""
@@ -66,13 +72,13 @@ def eval_config(mode: Mode, level_set: str, seed: int = 0) -> Any:
     )  # fmt: skip
 
 
-def _eval_key(mode: Mode) -> dict[str, Any]:
+def _eval_key(mode: Mode) -> dict[str, object]:
     """What a table of `evaluate` or `evaluate_controls` depends on besides its policies."""
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
     return {**settings, "steps": EVAL_STEPS}
 
 
-def lineups(policies: Sequence[Any], level_set: str) -> list[tuple[list[Any], frozenset[str] | None]]:
+def lineups(policies: Sequence[Policy], level_set: str) -> list[tuple[list[Policy], frozenset[str] | None]]:
     """Who meets whom on a level set, as (line-up, the names whose games it adds; None: all of them). On
     the classic kitchens one line-up of every agent, each on the kitchens it plays (a single-kitchen agent
     on its own, so it meets that kitchen's agents and the generator-trained ones). On the held-out kitchens
@@ -83,7 +89,7 @@ def lineups(policies: Sequence[Any], level_set: str) -> list[tuple[list[Any], fr
     if level_set == "classic":
         return [(list(policies), None)]
     generalists = [p for p in policies if p.levels is None]
-    by_kitchen: dict[tuple[str, ...], list[Any]] = {}
+    by_kitchen: dict[tuple[str, ...], list[Policy]] = {}
     for p in policies:
         if p.levels is not None:
             by_kitchen.setdefault(tuple(p.levels), []).append(dataclasses.replace(p, levels=None))
@@ -96,8 +102,8 @@ def lineups(policies: Sequence[Any], level_set: str) -> list[tuple[list[Any], fr
 
 
 def evaluate(
-    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, Any], seed: int = 0
-) -> Any:
+    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, object], seed: int = 0
+) -> EpisodeTable:
     """Per level set, every line-up (`lineups`) with the scripted cook, every pair (XP, SP, ad hoc, with
     the cook), and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable`.
     Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
@@ -130,7 +136,15 @@ def evaluate(
     return EpisodeTable.concat(tables)
 
 
-def _play_lineup(players: list[Any], levels: Any, config: Any, adds: Any, *, what: str, log: TextIO) -> Any:
+def _play_lineup(
+    players: list[Policy],
+    levels: EvalLevels,
+    config: EvalConfig,
+    adds: frozenset[str] | None,
+    *,
+    what: str,
+    log: TextIO,
+) -> EpisodeTable:
     """One line-up's cross-play (`evaluate`), logged with how many episodes it played and how long it took."""
     from cec.evaluation.crossplay import crossplay
 
@@ -140,7 +154,7 @@ def _play_lineup(players: list[Any], levels: Any, config: Any, adds: Any, *, wha
     return table
 
 
-def cec_config(mode: Mode, work: Path) -> Any:
+def cec_config(mode: Mode, work: Path) -> TrainConfig:
     """The config of the work folder's CEC agents: their run's recorded `config.yaml` (a folder trained by
     an earlier version of the mode has that version's network), else the mode's preset."""
     from cec.config import load_config
@@ -152,7 +166,7 @@ def cec_config(mode: Mode, work: Path) -> Any:
     return load_config(TrainConfig, str(ROOT / mode.preset), list(mode.overrides))
 
 
-def control_policies(mode: Mode, cfg: Any) -> list[Any]:
+def control_policies(mode: Mode, cfg: TrainConfig) -> list[Policy]:
     """The controls beside every score with the cook (and a chance level for XP and SP): the CEC network
     of `cfg` (`cec_config`) at its random initialisation, one per CEC seed (`untrained`), and the agent
     that always stays (`noop`): what the cook delivers with a partner that learned nothing, so that an
@@ -169,7 +183,7 @@ def control_policies(mode: Mode, cfg: Any) -> list[Any]:
     return [*untrained, scripted_policy(NOOP, NOOP, env=cfg.env, algorithm=NOOP)]
 
 
-def evaluate_controls(mode: Mode, cfg: Any, *, log: TextIO, seed: int = 0) -> Any:
+def evaluate_controls(mode: Mode, cfg: TrainConfig, *, log: TextIO, seed: int = 0) -> EpisodeTable:
     """The controls (`control_policies` of `cfg`) with each other and the cook on both level sets, as
     `evaluate` plays the algorithms (the cook's own games left out: `evaluate` has them)."""
     from cec.agents.policy import scripted_policy
@@ -190,7 +204,7 @@ def evaluate_controls(mode: Mode, cfg: Any, *, log: TextIO, seed: int = 0) -> An
     return EpisodeTable.concat(tables)
 
 
-def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
+def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> EpisodeTable:
     """`evaluate_controls`, or the table an earlier invocation wrote in `work/controls` while the settings
     are unchanged (the untrained network: that of the folder's CEC agents, `cec_config`). They need no
     trained agent, so `--report-only` plays them when a work folder lacks them. `commit`: the checkout's
@@ -203,7 +217,8 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
     folder = work / "controls"
     folder.mkdir(parents=True, exist_ok=True)
 
-    def play() -> Any:  # they may be played by another machine than the zoo: it is named in the report
+    # they may be played by another machine than the zoo: it is named in the report
+    def play() -> EpisodeTable:
         table = evaluate_controls(mode, cfg, log=log)
         ran_on = {"machine": machine_info(), "commit": commit}
         (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
@@ -212,7 +227,7 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Any:
     return cached_table(folder, key, play, label="controls: ", log=log)
 
 
-def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str) -> Any:
+def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str) -> EpisodeTable:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
     SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`). The invocation that plays it
     writes `work/machine.json`: this machine, `commit` and the commits that wrote the agents' checkpoints
@@ -227,7 +242,7 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, co
     key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
     parts = work / PARTS
 
-    def play() -> Any:
+    def play() -> EpisodeTable:
         table = evaluate(mode, manifest, log=log, parts=parts, key=key)
         # the line-ups' own times, also those an interrupted invocation played
         seconds = sum(play_seconds(part) for part in parts.iterdir())
@@ -256,7 +271,7 @@ PARTS = "parts"  # in the work folder: each line-up's games until the whole tabl
 CURVES = "curves"  # in the work folder: the milestone checkpoints' games (`cached_curves`)
 
 
-def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = False) -> Any:
+def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = False) -> EpisodeTable | None:
     """Cross-play learning curves of the generator-trained runs: at each checkpoint a run saved (its
     milestones and its last), its seeds with each other on the held-out kitchens (`cec.evaluation.
     milestones`), as the evaluation plays them; cached in `work/curves` while neither the checkpoints nor
@@ -279,7 +294,7 @@ def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = Fa
     key = {**_eval_key(mode), "checkpoints": states}  # each checkpoint's state by its SHA-256
     folder.mkdir(parents=True, exist_ok=True)
 
-    def play() -> Any:
+    def play() -> EpisodeTable:
         levels = eval_levels("overcooked", config.levels)
         return EpisodeTable.concat(
             [play_milestone(a, paths, levels, config) for a, s in saved.items() for paths in s.values()]

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, TextIO
 
 import numpy as np
 
@@ -17,9 +17,20 @@ from apps.reproduce.overcooked.sections import agent_games
 from apps.reproduce.pipeline import results_file
 from cec.evaluation.curves import metrics_file
 
+if TYPE_CHECKING:
+    from cec.evaluation.milestones import MilestonePoint
+    from cec.evaluation.results import EpisodeTable
+
 
 def write_figures(
-    mode: Mode, work: Path, out: Path, table: Any, points: Sequence[Any], *, log: TextIO, policies: Path
+    mode: Mode,
+    work: Path,
+    out: Path,
+    table: EpisodeTable,
+    points: Sequence[MilestonePoint],
+    *,
+    log: TextIO,
+    policies: Path,
 ) -> dict[str, str]:
     """Learning curves of every run (PNG), the cross-play learning curves (`curve_points`), a GIF of a
     median cross-play episode (`crossplay_gif`) and `cec report` of the agents' games (`out/crossplay/`:
@@ -49,7 +60,9 @@ def write_figures(
     return figures
 
 
-def crossplay_gif(table: Any, policies: Path, gif: Path, *, log: TextIO | None = None) -> dict[str, str]:
+def crossplay_gif(
+    table: EpisodeTable, policies: Path, gif: Path, *, log: TextIO | None = None
+) -> dict[str, str]:
     """{caption: file name} of a GIF of the pair and held-out kitchen of the median-return cross-play
     episode of two different CEC seeds of `policies` (a zoo manifest) in `table`: a typical episode, not the
     best, replayed (another draw of the sampled actions); its caption says how it was chosen, the table's

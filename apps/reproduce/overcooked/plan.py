@@ -26,7 +26,7 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
     common = list(mode.overrides)
     cec_seeds = list(mode.seeds["cec"])
 
-    def entry(algo: str, seeds: Sequence[int], overrides: list[str], kitchen: str = "") -> dict[str, Any]:
+    def entry(algo: str, seeds: Sequence[int], overrides: list[str], kitchen: str = "") -> dict[str, object]:
         return {
             "preset": preset,
             "seeds": list(seeds),

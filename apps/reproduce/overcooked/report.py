@@ -8,9 +8,9 @@ import dataclasses
 import json
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
@@ -27,8 +27,11 @@ from apps.reproduce.overcooked.modes import (
 from apps.reproduce.overcooked.paper import HUMAN_STUDY, paper_values
 from apps.reproduce.overcooked.sections import TEMPLATES  # the folder's templates, one instance
 from apps.reproduce.overcooked.summary import ALPHA, MEASURES, SeedScores, comparisons, finite
-from cec.agents.zoo import HUMAN_PROXY
+from cec.agents.zoo import HUMAN_PROXY, SkippedEntry
 from cec.evaluation.markdown import NONE, interval, num, p_value, pm, table_lines
+
+if TYPE_CHECKING:
+    from cec.evaluation.seeds import SeedMatrix
 
 TABLE_HEAD = (
     "algorithm",
@@ -58,8 +61,8 @@ TRAINING_HEAD = ("run", "seeds", "env steps per seed", "updates", "recorded time
 def write_report(
     mode: Mode, summary: dict[str, dict[str, SeedScores]], out: Path, *, figures: dict[str, str],
     plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
-    skipped: Sequence[Any] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
-    sections: Sequence[str] = (), missing: Sequence[str] = (), matrices: dict[str, Any] | None = None,
+    skipped: Sequence[SkippedEntry] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
+    sections: Sequence[str] = (), missing: Sequence[str] = (), matrices: dict[str, SeedMatrix] | None = None,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
@@ -235,7 +238,9 @@ def budget_lines(mode: Mode, plan: Sequence[pipeline.PlanLine]) -> list[str]:
     ]
 
 
-def _human_lines(mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped: Sequence[Any]) -> list[str]:
+def _human_lines(
+    mode: Mode, summary: dict[str, dict[str, SeedScores]], skipped: Sequence[SkippedEntry]
+) -> list[str]:
     """What the human-proxy column holds, the paper's human study beside it, or why it is empty."""
     played = any(finite(s.human).size for scores in summary.values() for s in scores.values())
     if played:
@@ -278,5 +283,5 @@ def _trained_at(ran_on: dict[str, Any]) -> str:
     return f"; the agents' last checkpoints written at {len(commits)} commit{many} ({', '.join(commits)})"
 
 
-def _machine_text(m: dict[str, Any]) -> str:
+def _machine_text(m: Mapping[str, object]) -> str:
     return f"{m['device']} (JAX {m['jax']}), {m['cpu']} ({m['cpu_count']} cores), host {m['host']}"

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 import yaml
@@ -30,11 +30,17 @@ from cec.evaluation import markdown as md
 from cec.evaluation.curves import metrics_file
 from cec.evaluation.markdown import NONE, Templates, num, pm, table_lines
 
+if TYPE_CHECKING:
+    from cec.evaluation.milestones import MilestonePoint
+    from cec.evaluation.results import EpisodeTable
+
 #: The report's templates (`templates/*.md`), this module's and `report`'s.
 TEMPLATES = Templates(Path(__file__).parent / "templates")
 
 
-def analysis_lines(mode: Mode, table: Any, runs: Path, controls: Any = None) -> list[str]:
+def analysis_lines(
+    mode: Mode, table: EpisodeTable, runs: Path, controls: EpisodeTable | None = None
+) -> list[str]:
     """The sections after the tests: per kitchen (`episode_lines`, with the `controls`' table), the
     cross-algorithm matrices, held-out play by training kitchen, whether the single-kitchen runs levelled
     off, and the baselines without a soup in their own kitchen."""
@@ -44,7 +50,7 @@ def analysis_lines(mode: Mode, table: Any, runs: Path, controls: Any = None) -> 
     ]  # fmt: skip
 
 
-def episode_lines(mode: Mode, table: Any, controls: Any = None) -> list[str]:
+def episode_lines(mode: Mode, table: EpisodeTable, controls: EpisodeTable | None = None) -> list[str]:
     """The per-kitchen view the seed-level tables average over: per algorithm, cross-play (two different
     seeds) and self-play in each classic kitchen and over the held-out ones, then per level set the
     collisions per episode, the share of cross-play episodes without a soup and the collisions per soup
@@ -99,18 +105,18 @@ def _per_soup(collisions: float, soups: float) -> str:
     return f"{ratio:.1f}" if ratio < 1000 else f"{ratio:,.0f}"
 
 
-def _xp_sp(table: Any) -> tuple[np.ndarray, np.ndarray]:
+def _xp_sp(table: EpisodeTable) -> tuple[np.ndarray, np.ndarray]:
     """Rows of cross-play (two different seeds of one algorithm) and of self-play."""
     same = table.algorithm_a == table.algorithm_b
     return same & (table.seed_a != table.seed_b), same & (table.seed_a == table.seed_b)
 
 
-def _held_out(mode: Mode, table: Any) -> np.ndarray:
+def _held_out(mode: Mode, table: EpisodeTable) -> np.ndarray:
     """Rows played on the mode's held-out kitchens."""
     return np.isin(table.level, level_spec(mode, "heldout").split(","))
 
 
-def agent_games(table: Any, *, with_proxies: bool = True) -> Any:
+def agent_games(table: EpisodeTable, *, with_proxies: bool = True) -> EpisodeTable:
     """The games of the trained agents with each other (and with the human proxies): the table without the
     cook and the controls."""
     who = (*ALGORITHMS, HUMAN_PROXY) if with_proxies else ALGORITHMS
@@ -122,7 +128,7 @@ def _of_kitchen(names: np.ndarray, algo: str, kitchen: str) -> np.ndarray:
     return np.char.startswith(names.astype(str), f"{run_name(algo, kitchen)}-s")
 
 
-def curve_points(curves: Any) -> tuple[list[Any], int]:
+def curve_points(curves: EpisodeTable | None) -> tuple[list[MilestonePoint], int]:
     """The cross-play learning curves' points (`cec.evaluation.milestones.milestone_points`) of
     `cached_curves`' games, and the held-out kitchens they were played on (none: no games)."""
     from cec.evaluation.milestones import milestone_points
@@ -132,7 +138,7 @@ def curve_points(curves: Any) -> tuple[list[Any], int]:
     return milestone_points(curves), len(set(curves.level))
 
 
-def curve_lines(points: Sequence[Any], kitchens: int) -> list[str]:
+def curve_lines(points: Sequence[MilestonePoint], kitchens: int) -> list[str]:
     """The cross-play learning curves (`curve_points`) as a table: each checkpoint's cross-play and
     self-play on the held-out kitchens."""
     if not points:
@@ -146,7 +152,7 @@ def curve_lines(points: Sequence[Any], kitchens: int) -> list[str]:
     return TEMPLATES.lines("curves", kitchens=kitchens, eval_steps=EVAL_STEPS, table=md.table(head, rows))
 
 
-def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
+def cross_algorithm_lines(mode: Mode, table: EpisodeTable) -> list[str]:
     """Per level set the cross-algorithm matrix (`cec.evaluation.analysis.algorithm_matrix`): cell (A, B)
     the mean team return of the pairs of an A agent and a different B agent (on the diagonal: cross-play),
     each pair's score the mean over the kitchens both play (the paper's ad-hoc teamplay heatmaps)."""
@@ -169,7 +175,7 @@ def cross_algorithm_lines(mode: Mode, table: Any) -> list[str]:
     return TEMPLATES.lines("cross_algorithm", matrices="\n\n".join(blocks))
 
 
-def heldout_kitchen_lines(mode: Mode, table: Any) -> list[str]:
+def heldout_kitchen_lines(mode: Mode, table: EpisodeTable) -> list[str]:
     """Held-out cross-play (self-play) of each single-kitchen algorithm by the kitchen its agents trained
     on: which kitchens' agents carry anything to kitchens they never saw."""
     xp, sp = _xp_sp(table)
@@ -297,7 +303,7 @@ FAILING_HEAD = (
 )  # fmt: skip
 
 
-def failing_lines(mode: Mode, table: Any, runs: Path) -> list[str]:
+def failing_lines(mode: Mode, table: EpisodeTable, runs: Path) -> list[str]:
     """Every single-kitchen algorithm and kitchen whose self-play there delivers nothing, with what its
     training recorded (`metrics.csv` of its runs under `runs`): the team return per training episode with
     its training partners at the first update and over the last 10, the shaped return, and the reading

@@ -8,12 +8,17 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from apps.reproduce.overcooked.modes import ALGORITHMS, COOK
 from cec.agents.zoo import HUMAN_PROXY
+
+if TYPE_CHECKING:
+    from cec.evaluation.results import EpisodeTable
+    from cec.evaluation.seeds import SeedMatrix
+    from cec.evaluation.stats import CrossPlay
 
 ALPHA = 0.05
 
@@ -32,7 +37,7 @@ class SeedScores:
     human: tuple[float, ...] = ()
     xp_matrix: tuple[tuple[float, ...], ...] = ()
 
-    def crossplay(self) -> Any:
+    def crossplay(self) -> CrossPlay:
         """The algorithm's cross-play with its jackknife standard error over seeds
         (`cec.evaluation.stats.CrossPlay`; a seed's pairs are shared with the other seeds)."""
         from cec.evaluation.seeds import SeedSummary
@@ -40,7 +45,7 @@ class SeedScores:
         return SeedSummary(self.seeds, self.xp, self.sp, self.xp_matrix).crossplay()
 
 
-def seed_scores(table: Any, level_names: Sequence[str]) -> dict[str, SeedScores]:
+def seed_scores(table: EpisodeTable, level_names: Sequence[str]) -> dict[str, SeedScores]:
     """{algorithm: SeedScores} on `level_names` (the cook's own self-play under `cook`; the proxies are
     partners, not an algorithm of the summary)."""
     from cec.evaluation.seeds import seed_matrix
@@ -65,7 +70,7 @@ MEASURES = {"xp": "cross-play", "human": "with human proxies"}
 
 
 def comparisons(
-    summary: dict[str, dict[str, SeedScores]], matrices: dict[str, Any] | None = None
+    summary: dict[str, dict[str, SeedScores]], matrices: dict[str, SeedMatrix] | None = None
 ) -> list[dict[str, Any]]:
     """CEC against each baseline, per level set: cross-play with the jackknife over seeds (seeds partner
     each other, so their per-seed XP are not independent; `compare_crossplay`), the score with the human
@@ -112,7 +117,7 @@ def comparisons(
     return out
 
 
-def exact_crossplay(matrix: Any, a: str, b: str) -> tuple[float, float]:
+def exact_crossplay(matrix: SeedMatrix, a: str, b: str) -> tuple[float, float]:
     """The exact permutation p of algorithm `a`'s cross-play against `b`'s over their seeds and its
     smallest attainable value (`cec.evaluation.stats.permutation_crossplay`), from `matrix` (a
     `cec.evaluation.seeds.SeedMatrix`): the pooled seed x seed matrix of both algorithms' seeds. NaN, NaN
