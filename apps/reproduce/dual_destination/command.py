@@ -183,7 +183,7 @@ def _cmd_reproduce_dd(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_subcommand(rep_sub: Any) -> None:
+def add_subcommand(rep_sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers `dual-destination` on the `cec reproduce` subparsers."""
     dd = rep_sub.add_parser(
         "dual-destination",

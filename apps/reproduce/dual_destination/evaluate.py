@@ -6,11 +6,14 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from apps.reproduce import pipeline
 from apps.reproduce.dual_destination.modes import Mode
 from apps.reproduce.dual_destination.paper import LEVEL_SET_TITLES, LEVEL_SETS, ORACLE, fixed_level_name
+
+if TYPE_CHECKING:
+    from cec.evaluation.results import EpisodeTable
 
 
 def _generated_spec(mode: Mode) -> str:
@@ -19,7 +22,7 @@ def _generated_spec(mode: Mode) -> str:
     return pipeline.generated_levels(mode.generated_levels)
 
 
-def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, seed: int = 0) -> Any:
+def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, seed: int = 0) -> EpisodeTable:
     """Cross-play of the variant's zoo and the oracle partner -> one `EpisodeTable`.
 
     Per level set and algorithm, one evaluation of its seeds and the oracle partner, every pair: XP
@@ -59,7 +62,7 @@ def evaluate_variant(mode: Mode, variant: str, manifest: Path, *, log: TextIO, s
     return EpisodeTable.concat(tables)
 
 
-def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, Any]:
+def evaluation_key(mode: Mode, variant: str, manifest: Path) -> dict[str, object]:
     """What a variant's results depend on: the evaluation settings, every zoo entry (its checkpoint and
     the state's SHA-256 that `cec zoo build` pinned) and the oracle partner's code."""
     entries = pipeline.zoo_entries(manifest)
@@ -82,7 +85,7 @@ def oracle_partner_digest() -> str:
     return hashlib.sha256(Path(partner.__file__).read_bytes()).hexdigest()
 
 
-def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> Any:
+def cached_evaluation(mode: Mode, variant: str, manifest: Path, vdir: Path, *, log: TextIO) -> EpisodeTable:
     """`evaluate_variant`, or the table an earlier invocation wrote (`vdir/results.csv`) when nothing it
     depends on has changed (`evaluation_key`); see `apps.reproduce.pipeline.cached_table`."""
     from apps.reproduce.pipeline import cached_table

@@ -166,20 +166,20 @@ def load_paper(path: Path = PAPER_FILE) -> PaperResults:
     return PaperResults(tuple(numbers), tuple(claims), oracle_fixed, source)
 
 
-def _keys(entry: Mapping[str, Any], keys: tuple[str, ...], where: str, fail: Fail) -> None:
+def _keys(entry: Mapping[str, object], keys: tuple[str, ...], where: str, fail: Fail) -> None:
     missing = [k for k in keys if k not in entry]
     unknown = [str(k) for k in entry if k not in keys]
     if missing or unknown:
         raise fail(where, f"missing key(s) {missing}, unknown key(s) {unknown}; expected {list(keys)}")
 
 
-def _list(value: Any, where: str, fail: Fail) -> list[Any]:
+def _list(value: object, where: str, fail: Fail) -> list[Any]:
     if not isinstance(value, list) or not value:
         raise fail(where, f"expected a non-empty list, got {value!r}")
     return value
 
 
-def _names(entry: Any, keys: tuple[str, ...], where: str, fail: Fail) -> tuple[str, ...]:
+def _names(entry: object, keys: tuple[str, ...], where: str, fail: Fail) -> tuple[str, ...]:
     """Checks `entry`'s keys, and the choice-valued ones against their choices; returns those values."""
     if not isinstance(entry, dict):
         raise fail(where, f"expected a mapping with {list(keys)}, got {entry!r}")
@@ -190,7 +190,7 @@ def _names(entry: Any, keys: tuple[str, ...], where: str, fail: Fail) -> tuple[s
     return tuple(str(entry[k]) for k in keys if k in _CHOICES)
 
 
-def _number(value: Any, where: str, fail: Fail) -> float:
+def _number(value: object, where: str, fail: Fail) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise fail(where, f"expected a number, got {value!r}")
     return float(value)

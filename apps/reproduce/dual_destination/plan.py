@@ -8,7 +8,7 @@ import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from apps.reproduce import pipeline
 from apps.reproduce.dual_destination.modes import Mode, algorithm_of
@@ -30,7 +30,7 @@ def _variant_overrides(variant: str, algorithm: str) -> list[str]:
     return []
 
 
-def zoo_spec(mode: Mode, variant: str) -> dict[str, Any]:
+def zoo_spec(mode: Mode, variant: str) -> dict[str, object]:
     """The `cec zoo build` spec of one variant: IPPO, then FCP (population: the IPPO run), then CEC."""
     ippo_seeds = list(mode.seeds["ippo"])
     population = (

@@ -38,7 +38,14 @@ from apps.reproduce.dual_destination.reasons import (
     difference_reason,
     ordering_reason,
 )
-from apps.reproduce.dual_destination.summary import ALPHA, LEARNED, Score, check_ablations, check_claims
+from apps.reproduce.dual_destination.summary import (
+    ALPHA,
+    LEARNED,
+    ClaimResult,
+    Score,
+    check_ablations,
+    check_claims,
+)
 from cec.evaluation.markdown import NONE, Templates, interval, p_value, pm, table
 from cec.evaluation.plotting import pyplot
 
@@ -288,7 +295,7 @@ def _numbers(summaries: Summaries) -> list[str]:
     return md
 
 
-def _orderings(summaries: Summaries, claims: list[Any], meta: dict[str, Any]) -> list[str]:
+def _orderings(summaries: Summaries, claims: list[ClaimResult], meta: dict[str, Any]) -> list[str]:
     """The paper's orderings tested over seeds, and why each that does not hold fails."""
     by_learned = {
         (c.variant, c.level_set, c.better, c.worse): c for c in check_claims(summaries, "xp_learned")

@@ -14,7 +14,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -27,6 +27,10 @@ from apps.reproduce.dual_destination.paper import (
     fixed_level_name,
 )
 from apps.reproduce.pipeline import read_metrics, train_seconds
+
+if TYPE_CHECKING:
+    from cec.envs.dual_destination.level import DDLevel
+    from cec.evaluation.results import EpisodeTable
 
 ALPHA = 0.05  # significance level of the ordering tests
 LEARNED = 0.5  # a seed whose sampled self-play reaches this normalised score has learned the task set
@@ -73,7 +77,7 @@ KINDS = (
 )
 
 
-def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]]:
+def summarise(table: EpisodeTable, variant: str) -> dict[str, dict[str, dict[str, Score]]]:
     """{level set: {kind: {algorithm: Score}}} for the `KINDS` the table has episodes of: `xp` (per seed,
     its mean with the algorithm's other seeds: the paper's measure, with seeds as the units), `sp` (each
     seed with itself), `oracle` (each seed with the oracle partner; the oracle's own self-play is under
@@ -102,7 +106,7 @@ def summarise(table: Any, variant: str) -> dict[str, dict[str, dict[str, Score]]
     return out
 
 
-def _scores(table: Any, names: list[str], kind: str) -> dict[str, Score]:
+def _scores(table: EpisodeTable, names: list[str], kind: str) -> dict[str, Score]:
     """{algorithm: Score} of one kind (`xp`, `sp`, `oracle`) on the levels `names`."""
     from cec.evaluation.seeds import seed_matrix
     from cec.evaluation.stats import sem
@@ -172,7 +176,7 @@ def load_conventions(path: Path) -> dict[str, dict[int, str]]:
     return {a: {int(s): c for s, c in seeds.items()} for a, seeds in json.loads(path.read_text()).items()}
 
 
-def goal_label(level: Any, cell: tuple[int, ...]) -> str:
+def goal_label(level: DDLevel, cell: tuple[int, ...]) -> str:
     """`green (r, c)` / `pink (r, c)` when `cell` is one of `level`'s goals, else `no goal`."""
     import numpy as np
 
