@@ -22,7 +22,7 @@ import re
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
@@ -45,6 +45,9 @@ from cec.humans.data import (
     stack_steps,
 )
 from cec.levels.overcooked_ai import PACKAGE, PACKAGE_VERSION, package_dir
+
+if TYPE_CHECKING:
+    from cec.humans.bc import BCResult, Samples
 
 #: The pickles of `overcooked-ai` 1.1.0 (`overcooked_ai_py/data/human_data/`) by split, with their SHA-256.
 PICKLES = {
@@ -219,7 +222,9 @@ def train_proxies(
     return _write_proxies(out, entries, figures, config)
 
 
-def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: str | None) -> dict[str, Any]:
+def _save_proxy(
+    out: Path, name: str, result: BCResult, config: BCConfig, kitchen: str | None
+) -> dict[str, object]:
     """Saves a trained proxy as `out/name` (a one-seed parameter checkpoint, algorithm `human_proxy`);
     returns its zoo entry (restricted to `kitchen` when one is given)."""
     from cec import checkpoints
@@ -238,7 +243,7 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     saved = save_policy(
         policy, out / name, config=config_dict(carrier), env_steps=0, update=result.best_epoch
     )
-    entry: dict[str, Any] = {
+    entry: dict[str, object] = {
         "name": name,
         "algorithm": HUMAN_PROXY,
         "seed": config.seed,
@@ -250,7 +255,7 @@ def _save_proxy(out: Path, name: str, result: Any, config: BCConfig, kitchen: st
     return entry
 
 
-def _proxy_figures(fit: Any, stop: Any, result: Any) -> dict[str, Any]:
+def _proxy_figures(fit: Samples, stop: Samples, result: BCResult) -> dict[str, object]:
     """A trained proxy's figures: sample counts, the kept epoch, its held-out accuracy and cross-entropy
     beside the frequency-only baseline's, and the per-epoch history."""
     return {
@@ -265,7 +270,7 @@ def _proxy_figures(fit: Any, stop: Any, result: Any) -> dict[str, Any]:
 
 
 def _write_proxies(
-    out: Path, entries: list[dict[str, Any]], figures: dict[str, Any], config: BCConfig
+    out: Path, entries: list[dict[str, object]], figures: dict[str, Any], config: BCConfig
 ) -> Path:
     """Adds proxies' figures to `out/bc.json` and their entries to `out/zoo.yaml` (proxies saved there
     earlier under other names stay); returns the manifest."""
@@ -368,7 +373,7 @@ def play_proxy(
     return _write_proxies(out, [entry], figures, config)
 
 
-def _frequency_baseline(fit: Any, stop: Any) -> dict[str, float]:
+def _frequency_baseline(fit: Samples, stop: Samples) -> dict[str, float]:
     """Accuracy and cross-entropy on `stop` of predicting `fit`'s action frequencies (no observation)."""
     freq = np.bincount(fit.actions, minlength=len(Action)) / len(fit)
     return {
@@ -424,7 +429,7 @@ def _bc_error(message: str) -> int:
     return 2
 
 
-def add_subcommands(sub: Any) -> None:
+def add_subcommands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers `cec humans import|replay` on the `cec` command's subparsers."""
     humans = sub.add_parser("humans", help="recorded human-human games: import, replay, human proxies")
     humans_sub = humans.add_subparsers(dest="humans_command", required=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 import platform
-from typing import Any
+from typing import Any, TextIO
 
 
 def machine_info(load_average: bool = False) -> dict[str, Any]:
@@ -33,7 +33,7 @@ def machine_info(load_average: bool = False) -> dict[str, Any]:
     return info
 
 
-def log_line(log: Any, who: str, msg: str) -> None:
+def log_line(log: TextIO | None, who: str, msg: str) -> None:
     """One timestamped progress line of a long command (`[who HH:MM:SS] msg`), flushed."""
     import time
 

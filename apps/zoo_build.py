@@ -392,7 +392,7 @@ def _seeds(seeds: tuple[int, ...]) -> str:
     return f"{seeds[0]}-{seeds[-1]}" if len(seeds) > 1 else str(seeds[0])
 
 
-def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[str, Any]]:
+def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[str, object]]:
     """One manifest entry per (run, seed) at the run's final checkpoint (paths relative to `out_dir`)."""
     from cec import checkpoints
 
@@ -405,7 +405,7 @@ def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[s
             raise checkpoints.CheckpointError(f"{run.run_dir} has not finished; run `cec zoo build` again")
         meta = checkpoints.read_meta(final.path)
         for seed, name in zip(run.seeds, run.policy_names, strict=True):
-            entry: dict[str, Any] = {
+            entry: dict[str, object] = {
                 "name": name,
                 "algorithm": run.algorithm,
                 "seed": seed,
@@ -428,7 +428,7 @@ def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
     return _write_manifest(path, header, manifest_entries(plan, out_dir))
 
 
-def merge_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> Path:
+def merge_manifest(path: Path, header: str, policies: list[dict[str, object]]) -> Path:
     """Adds `policies` to the manifest at `path` (replacing entries of the same names; others are kept)."""
     names = {p["name"] for p in policies}
     old = []
@@ -440,7 +440,7 @@ def merge_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> P
     return _write_manifest(path, header, [e for e in old if e["name"] not in names] + policies)
 
 
-def _write_manifest(path: Path, header: str, policies: list[dict[str, Any]]) -> Path:
+def _write_manifest(path: Path, header: str, policies: list[dict[str, object]]) -> Path:
     """Writes a zoo manifest atomically (a reader never sees half of it)."""
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(f"# {header}\n" + yaml.safe_dump({"policies": policies}, sort_keys=False))
@@ -518,7 +518,7 @@ def _cmd_zoo_build(args: argparse.Namespace) -> int:
     return 0
 
 
-def add_subcommands(sub: Any) -> None:
+def add_subcommands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) -> None:
     """Registers `cec zoo build` on the `cec` command's subparsers."""
     zoo = sub.add_parser("zoo", help="build a partner zoo (train from a spec, write its manifest)")
     zoo_sub = zoo.add_subparsers(dest="zoo_command", required=True)
