@@ -207,13 +207,16 @@ def make_batch(
     )
 
 
-def _standardise(x: jax.Array, weight: jax.Array) -> jax.Array:
-    """`x` less its `weight`-ed mean, over its `weight`-ed deviation (the statistics of the steps with
-    weight; where none has any, `x` over 1e-8)."""
-    total = jnp.maximum(weight.sum(), 1.0)
-    mean = (weight * x).sum() / total
-    std = jnp.sqrt((weight * jnp.square(x - mean)).sum() / total)
-    return (x - mean) / (std + 1e-8)
+def _standardise(x: jax.Array, weight: jax.Array | None, axis: str | None = None) -> jax.Array:
+    """`x` less its (`weight`-ed, `_mean`) mean, over its deviation; inside `shard_map` (`axis`) with the
+    whole minibatch's statistics from every device's share."""
+
+    def stat(v: jax.Array) -> jax.Array:
+        m = _mean(v, weight, axis)
+        return m if axis is None else jax.lax.pmean(m, axis)
+
+    mean = stat(x)
+    return (x - mean) / (jnp.sqrt(stat(jnp.square(x - mean))) + 1e-8)
 
 
 def _mean(x: jax.Array, weight: jax.Array | None, axis: str | None) -> jax.Array:
@@ -267,14 +270,7 @@ def ppo_loss(
     if w is None and axis is None:
         adv = (batch.advantage - batch.advantage.mean()) / (batch.advantage.std() + 1e-8)
     else:  # the whole minibatch's (weighted) statistics, from every device's share
-
-        def stat(x: jax.Array) -> jax.Array:
-            m = _mean(x, w, axis)
-            return m if axis is None else jax.lax.pmean(m, axis)
-
-        adv_mean = stat(batch.advantage)
-        adv_std = jnp.sqrt(stat(jnp.square(batch.advantage - adv_mean)))
-        adv = (batch.advantage - adv_mean) / (adv_std + 1e-8)
+        adv = _standardise(batch.advantage, w, axis)
     surrogate = jnp.minimum(ratio * adv, jnp.clip(ratio, 1.0 - config.clip_eps, 1.0 + config.clip_eps) * adv)
     policy_loss = -_mean(surrogate, w, axis)
 
