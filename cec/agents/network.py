@@ -23,6 +23,7 @@ import numpy as np
 from flax.linen.initializers import constant, orthogonal
 
 from cec.config import ConfigError
+from cec.envs.overcooked.observation import region_channels
 
 SQRT2 = float(np.sqrt(2.0))
 PARTNER_HIDDEN = 64  # width of the partner model's hidden layer
@@ -53,6 +54,11 @@ class NetworkConfig:
             (2r+1) x (2r+1) window (0: the whole frame, (2H-1) x (2W-1), every cell of the grid from any
             cell). A smaller frame shrinks the first dense layer's input with its square, at the cost of
             what lies further away than r cells.
+        region_channels: Overcooked only: append to each observation, before everything else, the four
+            channels of `region_channels` (the floor each seat can walk to and the cells each can use,
+            flood-filled from the view). What the paper's network must infer from the grid, a reachability
+            question an MLP answers poorly, given outright; not in the paper (a lever of
+            docs/reproduce_overcooked.md).
     """
 
     conv_features: tuple[int, ...] = (64, 32)
@@ -64,6 +70,7 @@ class NetworkConfig:
     egocentric: bool = False
     cell_features: int = 0
     egocentric_radius: int = 0
+    region_channels: bool = False
 
     def __post_init__(self) -> None:
         if self.partner_history < 0:
@@ -311,6 +318,8 @@ class ActorCritic(nn.Module):
         cfg = self.config
         t, b = obs.shape[:2]
         x = obs.reshape((t * b, *obs.shape[2:]))
+        if cfg.region_channels:
+            x = jnp.concatenate([x, region_channels(x).astype(x.dtype)], axis=-1)
         # ENCODER: egocentric view and per-cell embedding, 2x2 convolutions, flatten, fully connected.
         if cfg.egocentric and cfg.cell_features:
             x = EgocentricCells(cfg.cell_features, cfg.egocentric_radius, name="cell")(x)

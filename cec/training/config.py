@@ -169,6 +169,11 @@ class TrainConfig:
                 "network_overrides.egocentric centres the view on the cell in channel 0, which is the seat's "
                 f"own cell only in Overcooked; set it to false for {self.env.name}"
             )
+        if self.network_config.region_channels and self.env.name != "overcooked":
+            raise ConfigError(
+                "network_overrides.region_channels reads Overcooked's observation channels; set it to false "
+                f"for {self.env.name}"
+            )
         if self.network not in NETWORK_PRESETS:
             raise ConfigError(
                 f"unknown network preset {self.network!r}; choose one of {sorted(NETWORK_PRESETS)}"

@@ -189,3 +189,34 @@ def test_a_cut_frame_embedded_in_a_larger_one_is_the_same_policy(cell_features):
     conv = dataclasses.replace(small, conv_features=(8,))
     with pytest.raises(ValueError, match="cannot embed"):
         embed_frame(params, conv, 0, (9, 9))
+
+
+def test_region_channels_feed_the_flood_filled_regions_to_the_encoder():
+    from cec.envs.overcooked import classic_level, reset
+    from cec.envs.overcooked.observation import region_channels
+
+    base = NetworkConfig(
+        conv_features=(),
+        encoder_features=(32,),
+        lstm_features=0,
+        actor_features=(16,),
+        critic_features=(16,),
+        egocentric=True,
+        cell_features=4,
+        egocentric_radius=3,
+    )
+    with_regions = ActorCritic(dataclasses.replace(base, region_channels=True), 6)
+    params = init_params(with_regions, jax.random.PRNGKey(0), (9, 9, 26))
+    assert params["params"]["cell"]["kernel"].shape == (26 + 4 + 1, 4)  # the four region channels
+    obs, _ = reset(jax.random.PRNGKey(0), classic_level("forced_coord"))
+    obs = obs[None]  # [T=1, B=2 seats, 9, 9, 26]
+    _, logits, values = _run(with_regions, params, obs, jnp.ones((1, 2), bool))
+    # The same weights on the observation with the regions appended by hand: the same outputs.
+    plain = ActorCritic(base, 6)
+    appended = jnp.concatenate([obs, region_channels(obs)], axis=-1)
+    _, logits_p, values_p = _run(plain, params, appended, jnp.ones((1, 2), bool))
+    np.testing.assert_allclose(logits, logits_p, rtol=1e-6)
+    np.testing.assert_allclose(values, values_p, rtol=1e-6)
+    # And the regions matter: blank them and the outputs change.
+    blank = jnp.concatenate([obs, jnp.zeros_like(region_channels(obs))], axis=-1)
+    assert not np.allclose(logits, _run(plain, params, blank, jnp.ones((1, 2), bool))[1])

@@ -60,3 +60,11 @@ def test_egocentric_networks_are_refused_outside_overcooked():
     assert _load("cec_overcooked_cpu").network_config.egocentric
     with pytest.raises(ConfigError, match="own cell only in Overcooked"):
         load_config(TrainConfig, PRESETS[0].parent / "dd_cec_cpu.yaml", ["network_overrides.egocentric=true"])
+
+
+def test_region_channels_are_refused_outside_overcooked():
+    from cec.config import ConfigError
+
+    with pytest.raises(ConfigError, match="region_channels reads Overcooked's observation"):
+        dd = PRESETS[0].parent / "dd_cec_cpu.yaml"
+        load_config(TrainConfig, dd, ["network_overrides.region_channels=true"])
