@@ -18,15 +18,19 @@ cec evaluator [--config YAML] [k=v]            score new checkpoints from Redis 
 cec play serve [STUDY.yaml] [--checkpoint DIR]  human-AI play in the browser (study flow, records)
 cec play export STUDY.yaml --out DIR           a study's records -> results.csv (cec report) + survey.csv
 cec monitoring [--target JOB=HOST:PORT]      Prometheus (+ Grafana) scraping a stack's /metrics
+
+A `cec` process that seems stuck prints every thread's stack on stderr when sent SIGUSR1 (`kill -USR1 PID`).
 """
 
 from __future__ import annotations
 
 import argparse
+import faulthandler
 import functools
 import importlib
 import logging
 import shlex
+import signal
 import sys
 import time
 from collections.abc import Callable
@@ -473,6 +477,8 @@ def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argpa
 
 
 def main(argv: list[str] | None = None) -> int:
+    if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: every thread's stack on stderr, where it hangs
+        faulthandler.register(signal.SIGUSR1, all_threads=True)
     args = parse_args(build_parser(), argv)
     configure_logging(args.verbose)
     return run_reporting(args.command, lambda: int(args.func(args)), failures=())

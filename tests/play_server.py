@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,7 +57,9 @@ class PlayServer:
             self.proc.send_signal(sig) if sig is not None else self.proc.terminate()
             try:
                 self.proc.wait(timeout=timeout)
-            except subprocess.TimeoutExpired:
+            except subprocess.TimeoutExpired:  # where it hangs goes into the log (the CLI's SIGUSR1 dump)
+                self.proc.send_signal(signal.SIGUSR1)
+                time.sleep(2)
                 self.proc.kill()
                 self.proc.wait()
         return int(self.proc.returncode)

@@ -17,12 +17,14 @@ import json
 import logging
 import re
 import socket
+import sys
 import time
 from pathlib import Path
 from typing import Any
 
 from cec.agents.zoo import SHIPPED
 from cec.config import ConfigError, from_dict
+from cec.signals import GracefulStop
 from services.entry import Service, override_arguments
 from services.play.config import AGENT_ACTIONS, MODES, StudyConfig, load_study
 from services.ports import check_port
@@ -222,13 +224,23 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
             app, log_level="warning", access_log=False, ws_max_size=MAX_WS_MESSAGE_BYTES, lifespan="off"
         )
         server = uvicorn.Server(uv)
-        try:  # a Ctrl-C as soon as the line is out is a clean stop too
-            print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
-            server.run(sockets=[sock])
-        except KeyboardInterrupt:  # uvicorn re-raises the Ctrl-C it has already handled: a clean stop
-            log.info("stopped by Ctrl-C")
+        # Our handler, not Python's KeyboardInterrupt, from before the line is out: JAX's garbage-collector
+        # callback swallows an exception raised inside it, so a Ctrl-C that lands there (before uvicorn
+        # installs its own handlers, which it then hands back to ours) was lost and the server served on.
+        # uvicorn checks `should_exit` before it serves and on every tick.
+        stopping = GracefulStop(
+            "stopping the server", on_first=lambda: setattr(server, "should_exit", True), out=sys.stdout
+        )
+        try:
+            with stopping:
+                print(f"cec play: serving study {config.name!r} at http://{host}:{bound}/", flush=True)
+                server.run(sockets=[sock])
+        except KeyboardInterrupt:  # a second signal: stop at once, the records are closed below
+            log.info("stopped at once by a second signal")
         finally:
             recorder.close()
+        if stopping.stop:
+            log.info("stopped by a signal")
     return 0
 
 
