@@ -20,6 +20,7 @@ import jax
 import yaml
 
 from cec import checkpoints
+from cec.config import ConfigError, from_dict
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig, split_paths
 from cec.training.loop import UpdateSource, run_updates
@@ -61,7 +62,17 @@ def trains_as(written: dict, config: TrainConfig) -> bool:
             kept["init_from"] = ",".join(_under(p, root) for p in split_paths(kept["init_from"]))
         return kept
 
-    return what(written) == what(config_dict(config))
+    return what(_as_read_now(written)) == what(config_dict(config))
+
+
+def _as_read_now(written: dict) -> dict:
+    """A checkpoint's recorded config as this version reads it: a setting added since it was written takes
+    its default (off: what the run trained with then), so a code update does not strand every run written
+    before it. As written when this version cannot read it (a setting since removed): not the same run."""
+    try:
+        return config_dict(from_dict(TrainConfig, written, where="the checkpoint's config"))
+    except (ConfigError, TypeError, ValueError):
+        return written
 
 
 def _under(path: str, root: str) -> str:

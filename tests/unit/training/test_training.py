@@ -214,6 +214,15 @@ def test_saving_more_often_resumes_the_same_run_but_other_milestones_or_settings
     assert not trains_as(written, _config(tmp_path, checkpoint={"milestones": [0.0, 1.0]}))
     assert not trains_as(written, _config(tmp_path, ppo={"lr": 1e-3}))
     assert trains_as(written, _config(tmp_path / "moved"))  # where it lies is not what it trains
+    # written before a setting existed (here the region channels): the same run, resumable after an update
+    net = {"conv_features": [], "encoder_features": [32], "lstm_features": 0, "actor_features": [16],
+           "critic_features": [16]}  # fmt: skip
+    written = config_dict(_config(tmp_path, network_overrides=net))
+    assert "region_channels" in written["network_overrides"]
+    older = dict(written, network_overrides=net)
+    assert trains_as(older, _config(tmp_path, network_overrides=net))
+    assert not trains_as(older, _config(tmp_path, network_overrides={**net, "region_channels": True}))
+    assert not trains_as(dict(written, retired_setting=1), _config(tmp_path, network_overrides=net))
 
 
 def test_a_run_trained_by_another_process_is_refused_until_that_process_ends(tmp_path):
