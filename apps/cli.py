@@ -25,9 +25,11 @@ A `cec` process that seems stuck prints every thread's stack on stderr when sent
 from __future__ import annotations
 
 import argparse
+import contextlib
 import faulthandler
 import functools
 import importlib
+import io
 import logging
 import shlex
 import signal
@@ -478,7 +480,8 @@ def parse_args(parser: argparse.ArgumentParser, argv: list[str] | None) -> argpa
 
 def main(argv: list[str] | None = None) -> int:
     if hasattr(signal, "SIGUSR1"):  # `kill -USR1 PID`: every thread's stack on stderr, where it hangs
-        faulthandler.register(signal.SIGUSR1, all_threads=True)
+        with contextlib.suppress(io.UnsupportedOperation, ValueError):  # stderr without a file (captured)
+            faulthandler.register(signal.SIGUSR1, all_threads=True)
     args = parse_args(build_parser(), argv)
     configure_logging(args.verbose)
     return run_reporting(args.command, lambda: int(args.func(args)), failures=())
