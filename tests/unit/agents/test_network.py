@@ -109,16 +109,20 @@ def test_egocentric_view_centres_the_seat_and_marks_the_frame():
     np.testing.assert_array_equal(egocentric_view(jnp.asarray(grids), radius=3), view[:, 5:12, 5:12])
 
 
+#: A small egocentric MLP with a 4-wide cell embedding (the recipe's shape at test sizes).
+EGO_MLP = NetworkConfig(
+    conv_features=(),
+    encoder_features=(32,),
+    lstm_features=0,
+    actor_features=(16,),
+    critic_features=(16,),
+    egocentric=True,
+    cell_features=4,
+)
+
+
 def test_egocentric_network_with_a_cell_embedding_runs():
-    cfg = NetworkConfig(
-        conv_features=(),
-        encoder_features=(32,),
-        lstm_features=0,
-        actor_features=(16,),
-        critic_features=(16,),
-        egocentric=True,
-        cell_features=4,
-    )
+    cfg = EGO_MLP
     net = ActorCritic(cfg, 6)
     params = init_params(net, jax.random.PRNGKey(0), (9, 9, 3))
     assert params["params"]["cell"]["kernel"].shape == (4, 4)  # 3 channels + the frame channel
@@ -195,16 +199,7 @@ def test_region_channels_feed_the_flood_filled_regions_to_the_encoder():
     from cec.envs.overcooked import classic_level, reset
     from cec.envs.overcooked.observation import region_channels
 
-    base = NetworkConfig(
-        conv_features=(),
-        encoder_features=(32,),
-        lstm_features=0,
-        actor_features=(16,),
-        critic_features=(16,),
-        egocentric=True,
-        cell_features=4,
-        egocentric_radius=3,
-    )
+    base = dataclasses.replace(EGO_MLP, egocentric_radius=3)
     with_regions = ActorCritic(dataclasses.replace(base, region_channels=True), 6)
     params = init_params(with_regions, jax.random.PRNGKey(0), (9, 9, 26))
     assert params["params"]["cell"]["kernel"].shape == (26 + 4 + 1, 4)  # the four region channels
