@@ -56,22 +56,27 @@ class SolvabilityReport(NamedTuple):
 
 
 def adjacent(mask: jax.Array) -> jax.Array:
-    """bool[9, 9]: cells with a `mask` cell among their four neighbours (jittable)."""
-    p = jnp.pad(mask, 1)
-    return p[:-2, 1:-1] | p[2:, 1:-1] | p[1:-1, :-2] | p[1:-1, 2:]
+    """bool[..., 9, 9]: cells with a `mask` cell among their four neighbours (jittable; any leading axes)."""
+    p = jnp.pad(mask, [(0, 0)] * (mask.ndim - 2) + [(1, 1), (1, 1)])
+    return p[..., :-2, 1:-1] | p[..., 2:, 1:-1] | p[..., 1:-1, :-2] | p[..., 1:-1, 2:]
 
 
-def flood(floor: jax.Array, start: jax.Array) -> jax.Array:
-    """bool[9, 9]: floor cells reachable from `start` (a (row, col) cell) by walking."""
+def flood_from(seeds: jax.Array, floor: jax.Array) -> jax.Array:
+    """bool[..., 9, 9]: the floor cells reachable by walking from the `seeds` cells that are floor (jittable;
+    any leading axes, `floor` broadcast against `seeds`: a batch grows until none of its regions does)."""
 
     def grow(state: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
         region, _ = state
         bigger = (region | adjacent(region)) & floor
         return bigger, jnp.any(bigger != region)
 
-    seed = cell_mask(start) & floor
-    region, _ = jax.lax.while_loop(lambda s: s[1], grow, (seed, jnp.bool_(True)))
+    region, _ = jax.lax.while_loop(lambda s: s[1], grow, (seeds & floor, jnp.bool_(True)))
     return region
+
+
+def flood(floor: jax.Array, start: jax.Array) -> jax.Array:
+    """bool[9, 9]: floor cells reachable from `start` (a (row, col) cell) by walking."""
+    return flood_from(cell_mask(start), floor)
 
 
 def usable_counters(grid: jax.Array, start: jax.Array) -> jax.Array:

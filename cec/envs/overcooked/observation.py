@@ -37,6 +37,7 @@ from cec.envs.overcooked.state import (
     EnvState,
 )
 from cec.levels import Item, Tile, cell_mask
+from cec.levels.solvability import adjacent, flood_from
 
 # CELL CODES: floor 0 (empty) or 1 + 16*is_other + 4*facing + held (a seat stands there), counters
 # 33 + item, onion pile 37, plate pile 38, goal 39, pots 40 + status; +64 when urgent.
@@ -134,14 +135,6 @@ def cell_codes(state: EnvState, params: EnvParams) -> jax.Array:
 # item on a cell without a seat lies on a counter.
 _TILE_CHANNELS = (10, 11, 12, 13, 14, 15)
 _ITEM_CHANNELS = (18, 21, 22, 23, 24)
-NUM_REGION_CHANNELS = 4
-
-
-def _grow(region: jax.Array) -> jax.Array:
-    """bool[..., H, W]: `region` and the cells next to it (four neighbours)."""
-    pad = [(0, 0)] * (region.ndim - 2) + [(1, 1), (1, 1)]
-    p = jnp.pad(region, pad)
-    return region | p[..., :-2, 1:-1] | p[..., 2:, 1:-1] | p[..., 1:-1, :-2] | p[..., 1:-1, 2:]
 
 
 def region_channels(obs: jax.Array) -> jax.Array:
@@ -151,22 +144,15 @@ def region_channels(obs: jax.Array) -> jax.Array:
     and 3 is where the two can hand items over; a pile marked only in 3 is one the viewer must be handed.
 
     Not in the paper's observation: the network appends these with `NetworkConfig.region_channels` (a
-    lever of docs/reproduce_overcooked.md). A flood fill over the floor (the regions are those of
-    `cec.levels.solvability.flood`: a seat does not block the other's region), batched over the leading
-    axes; it runs until no region grows, at most the length of the longest walk in a kitchen.
+    lever of docs/reproduce_overcooked.md). `cec.levels.solvability.flood_from` over the floor the view
+    shows (a seat does not block the other's region), batched over the leading axes.
     """
     tiles = jnp.any(obs[..., _TILE_CHANNELS] > 0, axis=-1)
     seats = (obs[..., 0] > 0) | (obs[..., 1] > 0)
     floor = ~tiles & ~(jnp.any(obs[..., _ITEM_CHANNELS] > 0, axis=-1) & ~seats)
-    seeds = jnp.stack([obs[..., 0] > 0, obs[..., 1] > 0], axis=-3) & floor[..., None, :, :]
-
-    def grow(state: tuple[jax.Array, jax.Array]) -> tuple[jax.Array, jax.Array]:
-        region, _ = state
-        bigger = _grow(region) & floor[..., None, :, :]
-        return bigger, jnp.any(bigger != region)
-
-    region, _ = jax.lax.while_loop(lambda s: s[1], grow, (seeds, jnp.bool_(True)))
-    usable = _grow(region) & ~floor[..., None, :, :]
+    floors = floor[..., None, :, :]  # against the two seats' regions
+    region = flood_from(jnp.stack([obs[..., 0] > 0, obs[..., 1] > 0], axis=-3), floors)
+    usable = adjacent(region) & ~floors
     out = jnp.concatenate([region, usable], axis=-3)  # [..., 4, H, W]
     return jnp.moveaxis(out, -3, -1).astype(jnp.uint8)
 

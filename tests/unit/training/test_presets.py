@@ -65,6 +65,6 @@ def test_egocentric_networks_are_refused_outside_overcooked():
 def test_region_channels_are_refused_outside_overcooked():
     from cec.config import ConfigError
 
+    dd = PRESETS[0].parent / "dd_cec_cpu.yaml"
     with pytest.raises(ConfigError, match="region_channels reads Overcooked's observation"):
-        dd = PRESETS[0].parent / "dd_cec_cpu.yaml"
         load_config(TrainConfig, dd, ["network_overrides.region_channels=true"])
