@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import sys
 import time
 from collections.abc import Mapping, Sequence
@@ -429,7 +430,8 @@ def write_manifest(plan: list[PlannedRun], out_dir: str | Path) -> Path:
 
 
 def merge_manifest(path: Path, header: str, policies: list[dict[str, object]]) -> Path:
-    """Adds `policies` to the manifest at `path` (replacing entries of the same names; others are kept)."""
+    """Adds `policies` to the manifest at `path` (replacing entries of the same names; others are kept, and
+    so is the comment at the top of the file, which says what its policies are)."""
     names = {p["name"] for p in policies}
     old = []
     if path.exists():  # the manifest a crashed build left (bounded; refused with the file named if damaged)
@@ -437,13 +439,16 @@ def merge_manifest(path: Path, header: str, policies: list[dict[str, object]]) -
         if not (isinstance(data, Mapping) and isinstance(data.get("policies"), list)):
             raise ConfigError(f"zoo manifest {str(path)!r} has no `policies` list; remove it to rebuild it")
         old = [dict(e) for e in data["policies"] if isinstance(e, Mapping) and "name" in e]
+        comment = list(itertools.takewhile(lambda line: line.startswith("#"), path.read_text().splitlines()))
+        header = "\n".join(line[1:].strip() for line in comment) or header
     return _write_manifest(path, header, [e for e in old if e["name"] not in names] + policies)
 
 
 def _write_manifest(path: Path, header: str, policies: list[dict[str, object]]) -> Path:
-    """Writes a zoo manifest atomically (a reader never sees half of it)."""
+    """Writes a zoo manifest atomically (a reader never sees half of it), `header` as its comment."""
     tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(f"# {header}\n" + yaml.safe_dump({"policies": policies}, sort_keys=False))
+    comment = "".join(f"# {line}\n".replace("# \n", "#\n") for line in header.splitlines())
+    tmp.write_text(comment + yaml.safe_dump({"policies": policies}, sort_keys=False))
     tmp.replace(path)
     return path
 

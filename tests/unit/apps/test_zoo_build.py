@@ -86,7 +86,10 @@ def test_export_writes_one_seed_parameter_checkpoints_that_play_as_the_originals
     _, out, _ = zoo
     shipped = tmp_path / "shipped"
     path = export_zoo(out / "zoo.yaml", shipped, names=["ippo-dual_destination-fixed-s1"], prefix="x_")
+    described = "# What these are:\n#\n# where they came from.\n"  # a person's note on the folder's policies
+    path.write_text(described + path.read_text().split("\n", 1)[1])
     export_zoo(out / "zoo.yaml", shipped, names=["fcp-dual_destination-fixed-s0"])  # collected, not replaced
+    assert path.read_text().startswith(described + "policies:")  # the note stays
     raw = yaml.safe_load(path.read_text())["policies"]
     assert [(p["name"], p["algorithm"], p["seed"]) for p in raw] == [
         ("x_ippo-dual_destination-fixed-s1", "ippo", 1),
