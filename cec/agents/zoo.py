@@ -39,6 +39,9 @@ from cec.config import ConfigError, read_user_json, read_user_yaml
 #: The zoo name that stands for the manifest of the policies shipped with the package.
 SHIPPED = "shipped"
 SHIPPED_ZOO = Path(__file__).resolve().parents[1] / "shipped" / "zoo.yaml"
+#: Per kitchen, the shipped partner `cec play serve --partner best` plays there (a policy name or an algorithm
+#: of the shipped zoo), chosen with the scripted cook (benchmarks/results/overcooked/shipped/finetune/).
+SHIPPED_BEST = SHIPPED_ZOO.parent / "best.yaml"
 #: The algorithm label of behaviour-cloned human proxies (`cec humans bc`): reports score agents with them
 #: apart from the other algorithms (as people-like partners, not as ad-hoc agents).
 HUMAN_PROXY = "human_proxy"
@@ -166,6 +169,17 @@ def load_zoo(path: str | Path) -> list[ZooEntry]:
     read = read_user_json if p.suffix == ".json" else read_user_yaml
     data = read(p, "zoo manifest", ZOO_MAX_BYTES, f"{__name__}.ZOO_MAX_BYTES")
     return parse_zoo(data, p.parent, where=str(p))
+
+
+def best_shipped(level: str) -> str:
+    """The shipped partner `--partner best` plays in `level`: what `SHIPPED_BEST` names for it, else the CEC
+    seeds (`cec`), the generalists."""
+    if not SHIPPED_BEST.is_file():
+        return "cec"
+    data = read_user_yaml(SHIPPED_BEST, "shipped partner choice", ZOO_MAX_BYTES, f"{__name__}.ZOO_MAX_BYTES")
+    if not isinstance(data, Mapping) or not all(isinstance(v, str) for v in data.values()):
+        raise ConfigError(f"{SHIPPED_BEST}: expected a mapping of level name -> shipped policy or algorithm")
+    return str(data.get(level, "cec"))
 
 
 def shipped_entries() -> list[ZooEntry]:

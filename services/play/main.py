@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from cec.agents.zoo import SHIPPED
+from cec.agents.zoo import SHIPPED, best_shipped
 from cec.config import ConfigError, from_dict
 from cec.signals import GracefulStop
 from services.entry import Service, override_arguments
@@ -48,7 +48,9 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
         "--partner",
         metavar="NAME",
         help="a policy shipped with the package (`cec zoo`: cec/shipped/zoo.yaml), or an algorithm of them "
-        "(e.g. `cec`: one of its seeds drawn per round); no training, no download",
+        "(e.g. `cec`: one of its seeds drawn per round), or `best`: the shipped partner that cooks most "
+        "with a scripted cook in --level (cec/shipped/best.yaml; the CEC seeds where it names none); no "
+        "training, no download",
     )
     src.add_argument("--checkpoint", help="checkpoint or run directory of the partner")
     src.add_argument("--seed", type=int, help="with --checkpoint: the seed of a multi-seed checkpoint")
@@ -111,12 +113,15 @@ def free_play_name(data: dict[str, Any]) -> str:
     return "-".join(["free_play", *(w for w in words if w), digest])
 
 
+BEST = "best"  # `--partner best`: `best_shipped(--level)`
+
+
 def free_play_config(args: argparse.Namespace) -> StudyConfig:
     """Free play from `cec play serve` flags: one partner condition, rounds without end (`free_play`), no
     consent, practice or survey; records in `runs/play/<free_play_name>/` unless `--data` says where."""
     partner: dict[str, Any] = {"name": "partner"}
     if args.partner:
-        partner.update(zoo=SHIPPED, group=args.partner)
+        partner.update(zoo=SHIPPED, group=best_shipped(args.level) if args.partner == BEST else args.partner)
     if args.checkpoint:  # a path, or the name of a shipped policy
         path = Path(args.checkpoint)
         partner.update(checkpoint=str(path.resolve()) if path.exists() else args.checkpoint, seed=args.seed)

@@ -10,11 +10,13 @@ from pathlib import Path
 import jax
 import numpy as np
 import pytest
+import yaml
 
+import cec.agents.zoo as zoo_module
 from apps.cli import build_parser, parse_args
 from cec import checkpoints
 from cec.agents.policy import load_policy, resolve_checkpoint, scripted_policy
-from cec.agents.zoo import SHIPPED, SHIPPED_ZOO, ZooEntry, load_zoo
+from cec.agents.zoo import SHIPPED, SHIPPED_BEST, SHIPPED_ZOO, ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from services.play.main import free_play_config, prepare
@@ -22,6 +24,7 @@ from services.play.main import free_play_config, prepare
 SHIPPED_NAMES = [e.name for e in load_zoo(SHIPPED)]
 CEC_NAMES = [e.name for e in load_zoo(SHIPPED) if e.algorithm == "cec"]
 PROXIES = [e for e in load_zoo(SHIPPED) if e.algorithm == "human_proxy"]
+FINETUNED = [e for e in load_zoo(SHIPPED) if e.algorithm == "cec_finetune"]
 CLASSIC = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
 
 
@@ -33,6 +36,9 @@ def test_the_shipped_zoo_exists_and_names_cec_policies_and_a_human_proxy_per_cla
     # the evaluation proxies (`hp_`: cloned from the test games, players the `bc_` proxies never saw)
     assert sorted(level for e in PROXIES for level in e.levels) == sorted(CLASSIC)
     assert all(e.name == f"hp_{e.levels[0]}" for e in PROXIES)
+    # CEC-Finetune: one partner per classic kitchen, each played only there (`--partner best`)
+    assert sorted(level for e in FINETUNED for level in e.levels) == sorted(CLASSIC)
+    assert all(e.name == f"ft758m-{e.levels[0]}" for e in FINETUNED)
 
 
 @pytest.mark.parametrize("name", SHIPPED_NAMES)
@@ -128,3 +134,55 @@ def test_a_policy_with_non_finite_weights_is_refused_even_with_a_valid_checksum(
     (copy / checkpoints.META_FILE).write_text(json.dumps(meta))
     with pytest.raises(checkpoints.CheckpointError, match=r"non-finite parameters .* are NaN or infinite"):
         load_policy(ZooEntry("diverged", str(copy)))
+
+
+# per kitchen, about 40% of what the shipped fine-tuned agent measured (400 steps; with itself, with the
+# cook): benchmarks/results/overcooked/shipped/finetune/summary.json
+FINETUNED_AT_LEAST = {
+    "cramped_room": (80, 60),
+    "asymm_advantages": (80, 90),
+    "coord_ring": (100, 55),
+    "forced_coord": (40, 10),
+    "counter_circuit": (40, 15),
+}
+
+
+@pytest.mark.parametrize("entry", FINETUNED, ids=[e.name for e in FINETUNED])
+def test_each_shipped_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen(entry) -> None:
+    """What a person who plays its kitchen depends on: there it delivers with a copy of itself and with the
+    scripted cook (the CEC seeds it started from score 0-81 with each other there)."""
+    policy = load_policy(entry)
+    (kitchen,) = entry.levels
+    cook = scripted_policy("cook", "cook", env=policy.env, algorithm="cook")
+    table = crossplay(
+        [policy, cook], eval_levels("overcooked", kitchen), EvalConfig(episodes=4, max_steps=400)
+    )
+    alone = table.returns[(table.policy_a == entry.name) & (table.policy_b == entry.name)]
+    with_cook = table.returns[table.policy_a != table.policy_b]
+    self_play, cooked = FINETUNED_AT_LEAST[kitchen]
+    assert np.mean(alone) >= self_play, f"{entry.name} with itself: {alone}"
+    assert np.mean(with_cook) >= cooked, f"{entry.name} with the cook: {with_cook}"
+
+
+def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_each_kitchen(tmp_path: Path) -> None:
+    """`--partner best` plays, per classic kitchen, what cec/shipped/best.yaml names (a fine-tuned agent, or
+    the CEC seeds where those cooked more with the scripted cook), and the CEC seeds anywhere else."""
+    choice = yaml.safe_load(SHIPPED_BEST.read_text())
+    assert set(choice) == set(CLASSIC)
+    for level in ("forced_coord", "asymm_advantages", "generated_003"):
+        args = parse_args(build_parser(), ["play", "serve", "--partner", "best", "--level", level])
+        (pool,) = prepare(free_play_config(args), tmp_path).values()
+        played = [pool.policies[i] for i in pool.eligible(level)]
+        want = choice.get(level, "cec")
+        assert played and all(want in (p.name, p.algorithm) for p in played), (
+            level,
+            [p.name for p in played],
+        )
+
+
+def test_a_malformed_partner_choice_is_refused_naming_the_file(tmp_path: Path, monkeypatch) -> None:
+    bad = tmp_path / "best.yaml"
+    bad.write_text("- forced_coord\n")
+    monkeypatch.setattr(zoo_module, "SHIPPED_BEST", bad)
+    with pytest.raises(ConfigError, match="best.yaml: expected a mapping of level name"):
+        zoo_module.best_shipped("forced_coord")

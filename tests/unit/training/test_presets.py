@@ -33,7 +33,15 @@ def test_preset_loads_and_is_consistent(path):
         assert (ippo.algorithm, ippo.env, ippo.network_config) == ("ippo", config.env, config.network_config)
         assert [e.run for e in config.partner.population] == [_run_path(ippo)]
         assert all(e.checkpoints == ("first", "middle", "last") for e in config.partner.population)
-    if config.algorithm == "cec_finetune":  # starts from the CEC preset's run, 1e8 steps at a tenth of its LR
+    if path.stem == "cec_finetune_shipped":  # seed i from the i-th shipped CEC seed, with their network
+        from cec.agents.policy import load_policy
+        from cec.agents.zoo import SHIPPED, load_zoo
+
+        shipped = [e for e in load_zoo(SHIPPED) if e.algorithm == "cec"]
+        assert config.init_from_paths == tuple(f"cec/shipped/{e.name}" for e in shipped)
+        assert config.num_seeds == len(shipped)
+        assert all(load_policy(e).network == config.network_config for e in shipped)
+    elif config.algorithm == "cec_finetune":  # from the CEC preset's run, 1e8 steps at a tenth of its LR
         cec = _load("cec_overcooked")
         assert config.init_from == _run_path(cec) and config.network_config == cec.network_config
         assert config.total_env_steps == 100_000_000 and config.ppo.lr == pytest.approx(cec.ppo.lr / 10)

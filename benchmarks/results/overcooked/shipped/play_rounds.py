@@ -1,7 +1,7 @@
-"""Rounds of `cec play serve --partner cec`'s default free play (Cramped Room, 200 turn-based steps, the
-agent's actions sampled) played through the play server's own `Round` by a scripted "person": the scripted
-cook, greedy, with a share `--epsilon` of uniformly random actions (0: a perfectly stubborn person; the
-evaluations' cook has 0.05), which steps aside where its route and the agent's collide, or with
+"""Rounds of `cec play serve --partner cec`'s default free play (Cramped Room, or `--level`; 200 turn-based
+steps, the agent's actions sampled) played through the play server's own `Round` by a scripted "person": the
+scripted cook, greedy, with a share `--epsilon` of uniformly random actions (0: a perfectly stubborn person;
+the evaluations' cook has 0.05), which steps aside where its route and the agent's collide, or with
 `--never-yield` keeps its route and walks into the agent until the agent moves (the person who never gives
 way). The browser test `tests/e2e/test_play_browser.py` plays one such round.
 
@@ -9,6 +9,8 @@ way). The browser test `tests/e2e/test_play_browser.py` plays one such round.
         cec/shipped/cec758m-s20?
     .venv/bin/python benchmarks/results/overcooked/shipped/play_rounds.py --never-yield --rounds 12 \\
         cec/shipped/cec758m-s20?
+    .venv/bin/python benchmarks/results/overcooked/shipped/play_rounds.py --never-yield --rounds 12 \\
+        --level forced_coord cec/shipped/ft758m-forced_coord      # `--partner best` there
 
 Per policy: the team return per round (20 per soup) over `--rounds` round seeds x both seats.
 """
@@ -32,22 +34,23 @@ from services.play.main import free_play_config
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("policies", nargs="+", help="exported CEC policy folders")
+    ap.add_argument("policies", nargs="+", help="exported policy folders (`cec zoo export`)")
+    ap.add_argument("--level", default="cramped_room", help="the kitchen (default: free play's)")
     ap.add_argument("--epsilon", type=float, default=0.0, help="the person's share of random actions")
     ap.add_argument("--rounds", type=int, default=12, help="round seeds per seat")
     ap.add_argument("--never-yield", action="store_true", help="the person never steps aside for the agent")
     args = ap.parse_args()
     study = free_play_config(parse_args(build_parser(), ["play", "serve", "--partner", "cec"]))
-    _, level = resolve_level("cramped_room", Path.cwd(), np.random.default_rng(0))
+    _, level = resolve_level(args.level, Path.cwd(), np.random.default_rng(0))
     key = jax.random.PRNGKey(0)
     yields = not args.never_yield
     person = jax.jit(lambda s, t: scripted_actions(jax.random.fold_in(key, t), s, args.epsilon, yields))
     for path in args.policies:
-        policy = load_policy(ZooEntry(Path(path).name, path, algorithm="cec"))
+        policy = load_policy(ZooEntry(Path(path).name, path))
         returns, collisions = [], []
         for seat in (0, 1):
             for seed in range(args.rounds):
-                r = Round(RoundSetup(policy, "cramped_room", level, seat, 200, study.mode, seed), study)
+                r = Round(RoundSetup(policy, args.level, level, seat, 200, study.mode, seed), study)
                 state, _ = r.start()
                 while not r.done:
                     action = int(person(expand_state(state, level), r.t)[seat])

@@ -1,0 +1,216 @@
+"""CEC-Finetune from the shipped CEC seeds, per classic kitchen: its seeds with each other, with the seeds
+they started from, with the human proxy of the kitchen and with the scripted cook, beside the same for the
+shipped CEC seeds (the control: the partner a person has without fine-tuning) and a partner that stays put.
+
+    # the runs (configs/train/cec_finetune_shipped.yaml; Forced Coordination, Counter Circuit twice as long):
+    cec train --config configs/train/cec_finetune_shipped.yaml env.levels=KITCHEN run_dir=runs/ft758m \\
+        name=ft758m-KITCHEN [total_env_steps=1966080]
+    .venv/bin/python benchmarks/results/overcooked/shipped/finetune/evaluate.py --runs runs/ft758m
+
+Per kitchen one `cec eval` (400-step episodes, 4 per pairing and seat order, sampled actions, common random
+numbers) into `<kitchen>.csv.bz2`; then `summary.json` and `summary.md`.
+
+Validation chooses, test reports (DESIGN rule 13), with people as in Carroll et al.: the `bc_<kitchen>`
+proxy (`cec humans bc`, cloned from the train games' players; `--proxies`) is the partner the choices are
+made with, the shipped `hp_<kitchen>` proxy (the test games' players) reports. The seed shipped per kitchen
+is the fine-tuned seed that cooked most with the bc proxy (`--work`/ship.yaml, for `cec zoo export ship.yaml
+--out cec/shipped`), and `cec play serve --partner best` plays, per kitchen, the group whose seeds cooked
+more with it on average: that seed, or the four shipped CEC seeds (`best.yaml`, copied to
+`cec/shipped/best.yaml`). The hp proxies' and the cook's figures choose nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import bz2
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from cec.agents.zoo import SHIPPED_ZOO, load_zoo
+from cec.evaluation.results import read_csv
+from cec.evaluation.seeds import seed_matrix
+from cec.evaluation.stats import compare_crossplay_paired, sem
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[4]
+KITCHENS = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
+FINETUNE, CEC, PROXY, BC = "cec_finetune", "cec", "human_proxy", "bc_proxy"
+
+
+def run_seeds(run: Path) -> list[int]:
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    return [config["seed"] + i for i in range(config["num_seeds"])]
+
+
+def zoo(kitchen: str, run: Path, seeds: list[int], proxies: Path) -> dict:
+    """The kitchen's zoo: the fine-tuned seeds (the run's last checkpoint), the shipped CEC seeds and the
+    kitchen's test human proxy (as shipped), its validation proxy (`bc_<kitchen>` of `proxies`, as
+    `bc_proxy`), the scripted cook and a partner that stays put."""
+    shipped = [e for e in load_zoo(SHIPPED_ZOO) if e.algorithm == CEC or e.name == f"hp_{kitchen}"]
+    (bc,) = [e for e in load_zoo(proxies) if e.name == f"bc_{kitchen}"]
+    return {
+        "policies": [
+            *(
+                {"name": f"ft_{kitchen}_s{s}", "algorithm": FINETUNE, "seed": s, "checkpoint": str(run),
+                 "levels": [kitchen]}
+                for s in seeds
+            ),
+            *({"name": e.name, "algorithm": e.algorithm, "seed": e.seed, "checkpoint": e.checkpoint,
+               **({"levels": list(e.levels)} if e.levels else {})} for e in shipped),
+            {"name": bc.name, "algorithm": BC, "seed": 0, "checkpoint": bc.checkpoint, "levels": [kitchen]},
+            {"name": "cook", "scripted": "cook"},
+            {"name": "noop", "scripted": "noop"},
+        ]
+    }  # fmt: skip
+
+
+def mean_se(x: np.ndarray) -> dict:
+    """Mean and standard error over seeds, and the per-seed values."""
+    x = np.asarray(x, np.float64)
+    se = float(sem(x)) if x.size > 1 else math.nan
+    return {"mean": float(np.mean(x)), "se": se, "n": int(x.size), "per_seed": [float(v) for v in x]}
+
+
+def summarise(csv: Path, kitchen: str) -> dict:
+    m = seed_matrix(read_csv(csv))
+    ft, cec = m.indices(FINETUNE), m.indices(CEC)
+    group = {a: m.indices(a) for a in (PROXY, BC, "cook", "noop")}
+    fts, cecs = m.summary(ft), m.summary(cec)
+    paired = compare_crossplay_paired(np.asarray(fts.matrix), np.asarray(cecs.matrix))
+    with_proxy = m.partner_means(ft, group[PROXY]) - m.partner_means(cec, group[PROXY])
+    ft_bc, cec_bc = m.partner_means(ft, group[BC]), m.partner_means(cec, group[BC])
+    out = {
+        "kitchen": kitchen,
+        "shipped_seed": fts.seeds[int(np.argmax(ft_bc))],  # validation: with the bc proxy
+        "best": FINETUNE if np.mean(ft_bc) > np.mean(cec_bc) else CEC,
+        "finetune_seeds": list(fts.seeds),
+        "cec_seeds": list(cecs.seeds),
+        "finetune": {
+            "self_play": mean_se(np.asarray(fts.sp)),
+            "cross_play": fts.crossplay()._asdict(),
+            "with_cec_seeds": mean_se(m.partner_means(ft, cec)),
+            "with_human_proxy": mean_se(m.partner_means(ft, group[PROXY])),
+            "with_bc_proxy": mean_se(ft_bc),
+            "with_cook": mean_se(m.partner_means(ft, group["cook"])),
+        },
+        "cec": {
+            "self_play": mean_se(np.asarray(cecs.sp)),
+            "cross_play": cecs.crossplay()._asdict(),
+            "with_human_proxy": mean_se(m.partner_means(cec, group[PROXY])),
+            "with_bc_proxy": mean_se(cec_bc),
+            "with_cook": mean_se(m.partner_means(cec, group["cook"])),
+        },
+        "controls": {
+            "noop_with_cook": float(m.partner_means(group["noop"], group["cook"])[0]),
+            "noop_with_human_proxy": float(m.partner_means(group["noop"], group[PROXY])[0]),
+        },
+        "finetune_vs_cec_cross_play_paired": paired._asdict(),
+        "finetune_vs_cec_with_human_proxy_paired": {
+            **mean_se(with_proxy),
+            "note": "per seed pair (fine-tuned seed i minus the CEC seed it started from), with the proxy",
+        },
+    }
+    return out
+
+
+def fmt(d: dict) -> str:
+    se = d.get("se", math.nan)
+    return f"{d['mean']:.1f}" + (f" ± {se:.1f}" if np.isfinite(se) else "")
+
+
+def _paired_proxy(row: dict) -> str:
+    d = row["finetune_vs_cec_with_human_proxy_paired"]
+    return f"{d['mean']:+.1f} ± {d['se']:.1f}"
+
+
+def _num(row: dict, control: str) -> str:
+    return f"{row['controls'][control]:.1f}"
+
+
+def markdown(rows: list[dict]) -> str:
+    head = (
+        "| team return per 400 steps (20 per soup), 4 seeds | "
+        + " | ".join(r["kitchen"] for r in rows)
+        + " |\n|---|"
+        + "---|" * len(rows)
+    )
+    lines = [
+        ("CEC-Finetune cross-play (jackknife SE over seeds)", lambda r: fmt(r["finetune"]["cross_play"])),
+        ("CEC-Finetune self-play", lambda r: fmt(r["finetune"]["self_play"])),
+        ("the shipped CEC seeds, cross-play (the control)", lambda r: fmt(r["cec"]["cross_play"])),
+        ("the shipped CEC seeds, self-play", lambda r: fmt(r["cec"]["self_play"])),
+        (
+            "fine-tuned minus CEC cross-play, paired (95% t interval, p)",
+            lambda r: "{diff:+.1f} [{ci_low:+.1f}, {ci_high:+.1f}], p = {p:.2g}".format(
+                **r["finetune_vs_cec_cross_play_paired"]
+            ),
+        ),
+        ("CEC-Finetune with the CEC seeds", lambda r: fmt(r["finetune"]["with_cec_seeds"])),
+        ("validation: CEC-Finetune with the bc proxy", lambda r: fmt(r["finetune"]["with_bc_proxy"])),
+        ("validation: the CEC seeds with the bc proxy", lambda r: fmt(r["cec"]["with_bc_proxy"])),
+        ("**test: CEC-Finetune with the hp proxy**", lambda r: fmt(r["finetune"]["with_human_proxy"])),
+        ("**test: the CEC seeds with the hp proxy**", lambda r: fmt(r["cec"]["with_human_proxy"])),
+        ("test: fine-tuned minus CEC with the hp proxy, per seed pair", lambda r: _paired_proxy(r)),
+        ("control: a partner that stays put, with the proxy", lambda r: _num(r, "noop_with_human_proxy")),
+        ("CEC-Finetune with the scripted cook", lambda r: fmt(r["finetune"]["with_cook"])),
+        ("the CEC seeds with the scripted cook", lambda r: fmt(r["cec"]["with_cook"])),
+        ("control: a partner that stays put, with the cook", lambda r: _num(r, "noop_with_cook")),
+    ]  # fmt: skip
+    body = "\n".join(f"| {title} | " + " | ".join(f(r) for r in rows) + " |" for title, f in lines)
+    return head + "\n" + body + "\n"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--runs", default="runs/ft758m", help="folder of the runs ft758m-<kitchen>")
+    ap.add_argument("--work", default="/tmp/ft758m-eval", help="folder for the zoos and raw tables")
+    ap.add_argument("--kitchens", default=",".join(KITCHENS))
+    ap.add_argument("--episodes", type=int, default=4)
+    ap.add_argument("--proxies", default="runs/humans/proxies/zoo.yaml", help="`cec humans bc`'s zoo")
+    ap.add_argument("--out", default=str(HERE), help="folder for the tables and the summary (default: here)")
+    ap.add_argument("--summarise-only", action="store_true", help="read the tables already in --out")
+    args = ap.parse_args()
+    runs, work, out = Path(args.runs), Path(args.work), Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    work.mkdir(parents=True, exist_ok=True)
+    rows, ship, best = [], [], {}
+    for kitchen in args.kitchens.split(","):
+        run = runs / f"ft758m-{kitchen}"
+        table = out / f"{kitchen}.csv.bz2"
+        if not args.summarise_only:
+            seeds = run_seeds(run)
+            manifest = work / f"zoo_{kitchen}.yaml"
+            manifest.write_text(
+                yaml.safe_dump(zoo(kitchen, run.resolve(), seeds, Path(args.proxies)), sort_keys=False)
+            )
+            raw = work / f"{kitchen}.csv"
+            cmd = [str(ROOT / ".venv/bin/cec"), "eval", "--zoo", str(manifest), "--levels", kitchen,
+                   "--episodes", str(args.episodes), "--max-steps", "400", "--out", str(raw)]  # fmt: skip
+            print("$", " ".join(cmd), flush=True)
+            subprocess.run(cmd, check=True, cwd=ROOT)
+            table.write_bytes(bz2.compress(raw.read_bytes(), 9))
+        row = summarise(table, kitchen)
+        rows.append(row)
+        name = f"ft758m-{kitchen}"
+        ship.append({"name": name, "algorithm": FINETUNE, "seed": row["shipped_seed"],
+                     "checkpoint": str(run.resolve()), "levels": [kitchen]})  # fmt: skip
+        best[kitchen] = name if row["best"] == FINETUNE else CEC
+        print(markdown(rows[-1:]), flush=True)
+        print(f"{kitchen}: ships seed {row['shipped_seed']}; `--partner best` plays {best[kitchen]}")
+    (work / "ship.yaml").write_text(yaml.safe_dump({"policies": ship}, sort_keys=False))
+    (work / "best.yaml").write_text(yaml.safe_dump(best, sort_keys=False))
+    print(f"to ship: cec zoo export {work}/ship.yaml --out cec/shipped; cp {work}/best.yaml cec/shipped/")
+    (out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
+    (out / "summary.md").write_text(markdown(rows))
+    print(markdown(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
