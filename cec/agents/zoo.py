@@ -40,7 +40,7 @@ from cec.config import ConfigError, read_user_json, read_user_yaml
 SHIPPED = "shipped"
 SHIPPED_ZOO = Path(__file__).resolve().parents[1] / "shipped" / "zoo.yaml"
 #: Per kitchen, the shipped partner `cec play serve --partner best` plays there (a policy name or an algorithm
-#: of the shipped zoo), chosen with the scripted cook (benchmarks/results/overcooked/shipped/finetune/).
+#: of the shipped zoo), chosen with people's clones (benchmarks/results/overcooked/shipped/finetune/).
 SHIPPED_BEST = SHIPPED_ZOO.parent / "best.yaml"
 #: The algorithm label of behaviour-cloned human proxies (`cec humans bc`): reports score agents with them
 #: apart from the other algorithms (as people-like partners, not as ad-hoc agents).

@@ -166,7 +166,7 @@ def test_each_shipped_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its
 
 def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_each_kitchen(tmp_path: Path) -> None:
     """`--partner best` plays, per classic kitchen, what cec/shipped/best.yaml names (a fine-tuned agent, or
-    the CEC seeds where those cooked more with the scripted cook), and the CEC seeds anywhere else."""
+    the CEC seeds where those cooked more with the validation proxy), and the CEC seeds anywhere else."""
     choice = yaml.safe_load(SHIPPED_BEST.read_text())
     assert set(choice) == set(CLASSIC)
     for level in ("forced_coord", "asymm_advantages", "generated_003"):
