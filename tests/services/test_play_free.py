@@ -25,6 +25,19 @@ def test_cec_play_serve_partner_cec_serves_the_page_and_stops_on_ctrl_c(tmp_path
     assert "partner partner: 4 policies loaded" in server.log, server.log
 
 
+def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_the_kitchen(tmp_path: Path) -> None:
+    """The README's second play command: in Forced Coordination the one fine-tuned agent best.yaml names."""
+    cmd = ["--partner", "best", "--level", "forced_coord", "--port", "0", "--data", str(tmp_path)]
+    server = PlayServer(cmd, None)
+    try:
+        with urllib.request.urlopen(server.url, timeout=30) as page:
+            assert page.status == 200
+    finally:
+        code = server.stop(signal.SIGINT)
+    assert code == 0 and "Traceback" not in server.log, server.log
+    assert "partner partner: 1 policies loaded" in server.log, server.log
+
+
 def test_a_busy_port_is_refused_before_the_partners_load(tmp_path: Path) -> None:
     import socket
     import subprocess
