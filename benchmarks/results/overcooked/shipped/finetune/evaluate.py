@@ -169,7 +169,17 @@ def markdown(rows: list[dict]) -> str:
         ("control: a partner that stays put, with the cook", lambda r: _num(r, "noop_with_cook")),
     ]  # fmt: skip
     body = "\n".join(f"| {title} | " + " | ".join(f(r) for r in rows) + " |" for title, f in lines)
-    return head + "\n" + body + "\n"
+
+    def over_kitchens(agent: str, column: str) -> str:
+        return f"{np.mean([r[agent][column]['mean'] for r in rows]):.1f}"
+
+    means = (
+        f"\nMeans over the {len(rows)} kitchens: cross-play CEC-Finetune "
+        f"{over_kitchens('finetune', 'cross_play')}, the CEC seeds {over_kitchens('cec', 'cross_play')}; "
+        f"test, with the hp proxies: CEC-Finetune {over_kitchens('finetune', 'with_human_proxy')}, "
+        f"the CEC seeds {over_kitchens('cec', 'with_human_proxy')}.\n"
+    )
+    return head + "\n" + body + "\n" + means
 
 
 def main() -> int:
