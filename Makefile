@@ -33,7 +33,7 @@ demo: install
 # time on one worker (their xdist group, tests/conftest.py), listed first so that they start first.
 TEST_WORKERS ?= auto
 test: lint typecheck
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadgroup tests/e2e tests/unit tests/parity tests/learning tests/services
+	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup tests/e2e tests/unit tests/parity tests/learning tests/services
 
 lint: install
 	$(BIN)/ruff check .

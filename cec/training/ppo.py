@@ -43,6 +43,9 @@ class PPOConfig:
         shaping_anneal_env_steps: env steps over which the shaped-reward weight falls linearly from 1 to 0
             (0: half of the run's total, as the paper's code; a negative value keeps it at 1).
         partner_coef: weight of the partner model's cross-entropy loss (networks with one: E3T).
+        team_shaping: each seat is paid both seats' shaped rewards (the team's), not only its own; the paper
+            (as JaxMARL) pays each seat its own. With its own only, a seat that puts an item where its partner
+            uses it is paid nothing until a soup is delivered tens of steps later.
     """
 
     lr: float = 3e-4
@@ -60,6 +63,7 @@ class PPOConfig:
     adam_eps: float = 1e-5
     shaping_anneal_env_steps: int = 0
     partner_coef: float = 1.0
+    team_shaping: bool = False
 
     def __post_init__(self) -> None:
         if self.lr <= 0 or self.update_epochs < 1 or self.num_minibatches < 1:
@@ -140,8 +144,11 @@ def make_batch(
     learner_seat_only: bool = False,
     mask_scripted_seat: bool = False,
     normalise_apart: bool = False,
+    team_shaping: bool = False,
 ) -> Batch:
     """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening.
+
+    `team_shaping`: each seat's shaped reward is both seats' (the team's) instead of its own.
 
     With `learner_seat_only` (partner strategies) the batch holds only the learner's own seat of every env
     (N = E sequences; the seat may change only where an episode starts, where the LSTM resets); otherwise
@@ -153,7 +160,12 @@ def make_batch(
     self-play's; the minibatch normalisation of the loss then leaves them about as they are).
     """
     t, e = traj.reward.shape
-    reward = traj.reward[..., None] + shaping_weight * traj.shaped  # [T, E, 2]
+    shaped = (
+        jnp.broadcast_to(traj.shaped.sum(-1, keepdims=True), traj.shaped.shape)
+        if team_shaping
+        else traj.shaped
+    )
+    reward = traj.reward[..., None] + shaping_weight * shaped  # [T, E, 2]
     done = jnp.broadcast_to(traj.done[..., None], reward.shape)
     advantage, target = gae(reward, traj.value, done, traj.last_value, gamma, lam)
     partner_action = traj.action[..., ::-1]  # [T, E, 2]: seat s's partner is seat 1 - s

@@ -195,6 +195,7 @@ class Trainer:
             cfg.partner.learner_seat_only,
             cfg.partner.masks_scripted_seat,
             cfg.partner.scripted_normalise_apart,
+            cfg.ppo.team_shaping,
         )
         lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(

@@ -75,6 +75,39 @@ def test_rollout_and_update_shapes(tmp_path):
     assert not _tree_equal(new_state.params, state.params)
 
 
+def test_team_shaping_pays_the_seat_whose_item_its_partner_used(tmp_path):
+    cfg = _config(
+        tmp_path, env={"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 50}}
+    )
+    tr = Trainer(cfg)
+    state = jax.tree.map(lambda x: x[0], tr.init())
+    levels = tr.task.sample_levels(jax.random.PRNGKey(1), jnp.arange(cfg.num_envs), cfg.levels_per_env)
+    _, traj = rollout(
+        state.params, state.carry, levels, state.key,
+        task=tr.task, network=tr.network, env_params=tr.env_params, num_steps=cfg.num_steps,
+    )  # fmt: skip
+    # no team reward, zero values; at step 2 of env 0 seat 0 earns a shaped 3 (it put an onion in the pot)
+    shaped = np.zeros(traj.shaped.shape, np.float32)
+    shaped[2, 0, 0] = 3.0
+    traj = traj._replace(
+        reward=jnp.zeros_like(traj.reward), shaped=jnp.asarray(shaped),
+        value=jnp.zeros_like(traj.value), last_value=jnp.zeros_like(traj.last_value),
+    )  # fmt: skip
+    t, e = traj.reward.shape
+    own, team = (
+        np.asarray(make_batch(traj, jnp.float32(1.0), 0.99, 0.95, team_shaping=x).target).reshape(t, e, 2)
+        for x in (False, True)
+    )
+    # the paper's own shaping pays only seat 0, at and before the step; the team's pays both the same
+    assert own[0, 0, 0] > 0 and np.all(own[:, :, 1] == 0)
+    np.testing.assert_allclose(team[:, 0, 1], team[:, 0, 0])
+    np.testing.assert_allclose(team[:, :, 0], own[:, :, 0])
+    assert np.all(team[:, 1:] == 0)  # other envs untouched
+    # halved by the schedule's weight like the own shaping
+    half = make_batch(traj, jnp.float32(0.5), 0.99, 0.95, team_shaping=True).target
+    np.testing.assert_allclose(np.asarray(half).reshape(t, e, 2), team / 2, rtol=1e-6)
+
+
 def test_seeds_are_independent_and_reproducible(tmp_path):
     cfg = _config(tmp_path, num_seeds=2)
     tr = Trainer(cfg)
