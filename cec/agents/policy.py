@@ -216,6 +216,18 @@ def load_policy(entry: ZooEntry) -> Policy:
     return Policy(entry.name, algorithm, seed, params, config.network_config, config.env, entry.levels)
 
 
+def checkpoint_seeds(checkpoint: str) -> list[int]:
+    """The seeds a checkpoint (or a run directory's latest) holds, in their order in its state."""
+    path = resolve_checkpoint(checkpoint)
+    meta = checkpoints.read_meta(path)
+    try:
+        config = _RunFields.of(meta["config"])
+    except (ConfigError, KeyError, TypeError) as err:
+        raise checkpoints.CheckpointError(f"checkpoint {path} holds a config this code cannot read ({err})") from err
+    default = [config.seed + i for i in range(config.num_seeds)]
+    return [int(s) for s in meta.get("metadata", {}).get("seeds", default)]
+
+
 @dataclass(frozen=True)
 class _RunFields:
     """What a policy needs of the training config its checkpoint holds (not the whole `TrainConfig`)."""

@@ -84,7 +84,8 @@ class TrainConfig:
         partner: who plays the other seat (`cec.training.partners`): self-play, FCP, E3T.
         init_from: start from this checkpoint's (or run directory's latest) parameters instead of a random
             init (CEC-Finetune, or a CEC policy trained further, e.g. an exported one); the optimizer starts
-            fresh. Several checkpoints, comma-separated, one per seed: seed i starts from the i-th.
+            fresh. Several checkpoints, comma-separated, one per seed: seed i starts from the i-th; one
+            checkpoint of exactly `num_seeds` seeds (and no `init_from_seed`): seed i from its i-th seed.
         init_from_seed: which seed of a multi-seed `init_from` checkpoint (-1: its only seed).
         tracking: TensorBoard event files (`<run_dir>/<name>/tb/`) and the optional W&B mirror
             (`cec.training.tracking`); where the run's series go, not what it trains.

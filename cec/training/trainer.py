@@ -31,7 +31,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
 from cec import checkpoints
 from cec.agents.network import ActorCritic, init_params
-from cec.agents.policy import load_policy
+from cec.agents.policy import checkpoint_seeds, load_policy
 from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
 from cec.envs.task import Task
@@ -242,8 +242,8 @@ class Trainer:
         cfg = self.config
         states = [self._init(jax.random.PRNGKey(cfg.seed + i)) for i in range(cfg.num_seeds)]
         state: TrainState = jax.tree.map(lambda *xs: jnp.stack(xs), *states)
-        if cfg.init_from:  # every seed from the checkpoint's exact parameters, or seed i from checkpoint i
-            sources = [self.initial_params(path) for path in cfg.init_from_paths]
+        if cfg.init_from:  # every seed from the checkpoint's exact parameters, or seed i from source i
+            sources = [self.initial_params(path, seed) for path, seed in self.init_sources()]
             if len(sources) == 1:
                 params = jax.tree.map(lambda x: jnp.broadcast_to(x, (cfg.num_seeds, *x.shape)), sources[0])
             else:
@@ -276,10 +276,25 @@ class Trainer:
             return tree
         return jax.device_put(tree, NamedSharding(self.mesh, PartitionSpec()))
 
-    def initial_params(self, path: str) -> Any:
-        """The parameters of one `init_from` checkpoint (checked against this run's game and network)."""
+    def init_sources(self) -> list[tuple[str, int | None]]:
+        """(checkpoint, seed in it) of each `init_from` source: one checkpoint for every seed, one per seed,
+        or, where one checkpoint holds exactly `num_seeds` seeds and no `init_from_seed` picks one, seed i
+        from its i-th (a run continued seed by seed under other settings)."""
         cfg = self.config
-        seed = None if cfg.init_from_seed < 0 else cfg.init_from_seed
+        paths = cfg.init_from_paths
+        if len(paths) == 1 and cfg.init_from_seed < 0 and cfg.num_seeds > 1:
+            try:
+                seeds = checkpoint_seeds(paths[0])
+            except checkpoints.CheckpointError as err:
+                raise ConfigError(f"init_from: {err}") from err
+            if len(seeds) == cfg.num_seeds:
+                return [(paths[0], seed) for seed in seeds]
+        return [(path, None if cfg.init_from_seed < 0 else cfg.init_from_seed) for path in paths]
+
+    def initial_params(self, path: str, seed: int | None) -> Any:
+        """The parameters of seed `seed` (None: its only one) of an `init_from` checkpoint, checked against
+        this run's game and network."""
+        cfg = self.config
         try:
             policy = load_policy(ZooEntry(name="init_from", checkpoint=path, seed=seed))
         except checkpoints.CheckpointError as err:

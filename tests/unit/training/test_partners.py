@@ -409,3 +409,14 @@ def test_init_from_one_checkpoint_per_seed_continues_each_seed_from_its_own(ippo
     assert not np.array_equal(*(np.asarray(x) for x in jax.tree.leaves(state.params)[0]))
     with pytest.raises(ConfigError, match="3 checkpoints for 2 seeds"):
         _config(tmp_path, "cec_finetune", init_from=f"{first},{last},{last}", num_seeds=2)
+    # one checkpoint of as many seeds as the run and no init_from_seed: a run continued seed by seed
+    # (under other settings, e.g. a lever switched on half-way); another count must pick its seed
+    both = Trainer(_config(tmp_path, "cec_finetune", init_from=str(last), num_seeds=2)).init()
+    for seed in range(2):
+        expected = load_policy(ZooEntry("x", str(last), seed=seed)).params
+        got = jax.tree.map(lambda x, s=seed: np.asarray(x[s]), both.params)
+        assert all(
+            np.array_equal(a, b) for a, b in zip(jax.tree.leaves(got), jax.tree.leaves(expected), strict=True)
+        )
+    with pytest.raises(ConfigError, match="give the entry a `seed`"):
+        Trainer(_config(tmp_path, "cec_finetune", init_from=str(last), num_seeds=3)).init()
