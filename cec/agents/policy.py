@@ -176,13 +176,7 @@ def load_policy(entry: ZooEntry) -> Policy:
             f"{str(meta.get('sha256'))[:12]}..., the manifest says {entry.sha256[:12]}...); rebuild the zoo "
             "or fix the entry"
         )
-    try:
-        config = _RunFields.of(meta["config"])
-    except (ConfigError, KeyError, TypeError) as err:
-        raise checkpoints.CheckpointError(
-            f"checkpoint {path} holds a config this code cannot read ({err}); re-export it with this "
-            "version or evaluate it with the version that wrote it"
-        ) from err
+    config = _run_fields(path, meta)
     metadata = meta.get("metadata", {})
     if metadata.get("params_only"):  # one seed's parameters (`save_policy`)
         params, _ = checkpoints.load(path, _param_template(config.env, config.network_config))
@@ -220,12 +214,19 @@ def checkpoint_seeds(checkpoint: str) -> list[int]:
     """The seeds a checkpoint (or a run directory's latest) holds, in their order in its state."""
     path = resolve_checkpoint(checkpoint)
     meta = checkpoints.read_meta(path)
-    try:
-        config = _RunFields.of(meta["config"])
-    except (ConfigError, KeyError, TypeError) as err:
-        raise checkpoints.CheckpointError(f"checkpoint {path} holds a config this code cannot read ({err})") from err
+    config = _run_fields(path, meta)
     default = [config.seed + i for i in range(config.num_seeds)]
     return [int(s) for s in meta.get("metadata", {}).get("seeds", default)]
+
+
+def _run_fields(path: Path, meta: dict[str, Any]) -> _RunFields:
+    try:
+        return _RunFields.of(meta["config"])
+    except (ConfigError, KeyError, TypeError) as err:
+        raise checkpoints.CheckpointError(
+            f"checkpoint {path} holds a config this code cannot read ({err}); re-export it with this "
+            "version or evaluate it with the version that wrote it"
+        ) from err
 
 
 @dataclass(frozen=True)
