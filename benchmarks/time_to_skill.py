@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from cec.checkpoints import META_FILE, STATE_FILE, CheckpointError
 from cec.evaluation.crossplay import EvalConfig, eval_levels
 from cec.evaluation.milestones import checkpoints_by_update, milestone_points, play_milestone
 from cec.levels.kinds import validation_parts
@@ -142,7 +143,14 @@ def evaluate(
     for update, checkpoints in checkpoints_by_update(runs).items():
         if (name, update) in done:
             continue
-        table = play_milestone(name, checkpoints, levels, config)
+        try:
+            table = play_milestone(name, checkpoints, levels, config)
+        except (CheckpointError, FileNotFoundError):
+            if all((c / META_FILE).is_file() and (c / STATE_FILE).is_file() for c in checkpoints):
+                raise  # there and unreadable: corrupt, refused
+            # gone while this ran: a run still training keeps only its latest checkpoint besides milestones
+            print(f"{name} update {update}: skipped, its run replaced the checkpoint with a newer one")
+            continue
         points = {part: milestone_points(table, names)[0] for part, names in parts.items()}
         point = points["generated"]
         by_part = {

@@ -43,6 +43,38 @@ def test_checkpoints_already_evaluated_are_not_played_again(
     assert tts.evaluate([run], 1, done=frozenset({("r", 0)})) == []  # no cross-play compiled, none played
 
 
+def test_a_checkpoint_its_running_run_removed_is_skipped_and_a_corrupt_one_refused(
+    saved_run: tuple[Path, Path, Any], tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Evaluating a run while it trains: the run replaces its latest checkpoint (keep_last) while the
+    milestones before it are played; that one is skipped. One still there but unreadable is refused."""
+    from cec.checkpoints import CorruptCheckpointError
+
+    tts = _module()
+    run = tmp_path / "r"
+    shutil.copytree(saved_run[0], run)
+    (run / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n1,4,16,100.0\n1,5,16,100.0\n")
+
+    def pruned(name, checkpoints, levels, config):
+        for c in checkpoints:
+            (c / "meta.json").unlink()  # the trainer's prune, caught half-way
+        raise CorruptCheckpointError(f"{checkpoints[0]} is not a checkpoint: meta.json is missing")
+
+    monkeypatch.setattr(tts, "play_milestone", pruned)
+    assert tts.evaluate([run], 1) == []
+
+    shutil.rmtree(run)
+    shutil.copytree(saved_run[0], run)
+    (run / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n1,4,16,100.0\n1,5,16,100.0\n")
+
+    def corrupt(name, checkpoints, levels, config):
+        raise CorruptCheckpointError("state.msgpack: checksum mismatch")
+
+    monkeypatch.setattr(tts, "play_milestone", corrupt)
+    with pytest.raises(CorruptCheckpointError, match="checksum"):
+        tts.evaluate([run], 1)
+
+
 def test_joined_runs_must_be_one_recipe_and_are_evaluated_as_one(
     saved_run: tuple[Path, Path, Any], tmp_path: Path
 ) -> None:
