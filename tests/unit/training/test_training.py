@@ -42,7 +42,8 @@ def _tree_equal(a, b):
     return all(np.array_equal(x, y) for x, y in zip(jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
 
 
-def test_rollout_and_update_shapes(tmp_path):
+def _cramped_room_rollout(tmp_path):
+    """(trainer, seed 0's state, carry after, trajectory) of one rollout of 5-step Cramped Room episodes."""
     cfg = _config(
         tmp_path, env={"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 5}}
     )
@@ -54,6 +55,12 @@ def test_rollout_and_update_shapes(tmp_path):
             p, c, lv, k, task=tr.task, network=tr.network, env_params=tr.env_params, num_steps=cfg.num_steps
         )
     )(state.params, state.carry, levels, state.key)
+    return tr, state, carry, traj
+
+
+def test_rollout_and_update_shapes(tmp_path):
+    tr, state, carry, traj = _cramped_room_rollout(tmp_path)
+    cfg = tr.config
     t, e, h = cfg.num_steps, cfg.num_envs, 64
     assert traj.obs.shape == (t, e, 2, 9, 9, 26) and traj.obs.dtype == jnp.uint8
     assert traj.action.shape == traj.log_prob.shape == traj.value.shape == traj.shaped.shape == (t, e, 2)
@@ -76,16 +83,7 @@ def test_rollout_and_update_shapes(tmp_path):
 
 
 def test_team_shaping_pays_the_seat_whose_item_its_partner_used(tmp_path):
-    cfg = _config(
-        tmp_path, env={"name": "overcooked", "levels": "cramped_room", "overcooked": {"max_steps": 50}}
-    )
-    tr = Trainer(cfg)
-    state = jax.tree.map(lambda x: x[0], tr.init())
-    levels = tr.task.sample_levels(jax.random.PRNGKey(1), jnp.arange(cfg.num_envs), cfg.levels_per_env)
-    _, traj = rollout(
-        state.params, state.carry, levels, state.key,
-        task=tr.task, network=tr.network, env_params=tr.env_params, num_steps=cfg.num_steps,
-    )  # fmt: skip
+    _, _, _, traj = _cramped_room_rollout(tmp_path)
     # no team reward, zero values; at step 2 of env 0 seat 0 earns a shaped 3 (it put an onion in the pot)
     shaped = np.zeros(traj.shaped.shape, np.float32)
     shaped[2, 0, 0] = 3.0
