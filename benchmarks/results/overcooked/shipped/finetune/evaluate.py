@@ -33,6 +33,7 @@ import numpy as np
 import yaml
 
 from cec.agents.zoo import SHIPPED_ZOO, load_zoo
+from cec.evaluation.markdown import pm
 from cec.evaluation.results import read_csv
 from cec.evaluation.seeds import seed_matrix
 from cec.evaluation.stats import compare_crossplay_paired, sem
@@ -126,8 +127,7 @@ def summarise(csv: Path, kitchen: str) -> dict:
 
 
 def fmt(d: dict) -> str:
-    se = d.get("se", math.nan)
-    return f"{d['mean']:.1f}" + (f" ± {se:.1f}" if np.isfinite(se) else "")
+    return pm(d["mean"], d.get("se"))
 
 
 def _paired_proxy(row: dict) -> str:
