@@ -87,6 +87,12 @@ class TrainConfig:
             fresh. Several checkpoints, comma-separated, one per seed: seed i starts from the i-th; one
             checkpoint of exactly `num_seeds` seeds (and no `init_from_seed`): seed i from its i-th seed.
         init_from_seed: which seed of a multi-seed `init_from` checkpoint (-1: its only seed).
+        level_repeats: every this many updates each env draws fresh kitchens; at the updates between, it
+            plays the kitchen it is on again (1: fresh kitchens every update, the default). With one
+            episode per rollout (num_steps = env.params.max_steps, as in the time-to-skill recipe) each
+            kitchen is played `level_repeats` episodes in a row, so a kitchen whose exchange the seats
+            stumble on once is there to be tried again. A distribution of levels only; `cec train` only
+            (the distributed learner refuses it).
         tracking: TensorBoard event files (`<run_dir>/<name>/tb/`) and the optional W&B mirror
             (`cec.training.tracking`); where the run's series go, not what it trains.
         run_dir: where runs are written (`<run_dir>/<name>`).
@@ -109,6 +115,7 @@ class TrainConfig:
     partner: PartnerConfig = field(default_factory=PartnerConfig)
     init_from: str = ""
     init_from_seed: int = -1
+    level_repeats: int = 1
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     run_dir: str = "runs"
     name: str = ""
@@ -148,6 +155,15 @@ class TrainConfig:
             raise ConfigError(
                 f"init_from goes with algorithm cec_finetune (fine-tuning) or cec (continuing a CEC policy's "
                 f"training), not {self.algorithm}"
+            )
+        if self.level_repeats < 1:
+            raise ConfigError(
+                f"level_repeats must be >= 1 (1: fresh kitchens every update), got {self.level_repeats}"
+            )
+        if self.level_repeats > 1 and not self.env.procedural:
+            raise ConfigError(
+                f"level_repeats={self.level_repeats} replays kitchens of a distribution, but env.levels is "
+                f"{self.env.levels!r}, one fixed level: leave level_repeats at 1"
             )
         if (
             min(self.num_seeds, self.num_envs, self.num_steps, self.total_env_steps, self.updates_per_call)

@@ -161,12 +161,18 @@ class Trainer:
         *,
         record: str = "obs",
         levels: Any = None,
+        update_index: jax.Array | None = None,
     ) -> tuple[RolloutCarry, Trajectory]:
         """One rollout of the envs in `carry` (all of a seed's, or an actor's slice): levels drawn for those
-        envs from `k_levels` unless given (streamed kitchens), then `rollout`."""
+        envs from `k_levels` unless given (streamed kitchens), then `rollout`. With `config.level_repeats`
+        > 1 and the `update_index` given, the envs replay the kitchens they are on unless the update is
+        one of every `level_repeats`-th (the draw is made either way: the random streams do not depend
+        on it)."""
         cfg = self.config
         if levels is None:
             levels = self.task.sample_levels(k_levels, carry.env_id, cfg.levels_per_env)
+        if cfg.level_repeats > 1 and update_index is not None:
+            levels = replay_current(levels, carry.env_state.level, update_index % cfg.level_repeats != 0)
         return rollout(
             params,
             carry,
@@ -211,7 +217,9 @@ class Trainer:
     def update_step(self, state: TrainState, population: Any = None) -> tuple[TrainState, UpdateMetrics]:
         """One rollout and one PPO update for one seed (`population`: FCP's partners, else None)."""
         key, k_levels, k_roll, k_update = self.update_keys(state.key)
-        carry, traj = self.collect(state.params, state.carry, k_levels, k_roll, population)
+        carry, traj = self.collect(
+            state.params, state.carry, k_levels, k_roll, population, update_index=state.update
+        )
         params, opt_state, metrics = self.learn(state.params, state.opt_state, state.update, traj, k_update)
         return TrainState(params, opt_state, carry, key, state.update + 1), metrics
 
@@ -310,6 +318,16 @@ class Trainer:
         """Shapes and dtypes of the state (no compute), for loading checkpoints."""
         keys = jax.ShapeDtypeStruct((self.config.num_seeds, 2), jnp.uint32)
         return jax.eval_shape(jax.vmap(self.init_one), keys)
+
+
+def replay_current(levels: Any, current: Any, keep: jax.Array) -> Any:
+    """Level buffers ([E, K] leaves) holding each env's `current` level ([E] leaves) in every slot where
+    `keep` (a bool scalar), else `levels` unchanged."""
+
+    def pick(fresh: jax.Array, now: jax.Array) -> jax.Array:
+        return jnp.where(keep, jnp.broadcast_to(now[:, None], fresh.shape), fresh)
+
+    return jax.tree.map(pick, levels, current)
 
 
 def device_mesh(config: TrainConfig) -> Mesh | None:

@@ -115,6 +115,12 @@ class DistributedConfig:
                 f"distributed training runs one seed per run (num_seeds=1), got num_seeds={train.num_seeds}; "
                 "start one run per seed (seed=0, seed=1, ...)"
             )
+        if train.level_repeats != 1:
+            raise ConfigError(
+                f"level_repeats={train.level_repeats} is built into `cec train` only; the distributed "
+                "learner's actors draw (or stream) fresh kitchens every update: leave it at 1, or use "
+                "cec train"
+            )
         if self.learner_gpus and train.devices > self.learner_gpus:
             raise ConfigError(
                 f"devices={train.devices}, but the learner has distributed.learner_gpus="

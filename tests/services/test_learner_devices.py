@@ -120,3 +120,10 @@ def test_the_actors_xla_flags_are_flags_xla_reads(monkeypatch: pytest.MonkeyPatc
     assert "XLA_FLAGS" not in actor_env(DistributedConfig(actor_threads=0))  # XLA's own threads
     with pytest.raises(ConfigError, match=r"actor_threads must be 1 .* or 0 .*got 2.*limit that \(taskset\)"):
         DistributedConfig(actor_threads=2)
+
+
+def test_level_repeats_is_refused_by_the_distributed_learner_before_any_process_starts() -> None:
+    train = load_config(TrainConfig, str(REPO / "configs/train/dd_cec_quick.yaml"), ["level_repeats=4"])
+    with pytest.raises(ConfigError, match="level_repeats=4 is built into `cec train` only"):
+        DistributedConfig().check(train)
+    DistributedConfig().check(load_config(TrainConfig, str(REPO / "configs/train/dd_cec_quick.yaml"), []))

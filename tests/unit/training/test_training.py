@@ -106,6 +106,28 @@ def test_team_shaping_pays_the_seat_whose_item_its_partner_used(tmp_path):
     np.testing.assert_allclose(np.asarray(half).reshape(t, e, 2), team / 2, rtol=1e-6)
 
 
+@pytest.mark.parametrize("repeats", [1, 3])
+def test_level_repeats_replays_each_kitchen_that_many_episodes(tmp_path, repeats):
+    # one 10-step episode per rollout: the kitchen of rollout u+1 is the one its env reset to in rollout u
+    cfg = _config(
+        tmp_path, algorithm="cec", num_steps=10, level_repeats=repeats,
+        env={"name": "overcooked", "levels": "generator", "overcooked": {"max_steps": 10}},
+    )  # fmt: skip
+    tr = Trainer(cfg)
+    state = jax.tree.map(lambda x: x[0], tr.init())
+    step = jax.jit(tr.update_step)
+    played = []  # [rollout][env] the kitchen's grid
+    for _ in range(7):
+        played.append(np.asarray(state.carry.env_state.level.grid))
+        state, _ = step(state)
+    same = [np.all(played[u] == played[u + 1], axis=(1, 2)) for u in range(6)]  # per env, u -> u+1
+    for u, kept in enumerate(same):
+        # rollouts 1-3 play the kitchens drawn at update 0, 4-6 those of update 3; without repeats
+        # every rollout a fresh one (a generated kitchen repeats by chance almost never)
+        expect = repeats == 3 and (u + 1) % 3 != 1
+        assert kept.all() if expect else not kept.any(), (u, kept)
+
+
 def test_seeds_are_independent_and_reproducible(tmp_path):
     cfg = _config(tmp_path, num_seeds=2)
     tr = Trainer(cfg)
@@ -286,6 +308,8 @@ def test_a_run_trained_by_another_process_is_refused_until_that_process_ends(tmp
         ({"env": {"name": "overcooked", "levels": "kitchen_9"}}, "not valid"),
         ({"num_envs": 3, "ppo": {"num_minibatches": 4}}, "split evenly"),
         ({"network": "huge"}, "unknown network preset"),
+        ({"level_repeats": 0}, "level_repeats must be >= 1"),
+        ({"level_repeats": 4}, "one fixed level: leave level_repeats at 1"),
         ({"env": {"name": "dual_destination", "levels": "multi_task"}}, "multi_task=true"),
     ],
 )
