@@ -45,6 +45,7 @@ from cec.evaluation.crossplay import EvalConfig, eval_levels
 from cec.evaluation.milestones import checkpoints_by_update, milestone_points, play_milestone
 from cec.levels.kinds import validation_parts
 from cec.levels.level import unstack_levels
+from cec.training.config import split_paths
 
 STALL = 5.0  # an update at under 1/STALL of the run's median env-steps/s was stalled, not slow
 
@@ -81,8 +82,22 @@ def _config(run: Path) -> dict[str, Any]:
 
 
 def _recipe(run: Path) -> dict[str, Any]:
-    """The run's training config without what tells its processes apart (seed, name)."""
-    return {k: v for k, v in _config(run).items() if k not in ("seed", "name")}
+    """The run's training config without what tells its processes apart (seed, name); an `init_from`
+    checkpoint of a run directory stands as that run's recipe and the checkpoint's name, so processes that
+    each continue their own seed of one recipe (`init_from=<run of seed i>/checkpoints/update_N`) agree."""
+    recipe = {k: v for k, v in _config(run).items() if k not in ("seed", "name")}
+    if recipe.get("init_from"):
+        recipe["init_from"] = [_source(Path(p)) for p in split_paths(str(recipe["init_from"]))]
+    return recipe
+
+
+def _source(checkpoint: Path) -> Any:
+    """What an `init_from` path says of where a run started: its run's recipe and the checkpoint's name
+    when it is a checkpoint of a run directory, else the path as given."""
+    run = checkpoint.parent.parent
+    if checkpoint.parent.name == "checkpoints" and (run / "config.yaml").is_file():
+        return {"run": _recipe(run), "checkpoint": checkpoint.name}
+    return str(checkpoint)
 
 
 def _seeds(run: Path) -> set[int]:

@@ -108,4 +108,15 @@ def test_join_refuses_a_run_given_twice_and_runs_that_share_a_seed(tmp_path: Pat
     with pytest.raises(SystemExit, match=r"ab: seed 5 is trained by both .*a and .*b: joined runs must be"):
         tts.main(["--join", "ab", str(runs["a"]), str(runs["b"]), *out])
     tts.check_population([runs["a"], runs["c"]], "ac")  # seeds 4-5 and 6-7: one population of four
+    # runs continuing each its own seed's checkpoint of one recipe are one population; of two recipes not
+    late = {}
+    for name, source, seed in (("la", "a", 4), ("lc", "c", 6)):
+        late[name] = tmp_path / name
+        late[name].mkdir()
+        start = runs[source] / "checkpoints" / "update_000000640"
+        (late[name] / "config.yaml").write_text(f"seed: {seed}\nname: {name}\ninit_from: {start}\n")
+    tts.check_population([late["la"], late["lc"]], "late")
+    (runs["c"] / "config.yaml").write_text("seed: 6\nnum_seeds: 2\nname: c\nnum_envs: 16\n")
+    with pytest.raises(SystemExit, match="differ in more than seed and name"):
+        tts.check_population([late["la"], late["lc"]], "late")
     assert not (tmp_path / "tts.json").exists()
