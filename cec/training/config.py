@@ -91,8 +91,8 @@ class TrainConfig:
             plays the kitchen it is on again (1: fresh kitchens every update, the default). With one
             episode per rollout (num_steps = env.params.max_steps, as in the time-to-skill recipe) each
             kitchen is played `level_repeats` episodes in a row, so a kitchen whose exchange the seats
-            stumble on once is there to be tried again. A distribution of levels only; `cec train` only
-            (the distributed learner refuses it).
+            stumble on once is there to be tried again (measured in docs/reproduce_overcooked.md: 8 did
+            not help). A distribution of levels only; `cec train` only (the distributed learner refuses it).
         tracking: TensorBoard event files (`<run_dir>/<name>/tb/`) and the optional W&B mirror
             (`cec.training.tracking`); where the run's series go, not what it trains.
         run_dir: where runs are written (`<run_dir>/<name>`).

@@ -165,9 +165,9 @@ class Trainer:
     ) -> tuple[RolloutCarry, Trajectory]:
         """One rollout of the envs in `carry` (all of a seed's, or an actor's slice): levels drawn for those
         envs from `k_levels` unless given (streamed kitchens), then `rollout`. With `config.level_repeats`
-        > 1 and the `update_index` given, the envs replay the kitchens they are on unless the update is
-        one of every `level_repeats`-th (the draw is made either way: the random streams do not depend
-        on it)."""
+        R > 1 and the `update_index` given, only an update whose index R divides plays its draw; the others
+        replay each env's current kitchen (the draw is made either way, so the random streams are the
+        same)."""
         cfg = self.config
         if levels is None:
             levels = self.task.sample_levels(k_levels, carry.env_id, cfg.levels_per_env)
