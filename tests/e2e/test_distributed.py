@@ -128,10 +128,20 @@ def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_re
     run_dir = tmp_path / "up"
     try:
         _wait_rows(run_dir, 3, log=tmp_path / "up.log")
-        ours = read_ray_address()  # the "last cluster" file that its `ray start --head` wrote
-        learners = [
-            p for p in psutil.process_iter(["cmdline"]) if "ray::Learner" in " ".join(p.info["cmdline"] or [])
-        ]
+        # this stack's Ray head, not another test's cluster on the machine (the "last cluster" file and the
+        # learner processes are machine-wide): its address, and the learner among its descendants
+        started = json.loads((run_dir / "logs" / "children.json").read_text())["children"]
+        head = psutil.Process(int(next(c["pid"] for c in started if c["name"] == "ray head")))
+        port = next(a.partition("=")[2] for a in head.cmdline() if a.startswith("--port="))
+        ours = f"127.0.0.1:{port}"  # what its `ray start --head --node-ip-address=127.0.0.1` writes there
+
+        def cmdline(proc: Any) -> str:
+            try:
+                return " ".join(proc.cmdline())
+            except psutil.Error:  # gone since listed
+                return ""
+
+        learners = [p for p in head.children(recursive=True) if "ray::Learner" in cmdline(p)]
         assert learners, "the learner runs in its own Ray worker process"
         killed_at = len(_rows(run_dir))
         for p in learners:
@@ -152,7 +162,7 @@ def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_re
     assert latest.name == f"update_{rows[-1]:09d}", "the ^C checkpointed the last update"
     assert "stack stopped" in text
     assert "os.fork() was called" not in text, "children are started without forking a JAX process"
-    assert ours and read_ray_address() != ours, "no later ray.init() here may try to join the stopped cluster"
+    assert read_ray_address() != ours, "no later ray.init() here may try to join the stopped cluster"
     left = [c for c in children if psutil.pid_exists(int(c["pid"]))]
     assert not left, f"processes left after the ^C: {left}"
     # ... and the run goes on from the checkpoint the ^C wrote
