@@ -234,11 +234,12 @@ def _standardise(x: jax.Array, weight: jax.Array | None, axis: str | None = None
 def _mean(x: jax.Array, weight: jax.Array | None, axis: str | None) -> jax.Array:
     """The (weighted) mean of a minibatch quantity. Inside `shard_map` (`axis`) with weights it is this
     device's weighted sum over the mean of the devices' weight sums, so that the devices' average is the
-    whole minibatch's weighted mean (as a plain `mean` of equal shares is)."""
+    whole minibatch's weighted mean (as a plain `mean` of equal shares is). A minibatch that weighs nothing
+    has mean 0 (on every device: the devices' mean weight sum is 0 only when the whole minibatch's is)."""
     if weight is None:
         return x.mean()
     total = weight.sum() if axis is None else jax.lax.pmean(weight.sum(), axis)
-    return (weight * x).sum() / jnp.maximum(total, 1.0)
+    return (weight * x).sum() / jnp.where(total > 0, total, 1.0)
 
 
 def ppo_loss(
