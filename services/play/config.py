@@ -269,6 +269,9 @@ class StudyConfig:
         ticks_per_second: game speed in `real_time` mode.
         human_seat: the human's seat (0 blue, 1 red); -1: drawn at random for every round.
         agent_actions: `greedy` (the most likely action, as in the paper's study) or `sampled`.
+        agent_gives_way_after: N > 0: once the agent's moves were cancelled by a collision N steps in a
+            row, its next action is a move onto a free floor cell (the one its policy prefers), and so on
+            while the collisions go on; 0 (the paper's agents): always its policy's action.
         env: the game's settings; the study round length is `env.max_steps`.
         survey: the post-round survey.
         completion_code: the code shown at the end ('' : a random code per participant).
@@ -298,6 +301,7 @@ class StudyConfig:
     ticks_per_second: float = 5.0
     human_seat: int = -1
     agent_actions: str = "greedy"
+    agent_gives_way_after: int = 0
     env: EnvParams = field(default_factory=lambda: EnvParams(max_steps=200, random_start_facing=False))
     survey: SurveyConfig = field(default_factory=SurveyConfig)
     completion_code: str = ""
@@ -341,6 +345,11 @@ class StudyConfig:
         if self.agent_actions not in AGENT_ACTIONS:
             raise ConfigError(
                 f"agent_actions {self.agent_actions!r} is unknown; choose one of {list(AGENT_ACTIONS)}"
+            )
+        if not 0 <= self.agent_gives_way_after <= MAX_STEPS:
+            raise ConfigError(
+                f"agent_gives_way_after must lie in [0, {MAX_STEPS}] (0: the agent never steps aside), got "
+                f"{self.agent_gives_way_after}"
             )
         if not 1 <= int(self.env.max_steps) <= MAX_STEPS:
             raise ConfigError(

@@ -103,6 +103,7 @@ def view(config: StudyConfig, pools: dict[str, PartnerPool], p: Participant, ind
         "mode": plan.mode,
         "steps": plan.steps,
         "ticks_per_second": config.ticks_per_second,
+        "gives_way_after": config.agent_gives_way_after,
         "played": p.played[-SUMMARY_ROWS:],
         "rounds_played": len(p.played),
     }

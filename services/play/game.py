@@ -53,7 +53,7 @@ from cec.agents.zoo import ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.envs import overcooked as oc
 from cec.envs.task import EnvConfig
-from cec.levels import GRID_SIZE, Direction, Item, Level, Tile
+from cec.levels import DIR_VEC, GRID_SIZE, Direction, Item, Level, Tile
 from cec.levels.classic import classic_level
 from services.play.config import PartnerSpec, StudyConfig
 
@@ -152,12 +152,14 @@ class Prepared(NamedTuple):
         lstm: the agent's LSTM carry after seeing the current observation, [1, H] leaves.
         history: int32[1, 1, K] the human's last K actions as the agent saw them (E3T's partner model).
         agent_action: int32[] the agent's action in the current state.
+        bumps: int32[] the steps in a row up to the current state whose moves were cancelled by a collision.
     """
 
     branches: oc.StepOutput
     lstm: LSTMState
     history: jax.Array
     agent_action: jax.Array
+    bumps: jax.Array
 
 
 def _joint(human: jax.Array, agent: jax.Array, agent_seat: jax.Array) -> jax.Array:
@@ -185,19 +187,47 @@ def _act(
     history: jax.Array,
     key: jax.Array,
     greedy: bool,
+    allowed: jax.Array | None = None,
 ) -> tuple[LSTMState, jax.Array]:
-    """The agent's next action on one observation ([9, 9, 26]); carry [1, H]."""
+    """The agent's next action on one observation ([9, 9, 26]); carry [1, H]. `allowed` (bool[6]): the
+    action is chosen among these only, by the policy's probabilities."""
     hist = history if network.config.partner_history else None
     lstm, logits, _ = forward(network, params, lstm, obs[None, None], jnp.reshape(first, (1, 1)), hist)
-    return lstm, select_action(key, logits[0, 0], greedy)
+    logits = logits[0, 0] if allowed is None else jnp.where(allowed, logits[0, 0], -jnp.inf)
+    return lstm, select_action(key, logits, greedy)
+
+
+def _ways_aside(state: oc.EnvState, seat: jax.Array, last: jax.Array) -> jax.Array:
+    """bool[6]: the moves that take `seat` onto a free floor cell out of the partner's way: not the
+    partner's cell, not the one it faces (where it is heading), not the one `seat` tried to enter with its
+    `last` action; all six actions where there is none."""
+    vec = jnp.asarray(DIR_VEC)
+    pos, partner = state.agent_pos[seat], state.agent_pos[1 - seat]
+    cells = jnp.clip(pos + vec, 0, GRID_SIZE - 1)
+    ahead = partner + vec[state.agent_dir[1 - seat]]
+    tried = jnp.arange(len(DIR_VEC)) == last
+    free = (
+        (state.level.grid[cells[:, 0], cells[:, 1]] == Tile.FLOOR)
+        & jnp.any(cells != partner, axis=1)
+        & jnp.any(cells != ahead, axis=1)
+        & ~tried
+    )
+    moves = jnp.concatenate([free, jnp.zeros(NUM_ACTIONS - len(DIR_VEC), bool)])
+    return jnp.where(jnp.any(free), moves, jnp.ones(NUM_ACTIONS, bool))
 
 
 class Compiled:
-    """The jitted `start` and `advance` of one network architecture (and action choice)."""
+    """The jitted `start` and `advance` of one network architecture (and action choice).
 
-    def __init__(self, config: NetworkConfig, greedy: bool) -> None:
+    `give_way_after` N > 0: after N steps in a row whose moves a collision cancelled, the agent's next
+    action is a move onto a free floor cell, the one its policy prefers among them (Carroll et al. 2019's
+    agents step aside at random when stuck); it then plays its policy again. 0: always the policy's action.
+    """
+
+    def __init__(self, config: NetworkConfig, greedy: bool, give_way_after: int = 0) -> None:
         self.network = ActorCritic(config, NUM_ACTIONS)
         self.greedy = greedy
+        self.give_way_after = give_way_after
         self.start = jax.jit(self._start)
         self.advance = jax.jit(self._advance)
 
@@ -211,7 +241,8 @@ class Compiled:
         lstm, action = _act(
             self.network, params, lstm, obs[agent_seat], jnp.array(True), history, k_act, self.greedy
         )
-        return state, Prepared(_branches(state, action, agent_seat, env_params), lstm, history, action)
+        bumps = jnp.int32(0)
+        return state, Prepared(_branches(state, action, agent_seat, env_params), lstm, history, action, bumps)
 
     def _advance(
         self,
@@ -224,6 +255,11 @@ class Compiled:
     ) -> tuple[oc.StepOutput, Prepared]:
         out: oc.StepOutput = jax.tree.map(lambda x: x[human_action], prepared.branches)
         history = push_history(prepared.history, jnp.reshape(human_action, (1, 1)))
+        bumps = jnp.where(out.collision, prepared.bumps + 1, 0).astype(jnp.int32)
+        allowed = None
+        if self.give_way_after > 0:
+            aside = _ways_aside(out.state, agent_seat, prepared.agent_action)
+            allowed = jnp.where(bumps >= self.give_way_after, aside, jnp.ones(NUM_ACTIONS, bool))
         lstm, action = _act(
             self.network,
             params,
@@ -233,14 +269,16 @@ class Compiled:
             history,
             key,
             self.greedy,
+            allowed,
         )
-        return out, Prepared(_branches(out.state, action, agent_seat, env_params), lstm, history, action)
+        branches = _branches(out.state, action, agent_seat, env_params)
+        return out, Prepared(branches, lstm, history, action, bumps)
 
 
 @cache
-def compiled(config: NetworkConfig, greedy: bool) -> Compiled:
-    """One `Compiled` per (architecture, action choice) for the life of the process."""
-    return Compiled(config, greedy)
+def compiled(config: NetworkConfig, greedy: bool, give_way_after: int = 0) -> Compiled:
+    """One `Compiled` per (architecture, action choice, giving way) for the life of the process."""
+    return Compiled(config, greedy, give_way_after)
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -382,7 +420,7 @@ class Round:
         self.setup = setup
         self.env_params = dataclasses.replace(study.env, max_steps=setup.steps)
         self.greedy = study.agent_actions == "greedy"
-        self.fns = compiled(setup.policy.network, self.greedy)
+        self.fns = compiled(setup.policy.network, self.greedy, study.agent_gives_way_after)
         self.agent_seat = jnp.int32(1 - setup.human_seat)
         self.key = jax.random.PRNGKey(setup.seed)
         self.pots = pot_cells(setup.level)

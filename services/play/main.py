@@ -71,6 +71,14 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
         help="how the agent picks its action from its policy: sampled (default; the shipped agents freeze "
         "in place when they always take the most likely action) or greedy",
     )
+    src.add_argument(
+        "--give-way-after",
+        type=int,
+        default=3,
+        metavar="N",
+        help="the agent steps onto a free cell after N collisions in a row (default 3; 0: never, as the "
+        "paper's agents; docs/play.md)",
+    )
     src.add_argument("--steps", type=int, default=200, help="round length")
     serve.add_argument("--host", default="127.0.0.1", help="bind address (default 127.0.0.1)")
     serve.add_argument("--port", type=int, default=8000, help="port (0: a free one; default 8000)")
@@ -137,6 +145,7 @@ def free_play_config(args: argparse.Namespace) -> StudyConfig:
         "rounds_per_partner": 1,
         "mode": args.mode,
         "agent_actions": args.agent_actions,
+        "agent_gives_way_after": args.give_way_after,
         "env": {"max_steps": args.steps, "random_start_facing": False},
         "survey": {"items": []},
         "free_play": True,

@@ -31,6 +31,7 @@ Event types, in the order a participant produces them:
     instructions  (read; the participant went on)
     round_start   round (-1: practice), attempt, practice, partner (name), policy, algorithm, seed,
                   level (name), level_ascii, human_seat, mode, steps, ticks_per_second, agent_actions,
+                  agent_gives_way_after (absent in records before it existed: 0),
                   state (compact start state, see services.play.game)
     step          round, attempt, t (1-based), actions [seat 0, seat 1], human_action, rt_ms (the
                   participant's reaction time as the browser measured it; null if not given), reward,

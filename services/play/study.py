@@ -331,6 +331,7 @@ class Study:
                 steps=plan.steps,
                 ticks_per_second=self.config.ticks_per_second,
                 agent_actions=self.config.agent_actions,
+                agent_gives_way_after=self.config.agent_gives_way_after,
                 state=state,
             )
             p.round = rnd

@@ -100,11 +100,15 @@ def test_three_free_play_rounds_in_one_visit_with_reloads(tmp_path: Path) -> Non
     assert [int(row[3]) for row in rows] == [int(r.end["return"]) for r in rounds]
 
 
-def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path) -> None:
+@pytest.mark.parametrize("gives_way_after", [0, 3])
+def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path, gives_way_after: int) -> None:
+    """The agent is in a dead end (no free cell to give way onto): the hint comes after 3 bumps, or 3 more
+    than the agent's own `agent_gives_way_after`, and says which."""
     _browser_paths()
     (tmp_path / "head_on.txt").write_text(HEAD_ON)
     (tmp_path / "study.yaml").write_text(
         "name: head_on\nfree_play: true\nlevels: [head_on.txt]\nhuman_seat: 0\nagent_actions: sampled\n"
+        f"agent_gives_way_after: {gives_way_after}\n"
         "partners: [{name: random, random_init: true}]\nsurvey: {items: []}\n"
         "env: {max_steps: 12, random_start_facing: false}\n"
         f"storage: {{dir: {tmp_path / 'records'}}}\n"
@@ -118,7 +122,7 @@ def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path) -> No
         player.wait.until(EC.presence_of_element_located((By.ID, "board")))
         hint = player.d.find_element(By.ID, "bump-hint")
         shown = []
-        for i in range(5):  # east, into the agent's cell: a collision every step
+        for i in range(5 + gives_way_after):  # east, into the agent's cell: a collision every step
             player.turn(i, 2)
             shown.append(hint.is_displayed())
         text = hint.text
@@ -126,8 +130,9 @@ def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path) -> No
     finally:
         player.close()
         server.stop(signal.SIGINT)
-    assert shown == [False, False, True, True, True], shown
-    assert "bumped into each other 3 times in a row" in text and "step aside" in text
+    assert shown == [False] * (2 + gives_way_after) + [True] * 3, shown
+    assert f"bumped into each other {3 + gives_way_after} times in a row" in text and "step aside" in text
+    assert ("found no free cell" in text) == (gives_way_after > 0), text
     assert stats["bumpHints"] == 1
     files = FileStore(tmp_path / "records", "head_on")
     try:
@@ -135,4 +140,5 @@ def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path) -> No
         steps = [ev for ev in files.events(pid) if ev["type"] == "step"]
     finally:
         files.close()
-    assert [s["collision"] for s in steps[:5]] == [True] * 5  # the block the page saw is in the records
+    # the block the page saw is in the records
+    assert [s["collision"] for s in steps[: 5 + gives_way_after]] == [True] * (5 + gives_way_after)

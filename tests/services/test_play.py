@@ -3,6 +3,7 @@ precomputed branches and carried LSTM state, records and their export."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -93,6 +94,7 @@ def test_shipped_studies_load() -> None:
         ({"ticks_per_second": 0}, "ticks_per_second"),
         ({"human_seat": 2}, "human_seat"),
         ({"agent_actions": "best"}, "agent_actions"),
+        ({"agent_gives_way_after": -1}, "agent_gives_way_after"),
         ({"env": {"max_steps": 0}}, "max_steps"),
         ({"survey": {"items": [{"id": "x", "text": "a"}, {"id": "x", "text": "b"}]}}, "unique"),
         ({"survey": {"scale": ["only"]}}, "2 to 11"),
@@ -243,6 +245,38 @@ def test_branches_are_the_env_steps_and_the_agent_carries_its_lstm(pools: dict[s
         branches = result.branches or []
     with pytest.raises(RuntimeError):
         rnd.step(4, with_branches=True)
+
+
+# The agent (seat 1, east) and the person (seat 0) face each other in a corridor; the agent's only free
+# cell is east of it, (1, 4).
+PASSAGE = "WWWPWWW\nO 01  W\nWBWW XW\nWWWWWWW\n"
+
+
+@pytest.mark.parametrize("give_way_after", [0, 3])
+def test_the_agent_steps_aside_after_that_many_collisions_in_a_row(
+    pools: dict[str, Any], tmp_path: Path, give_way_after: int
+) -> None:
+    """An agent that always walks west, into a person who always walks east: every step a collision, unless
+    the agent gives way; then it steps onto its free cell (the one move its policy likes least) once the
+    collisions reached `agent_gives_way_after`, and walks west again after."""
+    (tmp_path / "passage.txt").write_text(PASSAGE)
+    name, level = resolve_level(str(tmp_path / "passage.txt"), tmp_path)
+    policy = pools["a"].policies[0]
+    layers = policy.params["params"]
+    bias = jnp.full(6, -5.0).at[3].set(5.0).at[2].set(-9.0)  # west; east least of all
+    params = {"params": {**layers, "actor_out": {"kernel": 0 * layers["actor_out"]["kernel"], "bias": bias}}}
+    config = from_dict(StudyConfig, _study_dict(agent_gives_way_after=give_way_after))
+    setup = RoundSetup(dataclasses.replace(policy, params=params), name, level, 0, 8, "turn_based", 0)
+    rnd = Round(setup, config)
+    rnd.start()
+    steps = [rnd.step(2, with_branches=False) for _ in range(6)]  # the person walks east
+    agent = [s.actions[1] for s in steps]
+    if give_way_after == 0:
+        assert agent == [3] * 6 and all(s.collision for s in steps)
+    else:  # bumps 1, 2, 3; then east onto (1, 4) while the person takes (1, 3); then west into it again
+        assert agent == [3, 3, 3, 2, 3, 3], agent
+        assert [s.collision for s in steps] == [True, True, True, False, True, True]
+        assert steps[3].state["pos"] == [[1, 3], [1, 4]], steps[3].state
 
 
 def test_a_round_rejects_bad_actions(pools: dict[str, Any]) -> None:

@@ -117,7 +117,7 @@ def test_free_play_takes_no_survey_or_practice() -> None:
 def _flags(**changes: Any) -> argparse.Namespace:
     flags: dict[str, Any] = dict(
         partner="cec", checkpoint=None, seed=None, zoo=None, group="", random_init=False,
-        level="cramped_room", mode="turn_based", agent_actions="sampled", steps=200,
+        level="cramped_room", mode="turn_based", agent_actions="sampled", give_way_after=3, steps=200,
         data=None, redis_url=None,
     )  # fmt: skip
     flags.update(changes)
@@ -131,7 +131,9 @@ def test_each_set_of_flags_records_to_a_folder_of_its_own_under_runs() -> None:
     names = {
         free_play_config(_flags(**change)).name
         for change in ({}, {"level": "coord_ring"}, {"steps": 100}, {"mode": "real_time"}, {"partner": None,
-                       "random_init": True})
+                       "random_init": True}, {"give_way_after": 0})
     }  # fmt: skip
-    assert len(names) == 5
+    assert len(names) == 6
+    assert config.agent_gives_way_after == 3
+    assert free_play_config(_flags(give_way_after=0)).agent_gives_way_after == 0
     assert free_play_config(_flags(data="elsewhere")).storage.dir == "elsewhere"

@@ -26,8 +26,8 @@ const COLORS = {
   agent: ["rgb(52,104,224)", "rgb(214,58,48)"], agentDark: ["rgb(22,48,128)", "rgb(120,24,18)"],
 };
 const SEAT_NAMES = ["blue", "red"];
-// Free play: after this many bumps in a row the page says to step aside (the agents never give way), and the
-// hint goes after this many steps without one.
+// Free play: after this many bumps in a row the page says to step aside (this many more than the agent's own
+// `gives_way_after`, where it steps aside itself), and the hint goes after this many steps without one.
 const BUMP_HINT = 3, BUMP_CLEAR = 4;
 
 // Measurements of the current round a test or a researcher can read: key-down to painted frame, key-down to
@@ -314,14 +314,17 @@ class Game {
     this.t += 1;
   }
 
-  // Free play: bumped BUMP_HINT times in a row -> say to step aside; gone after BUMP_CLEAR calm steps.
+  // Free play: bumped BUMP_HINT (+ the agent's gives_way_after) times in a row -> say to step aside; gone after
+  // BUMP_CLEAR calm steps.
   bumped(collision) {
     if (!this.view.free_play) return;
     this.bumps = collision ? this.bumps + 1 : 0;
     this.calm = collision ? 0 : this.calm + 1;
-    if (this.bumps >= BUMP_HINT && this.bumpHint.hidden) {
-      this.bumpHint.textContent = `You have bumped into each other ${this.bumps} times in a row. Your partner does not ` +
-        "give way: step aside into a free cell and let it pass.";
+    const yields = this.view.gives_way_after || 0;
+    if (this.bumps >= BUMP_HINT + yields && this.bumpHint.hidden) {
+      const partner = yields ? "Your partner found no free cell to step onto" : "Your partner does not give way";
+      this.bumpHint.textContent = `You have bumped into each other ${this.bumps} times in a row. ${partner}: ` +
+        "step aside into a free cell and let it pass.";
       this.bumpHint.hidden = false;
       window.cecStats.bumpHints += 1;
     } else if (this.calm >= BUMP_CLEAR) {
