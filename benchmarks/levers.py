@@ -10,8 +10,13 @@ cross-play over pairs of two different seeds with its jackknife standard error o
 is tested with `cec.evaluation.stats.compare_estimates` (independent seeds; the t-test's p beside the
 interval: with 4 seeds a side treat p as a reading, not a verdict), Holm-adjusted over the parts shown.
 
+With `--control JSON` the recipe is instead the time-to-skill output of the recipe itself trained beside the
+levers (the same machine and seeds): every part against its row at exactly the lever's env steps.
+
     python benchmarks/levers.py --lever coverage=docs/reproduce_overcooked/levers/cov35.json \\
         --out docs/reproduce_overcooked/levers/summary
+    python benchmarks/levers.py --lever ent02=docs/reproduce_overcooked/levers/ent02_4seeds.json \\
+        --control docs/reproduce_overcooked/levers/control_4seeds.json --steps 2621440 --out ...
 
 prints a Markdown table and writes OUT.json.
 """
@@ -70,14 +75,30 @@ def curve_point(path: Path, steps: int) -> dict[str, float] | None:
     return None
 
 
+def control_parts(path: Path, steps: int) -> dict[str, dict[str, float]]:
+    """{part: score with its `seeds` count} of a time-to-skill output's row at exactly `steps`."""
+    row = lever_row(path, steps)
+    if row["env_steps_per_seed"] != steps:
+        raise SystemExit(f"{path}: no row at {steps:,} env steps per seed (the lever's)")
+    return {part: {**score, "seeds": len(row["seeds"])} for part, score in row["parts"].items()}
+
+
 def compare(
-    levers: dict[str, Path], base: dict[str, dict[str, float]], steps: int, curve: Path | None = None
+    levers: dict[str, Path],
+    base: dict[str, dict[str, float]],
+    steps: int,
+    curve: Path | None = None,
+    control: Path | None = None,
 ) -> dict[str, Any]:
+    """Each lever's row at `steps` part by part against `base` (and the `curve` at equal steps), or with a
+    `control` output against its row at the lever's steps only."""
     out: dict[str, Any] = {}
     for name, path in levers.items():
         row = lever_row(path, steps)
         mine = dict(base)
-        if curve is not None and (point := curve_point(curve, row["env_steps_per_seed"])) is not None:
+        if control is not None:
+            mine = control_parts(control, row["env_steps_per_seed"])
+        elif curve is not None and (point := curve_point(curve, row["env_steps_per_seed"])) is not None:
             mine = {EQUAL_STEPS: point, **base}
             row["parts"] = {EQUAL_STEPS: row["parts"]["generated"], **row["parts"]}
         parts = {}
@@ -92,8 +113,16 @@ def compare(
             parts[part] = {"lever": a, "baseline": b, "diff": c.diff, "ci": [c.ci_low, c.ci_high], "p": c.p}
         for part, p in zip(parts, holm([v["p"] for v in parts.values()]), strict=True):
             parts[part]["p_holm"] = float(p)
+        seeds = next(iter(mine.values()))["seeds"]
+        against = (
+            f"the recipe trained beside it ({control.name}, {seeds:.0f} seeds) at the same steps"
+            if control is not None
+            else "its time-to-skill curve at the same steps (seeds 300-307, generated kitchens only), then "
+            "the CPU reproduction's CEC (seeds 200-203) at 10.5M"
+        )
         out[name] = {
             "row": {k: row[k] for k in ("run", "update", "env_steps_per_seed", "seeds")},
+            "against": against,
             "parts": parts,
         }
     return out
@@ -115,8 +144,7 @@ def markdown(result: dict[str, Any]) -> str:
         seeds = lever["row"]["seeds"]
         lines += [
             f"**{name}** at {steps / 1e6:.1f}M env steps per seed (seeds {seeds}) against "
-            "the recipe without it: its time-to-skill curve at the same steps (seeds 300-307, generated "
-            "kitchens only), then the CPU reproduction's CEC (seeds 200-203) at 10.5M, every part"
+            f"the recipe without it: {lever['against']}, every part"
             + (
                 f" ({len(seeds)} seeds: one pair, no standard error over seeds and no test; a reading):"
                 if len(seeds) < 3
@@ -145,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--baseline-curve", type=Path, default=BASELINE_CURVE, help="the recipe's time-to-skill output"
     )
+    ap.add_argument(
+        "--control", type=Path, help="the recipe's own time-to-skill output, trained beside the levers"
+    )
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.md")
     args = ap.parse_args(argv)
     levers = {}
@@ -154,12 +185,12 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--lever {spec!r}: write NAME=PATH of a time_to_skill output")
         levers[name] = Path(path)
     base = baseline(args.baseline_table, args.baseline_algorithm)
-    result = compare(levers, base, args.steps, args.baseline_curve)
+    result = compare(levers, base, args.steps, args.baseline_curve, args.control)
     from apps.machine import machine_info
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
     doc = {"benchmark": "levers", "date": datetime.date.today().isoformat(), "machine": machine_info(),
-           "baseline_table": str(args.baseline_table), "levers": result}  # fmt: skip
+           "baseline_table": str(args.control or args.baseline_table), "levers": result}  # fmt: skip
     args.out.with_suffix(".json").write_text(json.dumps(doc, indent=1, default=float) + "\n")
     text = markdown(result)
     args.out.with_suffix(".md").write_text(text + "\n")

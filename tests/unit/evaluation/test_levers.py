@@ -44,6 +44,27 @@ def test_the_row_at_the_steps_asked_is_compared_and_holm_adjusted(tmp_path: Path
         levers.lever_row(path, 1_000)
 
 
+def test_a_control_trained_beside_the_lever_is_read_part_by_part_at_the_same_steps(tmp_path: Path) -> None:
+    levers = _module()
+
+    def output(name: str, xp: float, steps: tuple[int, ...]) -> Path:
+        rows = [{"run": name, "update": i, "env_steps_per_seed": n, "seeds": [1, 2, 3, 4],
+                 "parts": {"generated": _part(xp, 1.0), "classic": _part(xp / 2, 1.0)}}
+                for i, n in enumerate(steps)]  # fmt: skip
+        path = tmp_path / f"{name}.json"
+        path.write_text(json.dumps({"rows": rows}))
+        return path
+
+    lever = output("lever", 30.0, (5_000_000, 10_485_760))
+    control = output("control", 20.0, (5_000_000, 10_485_760))
+    far = {"generated": _part(99.0, 1.0)}  # the reproduction's table: not read with a control
+    out = levers.compare({"x": lever}, far, 5_000_000, control=control)["x"]
+    assert [out["parts"][k]["diff"] for k in ("generated", "classic")] == [10.0, 5.0]
+    assert "trained beside it (control.json, 4 seeds)" in levers.markdown({"x": out})
+    with pytest.raises(SystemExit, match="no row at 10,485,760"):
+        levers.compare({"x": lever}, far, 10_485_760, control=output("control", 20.0, (5_000_000,)))
+
+
 def test_a_lever_of_two_seeds_is_a_reading_without_an_error_or_a_test(tmp_path: Path) -> None:
     """One pair of seeds has no jackknife error: the table says so instead of printing nan."""
     levers = _module()
