@@ -145,6 +145,10 @@ PLAY_STEP_SECONDS = Histogram(
     buckets=(0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 1.0),
 )
 PLAY_SURVEYS = Counter("cec_play_surveys_total", "Post-round surveys answered")
+PLAY_AGENT_GAVE_WAY = Counter(
+    "cec_play_agent_gave_way_total",
+    "Steps whose agent action was the give-way rule's step aside (agent_gives_way_after), not its policy's",
+)
 PLAY_TICK_OVERRUNS = Counter(
     "cec_play_tick_overruns_total", "Real-time ticks that started late because the previous one overran"
 )

@@ -153,6 +153,7 @@ class Prepared(NamedTuple):
         history: int32[1, 1, K] the human's last K actions as the agent saw them (E3T's partner model).
         agent_action: int32[] the agent's action in the current state.
         bumps: int32[] the steps in a row up to the current state whose moves were cancelled by a collision.
+        gives_way: bool[] `agent_action` is a step aside chosen by the give-way rule, not its policy's own.
     """
 
     branches: oc.StepOutput
@@ -160,6 +161,7 @@ class Prepared(NamedTuple):
     history: jax.Array
     agent_action: jax.Array
     bumps: jax.Array
+    gives_way: jax.Array
 
 
 def _joint(human: jax.Array, agent: jax.Array, agent_seat: jax.Array) -> jax.Array:
@@ -241,8 +243,8 @@ class Compiled:
         lstm, action = _act(
             self.network, params, lstm, obs[agent_seat], jnp.array(True), history, k_act, self.greedy
         )
-        bumps = jnp.int32(0)
-        return state, Prepared(_branches(state, action, agent_seat, env_params), lstm, history, action, bumps)
+        branches = _branches(state, action, agent_seat, env_params)
+        return state, Prepared(branches, lstm, history, action, jnp.int32(0), jnp.array(False))
 
     def _advance(
         self,
@@ -256,10 +258,11 @@ class Compiled:
         out: oc.StepOutput = jax.tree.map(lambda x: x[human_action], prepared.branches)
         history = push_history(prepared.history, jnp.reshape(human_action, (1, 1)))
         bumps = jnp.where(out.collision, prepared.bumps + 1, 0).astype(jnp.int32)
-        allowed = None
+        allowed, gives_way = None, jnp.array(False)
         if self.give_way_after > 0:
             aside = _ways_aside(out.state, agent_seat, prepared.agent_action)
-            allowed = jnp.where(bumps >= self.give_way_after, aside, jnp.ones(NUM_ACTIONS, bool))
+            gives_way = (bumps >= self.give_way_after) & ~jnp.all(aside)
+            allowed = jnp.where(gives_way, aside, jnp.ones(NUM_ACTIONS, bool))
         lstm, action = _act(
             self.network,
             params,
@@ -272,7 +275,7 @@ class Compiled:
             allowed,
         )
         branches = _branches(out.state, action, agent_seat, env_params)
-        return out, Prepared(branches, lstm, history, action, bumps)
+        return out, Prepared(branches, lstm, history, action, bumps, gives_way)
 
 
 @cache
@@ -380,6 +383,7 @@ class StepResult(NamedTuple):
         reward: team sparse reward of the step.
         shaped: per-seat shaped rewards (unscaled).
         collision: a move was cancelled because both agents wanted the same cell or to swap.
+        agent_gave_way: the agent's action was a step aside by the give-way rule, not its policy's own.
         done: the round ended with this step.
         state: compact state after the step.
         branches: the compact states the human's six next actions lead to (None once done).
@@ -391,6 +395,7 @@ class StepResult(NamedTuple):
     reward: float
     shaped: list[float]
     collision: bool
+    agent_gave_way: bool
     done: bool
     state: dict[str, Any]
     branches: list[dict[str, Any]] | None
@@ -453,7 +458,7 @@ class Round:
         if not 0 <= human_action < NUM_ACTIONS:
             raise ValueError(f"action must be an integer in [0, {NUM_ACTIONS - 1}], got {human_action}")
         t0 = time.perf_counter()
-        agent_action = self.prepared.agent_action
+        agent_action, gave_way = self.prepared.agent_action, self.prepared.gives_way
         out, self.prepared = self.fns.advance(
             self.setup.policy.params,
             self.prepared,
@@ -469,11 +474,12 @@ class Round:
             out.collision,
             out.done,
             agent_action,
+            gave_way,
         )
         if with_branches:
             fetch = (*fetch, self.prepared.branches.state)
         host = jax.device_get(fetch)
-        state, reward, shaped, collision, done, agent = host[:6]
+        state, reward, shaped, collision, done, agent, agent_gave_way = host[:7]
         self.t += 1
         self.done = bool(done)
         self.team_return += float(reward)
@@ -482,13 +488,14 @@ class Round:
         actions = [0, 0]
         actions[self.setup.human_seat] = human_action
         actions[1 - self.setup.human_seat] = int(agent)
-        branches = self._branch_states(host[6]) if with_branches and not self.done else None
+        branches = self._branch_states(host[7]) if with_branches and not self.done else None
         return StepResult(
             self.t,
             actions,
             float(reward),
             [float(s) for s in np.asarray(shaped)],
             bool(collision),
+            bool(agent_gave_way),
             self.done,
             compact_state(state, self.pots),
             branches,

@@ -35,8 +35,9 @@ Event types, in the order a participant produces them:
                   state (compact start state, see services.play.game)
     step          round, attempt, t (1-based), actions [seat 0, seat 1], human_action, rt_ms (the
                   participant's reaction time as the browser measured it; null if not given), reward,
-                  shaped [seat 0, seat 1], collision, done, state (compact state after the step),
-                  compute_ms (server time of the step)
+                  shaped [seat 0, seat 1], collision, agent_gave_way (the agent's action was the
+                  give-way rule's step aside; absent in records before it existed), done, state (compact
+                  state after the step), compute_ms (server time of the step)
     round_end     round, attempt, steps, return, shaped_return, collisions, deliveries
     round_abort   round, attempt, steps (the connection closed, or the server stopped (steps -1), before
                   the round ended; it is played again from the start)

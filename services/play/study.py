@@ -382,6 +382,7 @@ class Study:
                     reward=result.reward,
                     shaped=result.shaped,
                     collision=result.collision,
+                    agent_gave_way=result.agent_gave_way,
                     done=result.done,
                     state=result.state,
                     compute_ms=round(result.compute_s * 1000, 3),
@@ -406,6 +407,8 @@ class Study:
             self._record_all(p, events)
             metrics.STEPS.labels(plan.mode).inc()
             metrics.STEP_SECONDS.observe(result.compute_s)
+            if result.agent_gave_way:
+                metrics.AGENT_GAVE_WAY.inc()
             if result.done:
                 if self.config.free_play:
                     self._free_round_ended(p, plan, events[1])

@@ -271,6 +271,7 @@ def test_the_agent_steps_aside_after_that_many_collisions_in_a_row(
     rnd.start()
     steps = [rnd.step(2, with_branches=False) for _ in range(6)]  # the person walks east
     agent = [s.actions[1] for s in steps]
+    assert [s.agent_gave_way for s in steps] == [False, False, False, give_way_after == 3, False, False]
     if give_way_after == 0:
         assert agent == [3] * 6 and all(s.collision for s in steps)
     else:  # bumps 1, 2, 3; then east onto (1, 4) while the person takes (1, 3); then west into it again
