@@ -180,7 +180,7 @@ def _branches(
     return out
 
 
-def _act(
+def act(
     network: ActorCritic,
     params: Any,
     lstm: LSTMState,
@@ -191,8 +191,9 @@ def _act(
     greedy: bool,
     allowed: jax.Array | None = None,
 ) -> tuple[LSTMState, jax.Array]:
-    """The agent's next action on one observation ([9, 9, 26]); carry [1, H]. `allowed` (bool[6]): the
-    action is chosen among these only, by the policy's probabilities."""
+    """A network's next action on one seat's observation ([9, 9, 26]), its carry [1, H] continued (the play
+    server's agent; `benchmarks/.../play_rounds.py`'s cloned person). `allowed` (bool[6]): the action is
+    chosen among these only, by the policy's probabilities."""
     hist = history if network.config.partner_history else None
     lstm, logits, _ = forward(network, params, lstm, obs[None, None], jnp.reshape(first, (1, 1)), hist)
     logits = logits[0, 0] if allowed is None else jnp.where(allowed, logits[0, 0], -jnp.inf)
@@ -240,7 +241,7 @@ class Compiled:
         obs, state = oc.reset(k_reset, level, env_params)
         lstm = self.network.initial_carry((1,))
         history = empty_history((1, 1), self.network.config.partner_history)
-        lstm, action = _act(
+        lstm, action = act(
             self.network, params, lstm, obs[agent_seat], jnp.array(True), history, k_act, self.greedy
         )
         branches = _branches(state, action, agent_seat, env_params)
@@ -263,7 +264,7 @@ class Compiled:
             aside = _ways_aside(out.state, agent_seat, prepared.agent_action)
             gives_way = (bumps >= self.give_way_after) & ~jnp.all(aside)
             allowed = jnp.where(gives_way, aside, jnp.ones(NUM_ACTIONS, bool))
-        lstm, action = _act(
+        lstm, action = act(
             self.network,
             params,
             prepared.lstm,

@@ -30,14 +30,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from apps.cli import build_parser, parse_args
-from cec.agents.network import ActorCritic, empty_history, forward, select_action
+from cec.agents.network import ActorCritic, empty_history
 from cec.agents.policy import load_policy, random_policy
 from cec.agents.zoo import ZooEntry
 from cec.envs import overcooked as oc
 from cec.envs.overcooked.scripted import scripted_actions
 from cec.envs.overcooked.state import NUM_ACTIONS
 from cec.levels.named import resolve_level
-from services.play.game import Round, RoundSetup, expand_state
+from services.play.game import Round, RoundSetup, act, expand_state
 from services.play.main import free_play_config
 
 
@@ -51,15 +51,11 @@ class Proxy:
         self.carry0 = network.initial_carry((1,))
         history = empty_history((1, 1), network.config.partner_history)
 
-        def act(lstm: Any, state: Any, seat: jax.Array, first: jax.Array, key: jax.Array) -> Any:
+        def step(lstm: Any, state: Any, seat: jax.Array, first: jax.Array, key: jax.Array) -> Any:
             obs = oc.get_obs(state, env)[seat]
-            hist = history if network.config.partner_history else None
-            lstm, logits, _ = forward(
-                network, self.policy.params, lstm, obs[None, None], first[None, None], hist
-            )
-            return lstm, select_action(key, logits[0, 0], False)
+            return act(network, self.policy.params, lstm, obs, first, history, key, False)
 
-        self._act = jax.jit(act)
+        self._act = jax.jit(step)
 
     def start(self, seed: int) -> None:
         self.lstm, self.key, self.first = self.carry0, jax.random.PRNGKey(1000 + seed), True
