@@ -92,6 +92,8 @@ class Game:
             policy, read from the full state (a training partner, `cec.training.partners`): uniformly
             random with probability `epsilon` per seat; `yields` (static) whether it gives way where its
             route and its partner's collide. None: the game has none.
+        evaluation_params(params) -> params: the settings evaluation plays a policy under, given those it
+            trained with: training-only levers (e.g. Overcooked's random start items) off.
     """
 
     name: str
@@ -114,6 +116,7 @@ class Game:
     deliveries: Callable[[np.ndarray, int, Any], np.ndarray]
     single_task_own_level: bool
     scripted: Callable[[jax.Array, Any, Any, bool], jax.Array] | None = None
+    evaluation_params: Callable[[Any], Any] = lambda params: params
 
     @property
     def fixed_levels(self) -> tuple[str, ...]:

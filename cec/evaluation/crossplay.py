@@ -357,7 +357,7 @@ def episode_states(
             raise ConfigError(f"{p.name} cannot play with {reference.name} on {level_name}: {problem}")
     task, network, kinds = _lineup([seat0, seat1], reference)
     steps = max_steps or int(reference.env.params.max_steps)
-    env_params = reference.env.params.replace(max_steps=steps)
+    env_params = task.game.evaluation_params(reference.env.params).replace(max_steps=steps)
     pair = _stack([_seat_params(p, network, task, kinds) for p in (seat0, seat1)])
     fn = _states_fn(task, network, steps, greedy, kinds)
     states, team_return = jax.device_get(fn(pair, level, episode_key(seed, level_name, 0), env_params))
@@ -421,7 +421,7 @@ def crossplay(
         else:
             skipped_out.append(SkippedEntry(p.name, p.algorithm, p.seed, problem))
     task, network, kinds = _lineup(usable, reference)
-    env_params = reference.env.params
+    env_params = task.game.evaluation_params(reference.env.params)
     steps = config.max_steps or int(env_params.max_steps)
     env_params = env_params.replace(max_steps=steps)
     games = plan_games(usable, levels.names, config.pairs, involving)

@@ -51,7 +51,7 @@ def initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
     bits = jax.random.bits(key, (), jnp.uint32)
     random_dir = (jnp.stack([bits, bits >> 2]) & 3).astype(jnp.int32)
     agent_dir = jnp.where(params.random_start_facing, random_dir, level.agent_dir.astype(jnp.int32))
-    return EnvState(
+    state = EnvState(
         level=level,
         agent_pos=level.agent_pos.astype(jnp.int32),
         agent_dir=agent_dir,
@@ -61,10 +61,46 @@ def initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
         time=jnp.zeros((), jnp.int32),
         episode=jnp.zeros((), jnp.int32),
     )
+    # only a run with random start items pays for the draws (params are not batched: a real branch)
+    return jax.lax.cond(
+        params.random_start_items > 0,
+        _scatter_items,
+        lambda k, s, p: s,
+        jax.random.fold_in(key, 1),
+        state,
+        params,
+    )
+
+
+# A pot's random start: one onion, two onions, or a ready soup.
+_RANDOM_POT = jnp.asarray([POT_EMPTY - 1, POT_EMPTY - 2, POT_READY], jnp.uint8)
+
+
+def _scatter_items(key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
+    """`state` with, each with probability `params.random_start_items`, an item on each counter beside the
+    floor (where a seat may reach it), in each seat's hands and in each pot (`EnvParams.random_start_items`)."""
+    k_put, k_item, k_pot = jax.random.split(key, 3)
+    p = params.random_start_items
+    cells = GRID_SIZE * GRID_SIZE
+    # one draw per counter cell, two seats and one pot per cell: which get something, and what
+    put = jax.random.uniform(k_put, (cells + 2 + cells,)) < p
+    item = jax.random.randint(k_item, (cells + 2,), Item.ONION, Item.DISH + 1).astype(jnp.uint8)
+    pot_item = _RANDOM_POT[jax.random.randint(k_pot, (cells,), 0, len(_RANDOM_POT))]
+    grid = state.level.grid
+    floor = jnp.pad(grid == Tile.FLOOR, 1)
+    beside_floor = floor[:-2, 1:-1] | floor[2:, 1:-1] | floor[1:-1, :-2] | floor[1:-1, 2:]
+    on_counter = put[:cells].reshape(GRID_SIZE, GRID_SIZE) & (grid == Tile.COUNTER) & beside_floor
+    in_pot = put[cells + 2 :].reshape(GRID_SIZE, GRID_SIZE) & (grid == Tile.POT)
+    return state.replace(
+        items=jnp.where(on_counter, item[:cells].reshape(GRID_SIZE, GRID_SIZE), state.items),
+        agent_inv=jnp.where(put[cells : cells + 2], item[cells:].astype(jnp.int32), state.agent_inv),
+        pot=jnp.where(in_pot, pot_item.reshape(GRID_SIZE, GRID_SIZE), state.pot),
+    )
 
 
 def reset(key: jax.Array, level: Level, params: EnvParams = EnvParams()) -> tuple[jax.Array, EnvState]:
-    """Starts an episode on `level`: agents at the level's start cells, empty hands, pots and counters.
+    """Starts an episode on `level`: agents at the level's start cells, empty hands, pots and counters
+    (unless `params.random_start_items`).
 
     Args:
         key: PRNG key (used for the start facings when `params.random_start_facing`).

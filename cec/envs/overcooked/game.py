@@ -7,6 +7,7 @@ from typing import Any
 import jax
 import numpy as np
 
+from cec.config import ConfigError
 from cec.envs import base
 from cec.envs.overcooked.dynamics import initial_state, reset, transition
 from cec.envs.overcooked.observation import get_obs
@@ -19,7 +20,12 @@ from cec.levels.named import resolve_levels
 
 
 def _check_levels(levels: str, params: Any) -> None:
-    del levels, params  # every Overcooked setting plays every kitchen
+    del levels  # every Overcooked setting plays every kitchen
+    share = float(params.random_start_items)
+    if not 0.0 <= share <= 1.0:
+        raise ConfigError(
+            f"env.overcooked.random_start_items is a probability, got {share}; give a value in [0, 1] (0: off)"
+        )
 
 
 def _obs_settings(params: Any) -> tuple:
@@ -55,6 +61,7 @@ GAME = base.Game(
     deliveries=_deliveries,
     single_task_own_level=True,
     scripted=scripted_actions,
+    evaluation_params=EnvParams.without_training_levers,
 )
 
 

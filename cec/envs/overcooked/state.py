@@ -52,6 +52,13 @@ class EnvParams:
             no plate pile; a soup delivered by one whose region reaches no pot. Each use consumes the item,
             so it cannot be farmed by passing an item back and forth. 0 (the default, and the paper's):
             off, and nothing of it is computed. Not in the paper: a lever of docs/reproduce_overcooked.md.
+        random_start_items: the probability with which, at the start of an episode, each counter holds an
+            item, each seat holds one, and each pot holds one or two onions or a ready soup (items drawn
+            uniformly from onion, plate and plated soup): states the seats rarely reach by themselves, such
+            as an onion already lying on the counter between them, are where episodes begin. 0 (the default,
+            and the paper's): empty counters, hands and pots, and nothing of it is drawn. A training lever
+            only (`without_training_levers` turns it off for evaluation). Not in the paper; Overcooked-AI's
+            random start states are the same idea.
     """
 
     max_steps: int = 400
@@ -61,6 +68,12 @@ class EnvParams:
     plate_pickup_reward: float = 3.0
     random_start_facing: bool = True
     handover_reward: float = 0.0
+    random_start_items: float = 0.0
+
+    def without_training_levers(self) -> EnvParams:
+        """These settings as evaluation plays them: the training-only levers (`handover_reward`,
+        `random_start_items`) off; everything the score depends on (episode length, rewards) kept."""
+        return self.replace(handover_reward=0.0, random_start_items=0.0)
 
 
 class EnvState(struct.PyTreeNode):

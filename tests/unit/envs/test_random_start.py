@@ -1,0 +1,81 @@
+"""Random start items (a training lever, not the paper's): episodes may begin with items on the counters, in
+the seats' hands and in the pots; off by default, and evaluation always starts from the empty kitchen."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import numpy as np
+import pytest
+
+from cec.agents.policy import Policy, random_policy
+from cec.config import ConfigError
+from cec.envs import overcooked as oc
+from cec.envs.overcooked.dynamics import reset
+from cec.envs.overcooked.game import step_autoreset
+from cec.envs.overcooked.state import POT_EMPTY, POT_READY, EnvParams
+from cec.envs.task import EnvConfig
+from cec.evaluation.crossplay import EvalConfig, crossplay, episode_states, eval_levels
+from cec.levels import Item, Tile, stack_levels
+from cec.levels.classic import classic_level
+
+FC = classic_level("forced_coord")
+
+
+def _beside_floor(grid: np.ndarray) -> np.ndarray:
+    floor = np.pad(grid == Tile.FLOOR, 1)
+    return floor[:-2, 1:-1] | floor[2:, 1:-1] | floor[1:-1, :-2] | floor[1:-1, 2:]
+
+
+def test_with_probability_one_every_reachable_counter_hand_and_pot_starts_full() -> None:
+    _, state = reset(jax.random.PRNGKey(0), FC, EnvParams(random_start_items=1.0))
+    grid, items = np.asarray(FC.grid), np.asarray(state.items)
+    reachable = (grid == Tile.COUNTER) & _beside_floor(grid)
+    assert set(np.unique(items[reachable])) <= {Item.ONION, Item.PLATE, Item.DISH}
+    assert (items[reachable] != Item.NONE).all()
+    assert (items[~reachable] == Item.NONE).all()  # nothing on piles, pots, the window or walled-in counters
+    assert set(np.asarray(state.agent_inv).tolist()) <= {Item.ONION, Item.PLATE, Item.DISH}
+    assert set(np.asarray(state.pot)[grid == Tile.POT].tolist()) <= {POT_EMPTY - 1, POT_EMPTY - 2, POT_READY}
+
+
+def test_off_by_default_and_the_rest_of_the_start_is_unchanged() -> None:
+    key = jax.random.PRNGKey(7)
+    _, plain = reset(key, FC, EnvParams())
+    assert not np.asarray(plain.items).any() and not np.asarray(plain.agent_inv).any()
+    _, lever = reset(key, FC, EnvParams(random_start_items=0.3))
+    np.testing.assert_array_equal(plain.agent_dir, lever.agent_dir)  # the same facings from the same key
+    np.testing.assert_array_equal(plain.agent_pos, lever.agent_pos)
+
+
+def test_each_counter_is_filled_with_the_given_probability_and_every_new_episode_draws_again() -> None:
+    params = EnvParams(random_start_items=0.25, max_steps=1)
+    keys = jax.random.split(jax.random.PRNGKey(1), 400)
+    _, states = jax.vmap(reset, in_axes=(0, None, None))(keys, FC, params)
+    grid = np.asarray(FC.grid)
+    reachable = (grid == Tile.COUNTER) & _beside_floor(grid)
+    share = (np.asarray(states.items)[:, reachable] != Item.NONE).mean()
+    assert 0.22 < share < 0.28, share  # 400 x 9 counters: a standard error of 0.007
+    # the auto-reset starts the next episode from a fresh draw as well
+    _, state = reset(keys[0], FC, params)
+    nxt = step_autoreset(keys[1], state, np.asarray([4, 4], np.int32), stack_levels([FC]), params).state
+    assert int(nxt.time) == 0 and int(nxt.episode) == 1
+    assert not np.array_equal(np.asarray(nxt.items), np.asarray(state.items))
+
+
+def test_a_policy_trained_with_random_starts_is_evaluated_from_the_empty_kitchen() -> None:
+    plain_env = EnvConfig(name="overcooked", levels="generator", overcooked=oc.EnvParams(max_steps=32))
+    lever_env = dataclasses.replace(plain_env, overcooked=oc.EnvParams(max_steps=32, random_start_items=1.0))
+    p = random_policy("p", jax.random.PRNGKey(0), env=plain_env)
+    with_lever = Policy(p.name, p.algorithm, p.seed, p.params, p.network, lever_env, p.levels)
+    states, _ = episode_states(with_lever, with_lever, FC, "forced_coord")
+    assert not np.asarray(states.items[0]).any() and not np.asarray(states.agent_inv[0]).any()
+    levels = eval_levels("overcooked", "forced_coord,cramped_room")
+    config = EvalConfig(episodes=2)
+    a, b = crossplay([p], levels, config), crossplay([with_lever], levels, config)
+    np.testing.assert_array_equal(a.returns, b.returns)
+
+
+def test_a_probability_outside_0_1_is_refused_before_any_work() -> None:
+    with pytest.raises(ConfigError, match="random_start_items"):
+        EnvConfig(overcooked=EnvParams(random_start_items=1.5))
