@@ -78,7 +78,7 @@ _RANDOM_POT = jnp.asarray([POT_EMPTY - 1, POT_EMPTY - 2, POT_READY], jnp.uint8)
 
 def _scatter_items(key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
     """`state` with, each with probability `params.random_start_items`, an item on each counter beside the
-    floor (where a seat may reach it), in each seat's hands and in each pot (`EnvParams.random_start_items`)."""
+    floor (where a seat may reach it), in each seat's hands and in each pot."""
     k_put, k_item, k_pot = jax.random.split(key, 3)
     p = params.random_start_items
     cells = GRID_SIZE * GRID_SIZE

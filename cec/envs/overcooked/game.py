@@ -24,7 +24,8 @@ def _check_levels(levels: str, params: Any) -> None:
     share = float(params.random_start_items)
     if not 0.0 <= share <= 1.0:
         raise ConfigError(
-            f"env.overcooked.random_start_items is a probability, got {share}; give a value in [0, 1] (0: off)"
+            f"env.overcooked.random_start_items is a probability, got {share}; "
+            "give a value in [0, 1] (0: off)"
         )
 
 
