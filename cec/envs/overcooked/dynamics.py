@@ -72,29 +72,20 @@ def initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
     )
 
 
-# A pot's random start: one onion, two onions, or a ready soup.
-_RANDOM_POT = jnp.asarray([POT_EMPTY - 1, POT_EMPTY - 2, POT_READY], jnp.uint8)
-
-
 def _scatter_items(key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
-    """`state` with, each with probability `params.random_start_items`, an item on each counter beside the
-    floor (where a seat may reach it), in each seat's hands and in each pot."""
-    k_put, k_item, k_pot = jax.random.split(key, 3)
-    p = params.random_start_items
+    """`state` with, each with probability `params.random_start_items`, an onion on each counter beside the
+    floor (where a seat may reach it) and an onion or a plate in each seat's hands."""
+    k_put, k_held = jax.random.split(key)
     cells = GRID_SIZE * GRID_SIZE
-    # one draw per counter cell, two seats and one pot per cell: which get something, and what
-    put = jax.random.uniform(k_put, (cells + 2 + cells,)) < p
-    item = jax.random.randint(k_item, (cells + 2,), Item.ONION, Item.DISH + 1).astype(jnp.uint8)
-    pot_item = _RANDOM_POT[jax.random.randint(k_pot, (cells,), 0, len(_RANDOM_POT))]
+    put = jax.random.uniform(k_put, (cells + 2,)) < params.random_start_items  # each cell, then each seat
+    held = jax.random.randint(k_held, (2,), Item.ONION, Item.PLATE + 1)
     grid = state.level.grid
     floor = jnp.pad(grid == Tile.FLOOR, 1)
     beside_floor = floor[:-2, 1:-1] | floor[2:, 1:-1] | floor[1:-1, :-2] | floor[1:-1, 2:]
     on_counter = put[:cells].reshape(GRID_SIZE, GRID_SIZE) & (grid == Tile.COUNTER) & beside_floor
-    in_pot = put[cells + 2 :].reshape(GRID_SIZE, GRID_SIZE) & (grid == Tile.POT)
     return state.replace(
-        items=jnp.where(on_counter, item[:cells].reshape(GRID_SIZE, GRID_SIZE), state.items),
-        agent_inv=jnp.where(put[cells : cells + 2], item[cells:].astype(jnp.int32), state.agent_inv),
-        pot=jnp.where(in_pot, pot_item.reshape(GRID_SIZE, GRID_SIZE), state.pot),
+        items=jnp.where(on_counter, jnp.uint8(Item.ONION), state.items),
+        agent_inv=jnp.where(put[cells:], held, state.agent_inv),
     )
 
 

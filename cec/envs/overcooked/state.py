@@ -52,12 +52,14 @@ class EnvParams:
             no plate pile; a soup delivered by one whose region reaches no pot. Each use consumes the item,
             so it cannot be farmed by passing an item back and forth. 0 (the default, and the paper's):
             off, and nothing of it is computed. Not in the paper: a lever of docs/reproduce_overcooked.md.
-        random_start_items: the probability with which, at the start of an episode, each counter holds an
-            item, each seat holds one, and each pot holds one or two onions or a ready soup (items drawn
-            uniformly from onion, plate and plated soup): states the seats rarely reach by themselves, such
-            as an onion already lying on the counter between them, are where episodes begin. 0 (the default,
-            and the paper's): empty counters, hands and pots, and nothing of it is drawn. A training lever
-            only (`without_training_levers` turns it off for evaluation). Not in the paper; Overcooked-AI's
+        random_start_items: the probability with which, at the start of an episode, each counter beside the
+            floor holds an onion and each seat holds an onion or a plate (uniformly): states the seats
+            rarely reach by themselves, such as an onion already lying on the counter between them, are where
+            episodes begin. No plated soup, full or cooking pot is drawn: a soup for free teaches fetching
+            it, not cooking (measured: docs/reproduce_overcooked.md, lever (g)); onions, not plates, on the
+            counters, as a loose plate there switches the plate-pickup shaping off. 0 (the default, and the
+            paper's): empty counters and hands, and nothing of it is drawn. A training lever only
+            (`without_training_levers` turns it off for evaluation). Not in the paper; Overcooked-AI's
             random start states are the same idea.
     """
 
