@@ -126,6 +126,14 @@ def read_all(store: EventStore, problems: list[str] | None = None) -> dict[str, 
     return out
 
 
+def agent_actions(start: dict[str, Any]) -> str:
+    """How the agent of a round chose its actions, as the result table's `actions` column says it:
+    `greedy`/`sampled`, and `; gives way after N collisions` where the play server's rule was on."""
+    gives_way = int(start.get("agent_gives_way_after", 0))
+    rule = f"; gives way after {gives_way} collisions" if gives_way > 0 else ""
+    return f"{start['agent_actions']}{rule}"
+
+
 def export_tables(
     store: EventStore, problems: list[str] | None = None
 ) -> tuple[EpisodeTable, list[dict[str, Any]]]:
@@ -133,7 +141,7 @@ def export_tables(
 
     Result rows: `policy_a` the participant id, `algorithm_a` `human`, `seed_a` 0; `policy_b` the partner's
     policy (zoo entry or partner name), its algorithm and seed; `seat` the human's seat; `episode` the round
-    index; the outcome columns; `actions` how the agent chose (`greedy`/`sampled`). Practice rounds are
+    index; the outcome columns; `actions` how the agent chose (`agent_actions`). Practice rounds are
     left out. Survey rows: one per answered item (`SURVEY_COLUMNS`). Bad record lines are quarantined by the
     store (`store.quarantined`); a round whose records are inconsistent, or a participant whose records
     cannot be read or miss events (`log_problem`), is left out and named in `problems` (when given; else
@@ -177,7 +185,7 @@ def export_tables(
             cols["shaped_return"].append(e["shaped_return"])
             cols["env"].append("overcooked")
             cols["episode_steps"].append(e["steps"])
-            cols["actions"].append(s["agent_actions"])
+            cols["actions"].append(agent_actions(s))
         for ev in events:
             if ev.get("type") != "survey":
                 continue

@@ -292,9 +292,9 @@ def test_a_round_rejects_bad_actions(pools: dict[str, Any]) -> None:
 # --- records and export ----------------------------------------------------------------------------------
 
 
-def _play_study(tmp_path: Path, pools: dict[str, Any]) -> tuple[Study, FileStore, Any]:
+def _play_study(tmp_path: Path, pools: dict[str, Any], **changes: Any) -> tuple[Study, FileStore, Any]:
     """One participant through the whole study (practice, 4 rounds, surveys), in process."""
-    study, store = _study(tmp_path, pools)
+    study, store = _study(tmp_path, pools, **changes)
     _, p = study.join()
     study.submit(p, {"stage": "consent", "accept": True})
     study.submit(p, {"stage": "info", "fields": {"worker_id": "ab12"}})
@@ -327,10 +327,11 @@ def _play_study(tmp_path: Path, pools: dict[str, Any]) -> tuple[Study, FileStore
     return study, store, p
 
 
+@pytest.mark.parametrize("gives_way", [0, 2])
 def test_records_hold_every_step_and_export_to_the_result_table(
-    tmp_path: Path, pools: dict[str, Any]
+    tmp_path: Path, pools: dict[str, Any], gives_way: int
 ) -> None:
-    study, store, p = _play_study(tmp_path, pools)
+    study, store, p = _play_study(tmp_path, pools, agent_gives_way_after=gives_way)
     events = store.events(p.id)
     assert events[-1]["type"] == "complete" and events[-1]["code"] == p.code
     assert sum(e["type"] == "round_abort" for e in events) == 1
@@ -347,6 +348,9 @@ def test_records_hold_every_step_and_export_to_the_result_table(
     for i, r in enumerate(rounds[1:]):
         assert table.returns[i] == r.end["return"] and table.collisions[i] == r.end["collisions"]
         assert table.episode_steps[i] == 4 and table.seat[i] == r.start["human_seat"]
+    # a study whose agent gave way says so in every row: its results are not those of the plain policy
+    expected = "greedy; gives way after 2 collisions" if gives_way else "greedy"
+    assert set(table.actions) == {expected}
     assert len(survey) == 4 * 7 and {row["partner"] for row in survey} == {"a", "b"}
     assert set(COLUMNS) >= {"collisions", "episode_steps"}
 
