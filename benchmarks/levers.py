@@ -11,7 +11,9 @@ is tested with `cec.evaluation.stats.compare_estimates` (independent seeds; the 
 interval: with 4 seeds a side treat p as a reading, not a verdict), Holm-adjusted over the parts shown.
 
 With `--control JSON` the recipe is instead the time-to-skill output of the recipe itself trained beside the
-levers (the same machine and seeds): every part against its row at exactly the lever's env steps.
+levers (the same machine and seeds): every part against its row at exactly the lever's env steps. A lever
+and its control may also be result tables of `cec eval` (CSV, one recipe's seeds each, `--steps` saying
+where their checkpoints are): how the test set, played once after the choice, reports a chosen lever.
 
     python benchmarks/levers.py --lever coverage=docs/reproduce_overcooked/levers/cov35.json \\
         --out docs/reproduce_overcooked/levers/summary
@@ -34,7 +36,7 @@ from cec.evaluation.markdown import interval, num, pm, table_lines
 from cec.evaluation.parts import part_scores
 from cec.evaluation.results import read_csv
 from cec.evaluation.stats import CrossPlay, compare_estimates, holm
-from cec.levels.heldout import heldout_levels
+from cec.levels.heldout import heldout_levels, test_levels
 
 BASELINE_TABLE = Path("benchmarks/results/overcooked/cpu/work/results.csv.bz2")
 BASELINE_STEPS = 10_485_760
@@ -46,8 +48,28 @@ def baseline(table_path: Path, algorithm: str) -> dict[str, dict[str, float]]:
     return {name: part._asdict() for name, part in parts.items()}
 
 
+def _is_table(path: Path) -> bool:
+    return path.name.endswith((".csv", ".csv.bz2"))
+
+
+def table_row(path: Path, steps: int) -> dict[str, Any]:
+    """A result table of `cec eval` (one algorithm's seeds, e.g. a recipe's final checkpoints on the test
+    set) as a time-to-skill row at `steps`: its parts over the validation and test kitchens it played."""
+    table = read_csv(path)
+    algorithms = sorted(set(table.algorithm_a.astype(str)))
+    if len(algorithms) != 1:
+        raise SystemExit(f"{path}: holds the algorithms {algorithms}; give one recipe's seeds per table")
+    parts = part_scores(table, algorithms[0], {**dict(heldout_levels()), **dict(test_levels())})
+    seeds = sorted({int(s) for s in table.seed_a})
+    return {"run": path.name, "update": None, "env_steps_per_seed": steps, "seeds": seeds,
+            "parts": {name: part._asdict() for name, part in parts.items()}}  # fmt: skip
+
+
 def lever_row(path: Path, steps: int) -> dict[str, Any]:
-    """The row of a time-to-skill output at `steps` env steps per seed (the closest one at or below)."""
+    """The row of a time-to-skill output at `steps` env steps per seed (the closest one at or below), or a
+    result table's (`table_row`)."""
+    if _is_table(path):
+        return table_row(path, steps)
     rows = [
         r for r in json.loads(path.read_text())["rows"] if r["env_steps_per_seed"] <= steps and "parts" in r
     ]
@@ -76,7 +98,8 @@ def curve_point(path: Path, steps: int) -> dict[str, float] | None:
 
 
 def control_parts(path: Path, steps: int) -> dict[str, dict[str, float]]:
-    """{part: score with its `seeds` count} of a time-to-skill output's row at exactly `steps`."""
+    """{part: score with its `seeds` count} of a time-to-skill output's row at exactly `steps` (or of a
+    result table)."""
     row = lever_row(path, steps)
     if row["env_steps_per_seed"] != steps:
         raise SystemExit(f"{path}: no row at {steps:,} env steps per seed (the lever's)")
@@ -165,7 +188,7 @@ def markdown(result: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
-        "--lever", action="append", required=True, metavar="NAME=JSON", help="a time-to-skill output"
+        "--lever", action="append", required=True, metavar="NAME=JSON", help="a time-to-skill output (or CSV)"
     )
     ap.add_argument("--steps", type=int, default=BASELINE_STEPS, help="env steps per seed to compare at")
     ap.add_argument("--baseline-table", type=Path, default=BASELINE_TABLE)

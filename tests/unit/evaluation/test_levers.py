@@ -76,3 +76,39 @@ def test_a_lever_of_two_seeds_is_a_reading_without_an_error_or_a_test(tmp_path: 
     text = levers.markdown(levers.compare({"x": path}, {"generated": _part(20.0, 1.0)}, 5_000_000))
     assert "nan" not in text and "2 seeds: one pair" in text
     assert "| generated | 5 | 12.0 ± – (12.0) | 20.0 ± 1.0 (20.0) | -8.0 | – |" in text
+
+
+def _table(path: Path, algorithm: str, score: dict[tuple[int, int], float]) -> Path:
+    """A `cec eval` table of `algorithm`'s seeds on two test kitchens: each pairing's return from `score`."""
+    from cec.evaluation.results import ARRAY_FIELDS, make_table, write_csv
+
+    cols: dict[str, list[Any]] = {f: [] for f in ARRAY_FIELDS}
+    for (a, b), ret in score.items():
+        for level in ("test_000", "test_001"):
+            row = {"policy_a": f"{algorithm}{a}", "algorithm_a": algorithm, "seed_a": a,
+                   "policy_b": f"{algorithm}{b}", "algorithm_b": algorithm, "seed_b": b, "level": level,
+                   "seat": 0, "episode": 0, "returns": ret, "deliveries": ret / 20, "collisions": 0.0,
+                   "shaped_return": 0.0, "env": "overcooked", "episode_steps": 400,
+                   "actions": "sampled"}  # fmt: skip
+            for k, v in row.items():
+                cols[k].append(v)
+    return write_csv(make_table(cols), path)
+
+
+def test_result_tables_of_the_test_set_compare_as_a_lever_and_its_control(tmp_path: Path) -> None:
+    levers = _module()
+    seeds = (1, 2, 3)
+    lever = _table(
+        tmp_path / "lever.csv", "x", {(a, b): 40.0 + 20 * (a == b) + a + b for a in seeds for b in seeds}
+    )
+    control = _table(tmp_path / "control.csv", "y", {(a, b): 20.0 + a * b for a in seeds for b in seeds})
+    out = levers.compare({"x": lever}, {}, 10_485_760, control=control)["x"]
+    assert out["row"]["seeds"] == [1, 2, 3] and out["row"]["env_steps_per_seed"] == 10_485_760
+    generated = out["parts"]["generated"]
+    # cross-play: the pairs of two different seeds; x: 40 + a + b -> 44.0, y: 20 + a * b -> 20 + 11 / 3
+    assert generated["lever"]["xp"] == pytest.approx(44.0) and generated["lever"]["sp"] == pytest.approx(64.0)
+    assert generated["diff"] == pytest.approx(44.0 - (20.0 + 11 / 3))
+    mixed = _table(tmp_path / "mixed.csv", "x", {(1, 1): 1.0})
+    mixed.write_text(mixed.read_text() + mixed.read_text().splitlines()[1].replace(",x,", ",z,", 1) + "\n")
+    with pytest.raises(SystemExit, match="give one recipe's seeds per table"):
+        levers.compare({"x": mixed}, {}, 10_485_760, control=control)
