@@ -59,7 +59,9 @@ def table_row(path: Path, steps: int) -> dict[str, Any]:
     algorithms = sorted(set(table.algorithm_a.astype(str)))
     if len(algorithms) != 1:
         raise SystemExit(f"{path}: holds the algorithms {algorithms}; give one recipe's seeds per table")
-    parts = part_scores(table, algorithms[0], {**dict(heldout_levels()), **dict(test_levels())})
+    played = set(table.level.astype(str))
+    levels = {n: lv for n, lv in (*heldout_levels(), *test_levels()) if n in played}
+    parts = part_scores(table, algorithms[0], levels)
     seeds = sorted({int(s) for s in table.seed_a})
     return {"run": path.name, "update": None, "env_steps_per_seed": steps, "seeds": seeds,
             "parts": {name: part._asdict() for name, part in parts.items()}}  # fmt: skip
