@@ -48,6 +48,10 @@ def test_preset_loads_and_is_consistent(path):
         assert config.env.params.max_steps == cec.env.params.max_steps
     if config.algorithm in ("e3t", "cec_e3t"):
         assert 0.0 < config.partner.epsilon < 1.0
+    if path.stem == "cec_overcooked_starts":  # the time-to-skill recipe with random start items only
+        recipe = _load("cec_overcooked_tts")
+        params = dataclasses.replace(recipe.env.overcooked, random_start_items=0.1)
+        assert config == dataclasses.replace(recipe, env=dataclasses.replace(recipe.env, overcooked=params))
     if config.algorithm == "cec_scripted":  # a lever on the time-to-skill recipe: everything else equal
         recipe = _load("cec_overcooked_tts")
         assert config == dataclasses.replace(recipe, algorithm=config.algorithm, partner=config.partner)
