@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from enum import IntEnum
 from typing import NamedTuple
 
@@ -75,7 +76,7 @@ class EnvParams:
     def without_training_levers(self) -> EnvParams:
         """These settings as evaluation plays them: the training-only levers (`handover_reward`,
         `random_start_items`) off; everything the score depends on (episode length, rewards) kept."""
-        return self.replace(handover_reward=0.0, random_start_items=0.0)
+        return dataclasses.replace(self, handover_reward=0.0, random_start_items=0.0)
 
 
 class EnvState(struct.PyTreeNode):
