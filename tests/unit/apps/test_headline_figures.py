@@ -14,11 +14,13 @@ DECIMAL = re.compile(r"(?<![\d.])\d+\.\d+(?![\d.])")
 
 
 def _reports(text: str, page: Path) -> list[Path]:
-    """The committed reports `text` links (Markdown files under benchmarks/results/), relative to `page`."""
+    """The committed reports `text` links (Markdown files under benchmarks/results/, or the lever comparisons
+    `benchmarks/levers.py` writes under docs/reproduce_overcooked/levers/), relative to `page`."""
     out = []
+    written = (ROOT / "benchmarks" / "results", ROOT / "docs" / "reproduce_overcooked" / "levers")
     for target in LINK.findall(text):
         path = (page.parent / target.split("#")[0]).resolve()
-        if path.is_relative_to(ROOT / "benchmarks" / "results") and path.suffix == ".md":
+        if any(path.is_relative_to(folder) for folder in written) and path.suffix == ".md":
             out.append(path)
     return out
 
