@@ -26,7 +26,7 @@ from cec.envs.overcooked.state import (
     StepOutput,
 )
 from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, cell_mask, validate_level
-from cec.levels.solvability import reaches
+from cec.levels.solvability import adjacent, reaches
 
 _DIR_VEC = jnp.asarray(DIR_VEC)
 
@@ -80,9 +80,8 @@ def _scatter_items(key: jax.Array, state: EnvState, params: EnvParams) -> EnvSta
     put = jax.random.uniform(k_put, (cells + 2,)) < params.random_start_items  # each cell, then each seat
     held = jax.random.randint(k_held, (2,), Item.ONION, Item.PLATE + 1)
     grid = state.level.grid
-    floor = jnp.pad(grid == Tile.FLOOR, 1)
-    beside_floor = floor[:-2, 1:-1] | floor[2:, 1:-1] | floor[1:-1, :-2] | floor[1:-1, 2:]
-    on_counter = put[:cells].reshape(GRID_SIZE, GRID_SIZE) & (grid == Tile.COUNTER) & beside_floor
+    reachable = (grid == Tile.COUNTER) & adjacent(grid == Tile.FLOOR)
+    on_counter = put[:cells].reshape(GRID_SIZE, GRID_SIZE) & reachable
     return state.replace(
         items=jnp.where(on_counter, jnp.uint8(Item.ONION), state.items),
         agent_inv=jnp.where(put[cells:], held, state.agent_inv),
