@@ -202,16 +202,25 @@ class StorageConfig:
         redis_url: also (or only) append every event to a Redis stream per participant
             (`redis://host:port/db`; '' : no Redis). The password comes from CEC_REDIS_PASSWORD.
         key_prefix: prefix of the Redis keys (`<prefix>:play:<study>:...`).
+        redis_timeout_s: how long one Redis command (or connecting) may take before it is retried once and
+            then the participant's action is answered 503. Short, because each waiting action holds one of
+            the server's few worker threads, which every participant's steps share: with Redis frozen, a
+            long wait per action would stall the game for everyone.
     """
 
     dir: str = "play_data"
     redis_url: str = ""
     key_prefix: str = "cec"
+    redis_timeout_s: float = 1.0
 
     def __post_init__(self) -> None:
         if not self.dir and not self.redis_url:
             raise ConfigError(
                 "storage needs a place for the records: set storage.dir and/or storage.redis_url"
+            )
+        if not self.redis_timeout_s > 0:
+            raise ConfigError(
+                f"storage.redis_timeout_s must be > 0 s (got {self.redis_timeout_s}); the default is 1.0"
             )
 
 

@@ -212,9 +212,11 @@ def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:
                 "one)"
             ) from None
         pools = prepare(config, base_dir)
+        storage = config.storage
         stores = open_stores(
-            config.name, config.storage.dir, config.storage.redis_url, config.storage.key_prefix
-        )
+            config.name, storage.dir, storage.redis_url, storage.key_prefix,
+            redis_timeout_s=storage.redis_timeout_s,
+        )  # fmt: skip
         recorder = Recorder(stores)
         study = Study(config, base_dir, pools, recorder)
         records = read_all(stores[0])  # validated: bad lines are quarantined with a warning, never fatal

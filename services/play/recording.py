@@ -61,7 +61,7 @@ import logging
 import os
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -553,13 +553,25 @@ class Recorder:
 
 
 def open_stores(
-    study: str, directory: str, redis_url: str, key_prefix: str = "cec", *, create: bool = True
+    study: str,
+    directory: str,
+    redis_url: str,
+    key_prefix: str = "cec",
+    *,
+    create: bool = True,
+    redis_timeout_s: float | None = None,
 ) -> list[EventStore]:
-    """The stores a study's storage config names (files and/or Redis); `create`: make the folder."""
+    """The stores a study's storage config names (files and/or Redis); `create`: make the folder.
+    `redis_timeout_s`: the serving limit (`StorageConfig.redis_timeout_s`: that long per command, one
+    retry); None: the store's defaults, for tools that read the records back."""
     stores: list[EventStore] = []
     if directory:  # the study's name is a folder of `directory`: one plain path component
         safe_name(study, "study name", fix="name the study with 1-64 letters, digits, '_' or '-'")
         stores.append(FileStore(directory, study, create=create))
     if redis_url:
-        stores.append(RedisStore(StoreConfig(url=redis_url, key_prefix=key_prefix), study))
+        config = StoreConfig(url=redis_url, key_prefix=key_prefix)
+        if redis_timeout_s is not None:
+            t = redis_timeout_s
+            config = replace(config, connect_timeout_s=t, socket_timeout_s=t, retries=1)
+        stores.append(RedisStore(config, study))
     return stores

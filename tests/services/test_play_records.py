@@ -27,8 +27,17 @@ from typing import Any
 import pytest
 import redis
 
+from cec.config import ConfigError, from_dict
+from services.play.config import StorageConfig
 from services.play.export import read_all
-from services.play.recording import FileStore, Recorder, RecordUnavailableError, RedisStore, parse_event
+from services.play.recording import (
+    FileStore,
+    Recorder,
+    RecordUnavailableError,
+    RedisStore,
+    open_stores,
+    parse_event,
+)
 from services.store import LocalRedis, StoreConfig
 from tests.play_server import ROOT, PlayServer
 
@@ -286,6 +295,22 @@ def test_a_submit_and_a_join_refused_while_redis_is_frozen_leave_nothing_and_a_r
     assert red.participants() == files.participants() == sorted([pid, second["participant"]])
     assert all(red.events(q) == files.events(q) for q in files.participants())
     red.close()
+
+
+def test_the_serving_stores_give_redis_the_studys_timeout_and_one_retry(own_redis: LocalRedis) -> None:
+    """`cec play serve` answers an action 503 after `storage.redis_timeout_s` and one retry (each waiting
+    action holds a worker thread every participant's steps share); readers keep the store's defaults."""
+    (served,) = open_stores("s", "", own_redis.url, redis_timeout_s=0.5)
+    (read,) = open_stores("s", "", own_redis.url)
+    assert isinstance(served, RedisStore) and isinstance(read, RedisStore)
+    c = served.config
+    assert (c.socket_timeout_s, c.connect_timeout_s, c.retries) == (0.5, 0.5, 1)
+    assert read.config == StoreConfig(url=own_redis.url)
+    served.close()
+    read.close()
+    assert from_dict(StorageConfig, {"redis_url": own_redis.url}).redis_timeout_s == 1.0
+    with pytest.raises(ConfigError, match=r"storage.redis_timeout_s must be > 0 s.*got 0"):
+        from_dict(StorageConfig, {"redis_timeout_s": 0})
 
 
 def test_a_server_started_over_an_empty_redis_replays_the_records_into_it(
