@@ -61,12 +61,20 @@ def initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
         time=jnp.zeros((), jnp.int32),
         episode=jnp.zeros((), jnp.int32),
     )
-    # only a run with random start items pays for the draws (params are not batched: a real branch)
-    return jax.lax.cond(
+    # only a run with random start items pays for the draws (params are not batched: real branches)
+    state = jax.lax.cond(
         params.random_start_items > 0,
         _scatter_items,
         lambda k, s, p: s,
         jax.random.fold_in(key, 1),
+        state,
+        params,
+    )
+    return jax.lax.cond(
+        params.random_start_pot_onions > 0,
+        _fill_pots,
+        lambda k, s, p: s,
+        jax.random.fold_in(key, 2),
         state,
         params,
     )
@@ -86,6 +94,16 @@ def _scatter_items(key: jax.Array, state: EnvState, params: EnvParams) -> EnvSta
         items=jnp.where(on_counter, jnp.uint8(Item.ONION), state.items),
         agent_inv=jnp.where(put[cells:], held, state.agent_inv),
     )
+
+
+def _fill_pots(key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
+    """`state` with each pot holding, with probability `params.random_start_pot_onions`, one or two onions
+    (equally likely), not cooking."""
+    k_put, k_count = jax.random.split(key)
+    shape = (GRID_SIZE, GRID_SIZE)
+    put = (jax.random.uniform(k_put, shape) < params.random_start_pot_onions) & (state.level.grid == Tile.POT)
+    onions = jax.random.randint(k_count, shape, 1, 3).astype(jnp.uint8)
+    return state.replace(pot=jnp.where(put, jnp.uint8(POT_EMPTY) - onions, state.pot))
 
 
 def reset(key: jax.Array, level: Level, params: EnvParams = EnvParams()) -> tuple[jax.Array, EnvState]:

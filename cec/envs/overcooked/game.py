@@ -21,12 +21,12 @@ from cec.levels.named import resolve_levels
 
 def _check_levels(levels: str, params: Any) -> None:
     del levels  # every Overcooked setting plays every kitchen
-    share = float(params.random_start_items)
-    if not 0.0 <= share <= 1.0:
-        raise ConfigError(
-            f"env.overcooked.random_start_items is a probability, got {share}; "
-            "give a value in [0, 1] (0: off)"
-        )
+    for name in ("random_start_items", "random_start_pot_onions"):
+        share = float(getattr(params, name))
+        if not 0.0 <= share <= 1.0:
+            raise ConfigError(
+                f"env.overcooked.{name} is a probability, got {share}; give a value in [0, 1] (0: off)"
+            )
 
 
 def _obs_settings(params: Any) -> tuple:

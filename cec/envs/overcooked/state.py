@@ -62,6 +62,11 @@ class EnvParams:
             paper's): empty counters and hands, and nothing of it is drawn. A training lever only
             (`without_training_levers` turns it off for evaluation). Not in the paper; Overcooked-AI's
             random start states are the same idea.
+        random_start_pot_onions: the probability with which each pot starts an episode holding one or two
+            onions (equally likely; never cooking, never a soup), so that fewer onions must reach it for a
+            soup: in a kitchen that needs a hand-over, one exchange across the counter can complete a pot.
+            Drawn apart from `random_start_items` (its draws stay as they were). 0 (the default, and the
+            paper's): empty pots. A training lever only, off in evaluation. Not in the paper.
     """
 
     max_steps: int = 400
@@ -72,11 +77,15 @@ class EnvParams:
     random_start_facing: bool = True
     handover_reward: float = 0.0
     random_start_items: float = 0.0
+    random_start_pot_onions: float = 0.0
 
     def without_training_levers(self) -> EnvParams:
         """These settings as evaluation plays them: the training-only levers (`handover_reward`,
-        `random_start_items`) off; everything the score depends on (episode length, rewards) kept."""
-        return dataclasses.replace(self, handover_reward=0.0, random_start_items=0.0)
+        `random_start_items`, `random_start_pot_onions`) off; everything the score depends on (episode
+        length, rewards) kept."""
+        return dataclasses.replace(
+            self, handover_reward=0.0, random_start_items=0.0, random_start_pot_onions=0.0
+        )
 
 
 class EnvState(struct.PyTreeNode):

@@ -1,5 +1,6 @@
-"""Random start items (a training lever, not the paper's): episodes may begin with onions on the counters and
-items in the seats' hands; off by default, and evaluation always starts from the empty kitchen."""
+"""Random start items and part-filled pots (training levers, not the paper's): episodes may begin with onions
+on the counters, items in the seats' hands and one or two onions in a pot; off by default, and evaluation
+always starts from the empty kitchen."""
 
 from __future__ import annotations
 
@@ -77,6 +78,23 @@ def test_a_policy_trained_with_random_starts_is_evaluated_from_the_empty_kitchen
     np.testing.assert_array_equal(a.shaped_return, b.shaped_return)
 
 
-def test_a_probability_outside_0_1_is_refused_before_any_work() -> None:
-    with pytest.raises(ConfigError, match="random_start_items"):
-        EnvConfig(overcooked=EnvParams(random_start_items=1.5))
+def test_part_filled_pots_hold_one_or_two_onions_never_a_soup_and_leave_the_other_draws_alone() -> None:
+    keys = jax.random.split(jax.random.PRNGKey(3), 400)
+    both = EnvParams(random_start_items=0.3, random_start_pot_onions=0.5)
+    _, states = jax.vmap(reset, in_axes=(0, None, None))(keys, FC, both)
+    pots = np.asarray(states.pot)[:, np.asarray(FC.grid) == Tile.POT]  # 400 episodes x 2 pots
+    assert set(np.unique(pots).tolist()) == {POT_EMPTY, POT_EMPTY - 1, POT_EMPTY - 2}  # 0, 1 or 2 onions
+    assert 0.45 < (pots != POT_EMPTY).mean() < 0.55  # 800 pots: a standard error of 0.018
+    assert 0.4 < (pots == POT_EMPTY - 2).sum() / (pots != POT_EMPTY).sum() < 0.6  # one or two, equally
+    _, items_only = jax.vmap(reset, in_axes=(0, None, None))(keys, FC, EnvParams(random_start_items=0.3))
+    np.testing.assert_array_equal(states.items, items_only.items)  # the same onions on the counters
+    np.testing.assert_array_equal(states.agent_inv, items_only.agent_inv)
+    assert EnvParams(random_start_pot_onions=0.5).without_training_levers() == EnvParams()
+    _, state = reset(jax.random.PRNGKey(0), FC, EnvParams(random_start_pot_onions=1.0))  # every pot
+    assert (np.asarray(state.pot)[np.asarray(FC.grid) == Tile.POT] < POT_EMPTY).all()
+
+
+@pytest.mark.parametrize("name", ["random_start_items", "random_start_pot_onions"])
+def test_a_probability_outside_0_1_is_refused_before_any_work(name: str) -> None:
+    with pytest.raises(ConfigError, match=name):
+        EnvConfig(overcooked=EnvParams(**{name: 1.5}))
