@@ -61,23 +61,12 @@ def initial_state(key: jax.Array, level: Level, params: EnvParams) -> EnvState:
         time=jnp.zeros((), jnp.int32),
         episode=jnp.zeros((), jnp.int32),
     )
-    # only a run with random start items pays for the draws (params are not batched: real branches)
-    state = jax.lax.cond(
-        params.random_start_items > 0,
-        _scatter_items,
-        lambda k, s, p: s,
-        jax.random.fold_in(key, 1),
-        state,
-        params,
-    )
-    return jax.lax.cond(
-        params.random_start_pot_onions > 0,
-        _fill_pots,
-        lambda k, s, p: s,
-        jax.random.fold_in(key, 2),
-        state,
-        params,
-    )
+    # only a run with a random start pays for its draws (params are not batched: real branches), each lever
+    # from a key of its own, so that one's draws do not move when the other is switched on
+    levers = ((params.random_start_items, _scatter_items), (params.random_start_pot_onions, _fill_pots))
+    for salt, (share, draw) in enumerate(levers, start=1):
+        state = jax.lax.cond(share > 0, draw, lambda k, s, p: s, jax.random.fold_in(key, salt), state, params)
+    return state
 
 
 def _scatter_items(key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
