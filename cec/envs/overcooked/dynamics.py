@@ -97,7 +97,7 @@ def _fill_pots(key: jax.Array, state: EnvState, params: EnvParams) -> EnvState:
 
 def reset(key: jax.Array, level: Level, params: EnvParams = EnvParams()) -> tuple[jax.Array, EnvState]:
     """Starts an episode on `level`: agents at the level's start cells, empty hands, pots and counters
-    (unless `params.random_start_items`).
+    (unless `params.random_start_items` or `params.random_start_pot_onions`).
 
     Args:
         key: PRNG key (used for the start facings when `params.random_start_facing`).
