@@ -9,6 +9,8 @@ into a few loops; that is what makes `vmap(step)` fast on CPU and GPU alike.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -26,7 +28,7 @@ from cec.envs.overcooked.state import (
     StepOutput,
 )
 from cec.levels import DIR_VEC, GRID_SIZE, Item, Level, Tile, cell_mask, validate_level
-from cec.levels.solvability import adjacent, reaches
+from cec.levels.solvability import adjacent, usable_counters
 
 _DIR_VEC = jnp.asarray(DIR_VEC)
 
@@ -131,13 +133,13 @@ def _interact(
     front: jax.Array,
     acts: jax.Array,
     params: EnvParams,
-    reach: jax.Array,
+    sides: Sides,
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
     """Resolves one seat's interact on the grids left by the seats before it.
 
-    `reach`: bool[2, 3], whether each seat's region reaches an onion pile, a plate pile, a pot
-    (`_sources`; all True when `handover_reward` is off). Returns the updated (items, pot, inventories,
-    sparse reward, shaped reward, handed-over item used) of this seat.
+    `sides`: what each seat's region can use (`_sides`; everything when the hand-over levers are off).
+    Returns the updated (items, pot, inventories, sparse reward, shaped reward, handed-over item used) of
+    this seat.
     """
     grid = state.level.grid
     cell = front[seat]
@@ -186,16 +188,49 @@ def _interact(
         + take_soup * params.soup_pickup_reward
         + plate_bonus * params.plate_pickup_reward
     )
-    own = reach[seat]
+    own = sides.reach[seat]
     handed = (add_onion & ~own[0]) | (take_soup & ~(own[0] & own[1])) | (deliver & ~own[2])
+
+    # Pass reward: an item this seat cannot use and its partner can, on a counter the partner reaches
+    partner_side = _at(sides.counters[1 - seat], safe)
+    mine, theirs = sides.uses[seat], sides.uses[1 - seat]
+    passed = drop & ~mine[held] & theirs[held] & partner_side
+    taken_back = from_counter & ~mine[item] & theirs[item] & partner_side
+    shaped = shaped + (passed.astype(jnp.float32) - taken_back.astype(jnp.float32)) * params.pass_reward
     return items, pot, inv.at[seat].set(new_held), reward, shaped, handed
 
 
-def _sources(state: EnvState) -> jax.Array:
-    """bool[2, 3]: whether each seat's floor region (from where it stands) reaches an onion pile, a plate
-    pile and a pot."""
-    tiles = (Tile.ONION_PILE, Tile.PLATE_PILE, Tile.POT)
-    return jnp.stack([reaches(state.level.grid, state.agent_pos[seat], tiles) for seat in (0, 1)])
+class Sides(NamedTuple):
+    """What each seat's floor region (from where it stands) can use.
+
+    Attributes:
+        reach: bool[2, 3], whether it reaches an onion pile, a plate pile, a pot.
+        uses: bool[2, 4], by `Item`, whether it can use that item: an onion or a plate at a pot, a plated
+            soup at a goal (`NONE` never).
+        counters: bool[2, 9, 9], the non-floor cells next to the region (what it can interact with).
+    """
+
+    reach: jax.Array
+    uses: jax.Array
+    counters: jax.Array
+
+
+def _sides(state: EnvState) -> Sides:
+    grid = state.level.grid
+    counters = jnp.stack([usable_counters(grid, state.agent_pos[seat]) for seat in (0, 1)])
+
+    def has(tile: Tile) -> jax.Array:
+        return jnp.any(counters & (grid == tile), axis=(1, 2))
+
+    pot, goal = has(Tile.POT), has(Tile.GOAL)
+    uses = jnp.stack([jnp.zeros_like(pot), pot, pot, goal], axis=1)
+    return Sides(jnp.stack([has(Tile.ONION_PILE), has(Tile.PLATE_PILE), pot], axis=1), uses, counters)
+
+
+def _everything(state: EnvState) -> Sides:
+    """`Sides` that make neither hand-over lever fire (what a run without them gets, at no cost)."""
+    del state
+    return Sides(jnp.ones((2, 3), bool), jnp.ones((2, 4), bool), jnp.ones((2, GRID_SIZE, GRID_SIZE), bool))
 
 
 def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Transition:
@@ -219,10 +254,11 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     # INTERACT: the cell in front of the pre-step position and facing; seat 0 resolves first.
     front = pos + _DIR_VEC[state.agent_dir]
     items, pot, inv = state.items, state.pot, state.agent_inv
-    # only a run that rewards hand-overs pays for the flood fill (params are not batched: a real branch)
-    reach = jax.lax.cond(params.handover_reward != 0, _sources, lambda _: jnp.ones((2, 3), bool), state)
-    items, pot, inv, r0, s0, h0 = _interact(0, state, items, pot, inv, front, acts, params, reach)
-    items, pot, inv, r1, s1, h1 = _interact(1, state, items, pot, inv, front, acts, params, reach)
+    # only a run that rewards hand-overs pays for the flood fills (params are not batched: a real branch)
+    levers = (params.handover_reward != 0) | (params.pass_reward != 0)
+    sides = jax.lax.cond(levers, _sides, _everything, state)
+    items, pot, inv, r0, s0, h0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
+    items, pot, inv, r1, s1, h1 = _interact(1, state, items, pot, inv, front, acts, params, sides)
 
     # COOKING: full pots count down to ready, including on the step the third onion went in.
     cooking = (grid == Tile.POT) & (pot <= POT_FULL) & (pot > POT_READY)

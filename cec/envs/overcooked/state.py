@@ -67,6 +67,13 @@ class EnvParams:
             soup: in a kitchen that needs a hand-over, one exchange across the counter can complete a pot.
             Drawn apart from `random_start_items` (its draws stay as they were). 0 (the default, and the
             paper's): empty pots. A training lever only, off in evaluation. Not in the paper.
+        pass_reward: shaped reward to the seat that puts an item on a counter where only its partner can
+            use it: the seat itself cannot (an onion or a plate by a seat whose floor region reaches no pot,
+            a plated soup by one that reaches no goal), the partner can, and the counter is next to the
+            partner's region. The giver's half of a hand-over, paid when it happens; taking such an item
+            back off such a counter costs the same, so putting an item down and picking it up again earns
+            nothing. 0 (the default, and the paper's): off, and nothing of it is computed. A training lever
+            only, off in evaluation. Not in the paper: a lever of docs/reproduce_overcooked.md.
     """
 
     max_steps: int = 400
@@ -78,13 +85,14 @@ class EnvParams:
     handover_reward: float = 0.0
     random_start_items: float = 0.0
     random_start_pot_onions: float = 0.0
+    pass_reward: float = 0.0
 
     def without_training_levers(self) -> EnvParams:
         """These settings as evaluation plays them: the training-only levers (`handover_reward`,
-        `random_start_items`, `random_start_pot_onions`) off; everything the score depends on (episode
-        length, rewards) kept."""
+        `pass_reward`, `random_start_items`, `random_start_pot_onions`) off; everything the score depends
+        on (episode length, rewards) kept."""
         return dataclasses.replace(
-            self, handover_reward=0.0, random_start_items=0.0, random_start_pot_onions=0.0
+            self, handover_reward=0.0, pass_reward=0.0, random_start_items=0.0, random_start_pot_onions=0.0
         )
 
 

@@ -1,0 +1,74 @@
+"""The pass reward (a lever, not the paper's): the seat that puts down an item only its partner can use, where
+the partner can reach it, is paid; taking it back costs the same; off by default and in evaluation."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from cec.envs.overcooked.dynamics import reset, step
+from cec.envs.overcooked.state import Action, EnvParams
+from cec.levels import Item, from_ascii
+from cec.levels.classic import classic_level
+
+A = Action
+FC = classic_level("forced_coord")  # the left seat reaches the onions and plates, the right the pots and goal
+# the left seat fetches an onion and puts it on the middle counter (step 3); the right seat takes it (4) and
+# puts it in the pot at (1, 4) (7)
+PASS = [(A.LEFT, A.DOWN), (A.INTERACT, A.LEFT), (A.RIGHT, A.STAY), (A.INTERACT, A.STAY),
+        (A.STAY, A.INTERACT), (A.STAY, A.UP), (A.STAY, A.RIGHT), (A.STAY, A.INTERACT)]  # fmt: skip
+PARAMS = EnvParams(random_start_facing=False, onion_in_pot_reward=3.0, pass_reward=1.5)
+
+
+def _play(level: object, actions: list[tuple[Action, Action]], params: EnvParams) -> tuple[np.ndarray, list]:
+    """Each step's shaped rewards, and the counters' items after each step."""
+    _, state = reset(jax.random.PRNGKey(0), level, params)
+    rows, items = [], []
+    for a in actions:
+        out = step(jax.random.PRNGKey(1), state, np.asarray(a, np.int32), params)
+        state = out.state
+        rows.append(np.asarray(out.shaped_reward))
+        items.append(np.asarray(state.items))
+    return np.stack(rows), items
+
+
+def _shaped(level: object, actions: list[tuple[Action, Action]], params: EnvParams) -> np.ndarray:
+    return _play(level, actions, params)[0]
+
+
+def test_the_giver_is_paid_when_it_puts_the_onion_down_and_the_receiver_only_for_the_pot() -> None:
+    shaped = _shaped(FC, PASS, PARAMS)
+    assert shaped[3].tolist() == [1.5, 0.0]  # the put
+    assert shaped[4].tolist() == [0.0, 0.0]  # the partner takes it: nothing to pay back
+    assert shaped[7].tolist() == [0.0, 3.0]  # the onion in the pot: the paper's shaping alone
+    assert shaped.sum(0).tolist() == [1.5, 3.0]
+
+
+def test_putting_an_item_down_and_taking_it_back_earns_nothing() -> None:
+    back = [*PASS[:4], (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]  # take it back, put it down again
+    shaped = _shaped(FC, back, PARAMS)
+    assert shaped[:, 0].tolist() == [0.0, 0.0, 0.0, 1.5, -1.5, 1.5]
+    assert shaped[:5].sum() == 0
+
+
+def test_a_plate_passed_pays_too() -> None:
+    plate = [(A.DOWN, A.STAY), (A.LEFT, A.STAY), (A.INTERACT, A.STAY), (A.RIGHT, A.STAY),
+             (A.INTERACT, A.STAY)]  # fmt: skip
+    assert _shaped(FC, plate, PARAMS)[:, 0].tolist() == [0.0, 0.0, 0.0, 0.0, 1.5]
+
+
+def test_nothing_where_the_giver_could_use_the_item_itself() -> None:
+    own = from_ascii("WWPWW\nO0 1W\nW   W\nWBWXW")  # both seats reach everything
+    # an onion onto the counter at (2, 0) and back
+    put_down = [(A.LEFT, A.STAY), (A.INTERACT, A.STAY), (A.DOWN, A.STAY), (A.LEFT, A.STAY),
+                (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]  # fmt: skip
+    shaped, items = _play(own, put_down, PARAMS)
+    assert items[4][2, 0] == Item.ONION and items[5][2, 0] == Item.NONE  # it was put down, then taken back
+    assert not shaped.any()
+
+
+def test_off_by_default_and_in_evaluation() -> None:
+    assert _shaped(FC, PASS, EnvParams(random_start_facing=False))[3].tolist() == [0.0, 0.0]
+    assert PARAMS.without_training_levers().pass_reward == 0.0
+    evaluated = _shaped(FC, PASS, PARAMS.without_training_levers())
+    assert evaluated.sum(0).tolist() == [0.0, 3.0]
