@@ -70,6 +70,9 @@ def _summary(per_episode: list[Handovers]) -> dict[str, float]:
         "taken_back_per_episode": float(total.taken_back.sum()) / max(n, 1),
         "pot_serves_per_episode": float(total.pot_serves.sum()) / max(n, 1),
         "soups_per_episode": float(total.soups) / max(n, 1),
+        "passes_per_episode": float(total.passes.sum()) / max(n, 1),
+        "passes_taken_per_episode": float(total.passes_taken.sum()) / max(n, 1),
+        "passes_taken_back_per_episode": float(total.passes_taken_back.sum()) / max(n, 1),
     }
 
 

@@ -10,6 +10,11 @@ evaluation.crossplay.episode_states`), host-side:
     taken_back  such items picked up again by the seat that put them there
     pot_serves  soups served by a seat from a pot the partner put onions in (a hand-over through a pot)
     soups       soups delivered
+    passes      the puts of an item the putting seat cannot use and its partner can (an onion or a plate
+                by a seat whose region reaches no pot, a plated soup by one that reaches no goal): what the
+                pass reward, `EnvParams.pass_reward`, pays
+    passes_taken, passes_taken_back
+                such items picked up by the partner, and by the seat that put them
 
 An episode that puts nothing on a shared counter never tried a hand-over; one whose items are never taken
 has a partner that does not look at the counter; one whose items are taken and still delivers nothing
@@ -21,9 +26,11 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
+from cec.envs.overcooked.dynamics import sides_of
 from cec.envs.overcooked.state import POT_EMPTY, POT_READY
 from cec.levels import DIR_VEC, Item, Tile
 from cec.levels.solvability import usable_counters
@@ -37,12 +44,15 @@ class Handovers:
     taken: np.ndarray
     taken_back: np.ndarray
     pot_serves: np.ndarray
+    passes: np.ndarray
+    passes_taken: np.ndarray
+    passes_taken_back: np.ndarray
     soups: int = 0
 
     @staticmethod
     def zero() -> Handovers:
         z = np.zeros(2, np.int64)
-        return Handovers(puts=z.copy(), taken=z.copy(), taken_back=z.copy(), pot_serves=z.copy(), soups=0)
+        return Handovers(z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), soups=0)
 
     def __add__(self, other: Handovers) -> Handovers:
         return Handovers(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -60,10 +70,11 @@ def count_handovers(states: Any) -> Handovers:
     """The hand-overs of one episode from its states (leading axis T, host arrays, each with its level)."""
     grid = np.asarray(states.level.grid[0])
     shared = shared_counters(grid, np.asarray(states.level.agent_pos[0]))
+    usable = np.asarray(sides_of(jax.tree.map(lambda x: x[0], states)).uses)  # as the pass reward reads them
     pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
     inv, items, pot = np.asarray(states.agent_inv), np.asarray(states.items), np.asarray(states.pot)
     out = Handovers.zero()
-    owner: dict[tuple[int, int], int] = {}  # shared cell -> the seat whose item lies there
+    owner: dict[tuple[int, int], tuple[int, bool]] = {}  # shared cell -> (whose item lies there, a pass)
     filled_by: dict[tuple[int, int], set[int]] = {}  # pot cell -> the seats that put onions in it
     for t in range(len(inv) - 1):
         for seat in (0, 1):
@@ -73,12 +84,16 @@ def count_handovers(states: Any) -> Handovers:
             before, after = int(inv[t, seat]), int(inv[t + 1, seat])
             cell = (r, c)
             if shared[r, c] and before != Item.NONE and after == Item.NONE and items[t + 1, r, c] == before:
+                passed = not usable[seat, before] and usable[1 - seat, before]
                 out.puts[seat] += 1
-                owner[cell] = seat
+                out.passes[seat] += passed
+                owner[cell] = (seat, passed)
             elif shared[r, c] and before == Item.NONE and after != Item.NONE and items[t, r, c] == after:
-                who = owner.pop(cell, None)
-                if who is not None:
+                if cell in owner:
+                    who, passed = owner.pop(cell)
                     (out.taken if who != seat else out.taken_back)[seat] += 1
+                    if passed:
+                        (out.passes_taken if who != seat else out.passes_taken_back)[seat] += 1
             elif grid[r, c] == Tile.POT:
                 if before == Item.ONION and after == Item.NONE and pot[t + 1, r, c] < pot[t, r, c]:
                     filled_by.setdefault(cell, set()).add(seat)

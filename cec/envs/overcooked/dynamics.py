@@ -137,7 +137,7 @@ def _interact(
 ) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
     """Resolves one seat's interact on the grids left by the seats before it.
 
-    `sides`: what each seat's region can use (`_sides`; everything when the hand-over levers are off).
+    `sides`: what each seat's region can use (`sides_of`; everything when the hand-over levers are off).
     Returns the updated (items, pot, inventories, sparse reward, shaped reward, handed-over item used) of
     this seat.
     """
@@ -215,7 +215,8 @@ class Sides(NamedTuple):
     counters: jax.Array
 
 
-def _sides(state: EnvState) -> Sides:
+def sides_of(state: EnvState) -> Sides:
+    """What each seat's region can use in `state`'s kitchen (two flood fills)."""
     grid = state.level.grid
     counters = jnp.stack([usable_counters(grid, state.agent_pos[seat]) for seat in (0, 1)])
 
@@ -256,7 +257,7 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     items, pot, inv = state.items, state.pot, state.agent_inv
     # only a run that rewards hand-overs pays for the flood fills (params are not batched: a real branch)
     levers = (params.handover_reward != 0) | (params.pass_reward != 0)
-    sides = jax.lax.cond(levers, _sides, _everything, state)
+    sides = jax.lax.cond(levers, sides_of, _everything, state)
     items, pot, inv, r0, s0, h0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
     items, pot, inv, r1, s1, h1 = _interact(1, state, items, pot, inv, front, acts, params, sides)
 

@@ -39,9 +39,19 @@ def test_an_onion_put_on_the_counter_and_taken_by_the_partner_is_a_handover() ->
     counts = count_handovers(states)
     assert counts.puts.tolist() == [1, 0] and counts.taken.tolist() == [0, 1]
     assert counts.taken_back.tolist() == [0, 0] and counts.soups == 0
+    # the left seat reaches no pot, the right one does: the put is a pass, taken by the partner
+    assert counts.passes.tolist() == [1, 0] and counts.passes_taken.tolist() == [0, 1]
 
 
 def test_an_onion_taken_back_is_no_handover() -> None:
     counts = count_handovers(_episode([*ONION_ON_COUNTER, (A.INTERACT, A.STAY)]))
     assert counts.puts.tolist() == [1, 0] and counts.taken.tolist() == [0, 0]
     assert counts.taken_back.tolist() == [1, 0]
+    assert counts.passes.tolist() == [1, 0] and counts.passes_taken_back.tolist() == [1, 0]
+
+
+def test_an_onion_put_back_by_a_seat_that_can_use_it_is_no_pass() -> None:
+    # the right seat takes the onion and puts it down again on the same counter
+    counts = count_handovers(_episode([*ONION_ON_COUNTER, (A.STAY, A.INTERACT), (A.STAY, A.INTERACT)]))
+    assert counts.puts.tolist() == [1, 1] and counts.passes.tolist() == [1, 0]
+    assert counts.passes_taken.tolist() == [0, 1] and counts.passes_taken_back.tolist() == [0, 0]
