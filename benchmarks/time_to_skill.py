@@ -41,11 +41,13 @@ import numpy as np
 import yaml
 
 from cec.checkpoints import META_FILE, STATE_FILE, CheckpointError
+from cec.config import load_config
 from cec.evaluation.crossplay import EvalConfig, eval_levels
 from cec.evaluation.milestones import checkpoints_by_update, milestone_points, play_milestone
 from cec.levels.kinds import validation_parts
 from cec.levels.level import unstack_levels
-from cec.training.config import split_paths
+from cec.training.config import TrainConfig, split_paths
+from cec.training.run import config_dict
 
 STALL = 5.0  # an update at under 1/STALL of the run's median env-steps/s was stalled, not slow
 
@@ -84,8 +86,11 @@ def _config(run: Path) -> dict[str, Any]:
 def _recipe(run: Path) -> dict[str, Any]:
     """The run's training config without what tells its processes apart (seed, name); an `init_from`
     checkpoint of a run directory stands as that run's recipe and the checkpoint's name, so processes that
-    each continue their own seed of one recipe (`init_from=<run of seed i>/checkpoints/update_N`) agree."""
-    recipe = {k: v for k, v in _config(run).items() if k not in ("seed", "name")}
+    each continue their own seed of one recipe (`init_from=<run of seed i>/checkpoints/update_N`) agree.
+    Read through `TrainConfig`, so that a setting added since a run started counts as its default there."""
+    _config(run)  # a clear exit for a file that is no config
+    config = config_dict(load_config(TrainConfig, run / "config.yaml"))
+    recipe = {k: v for k, v in config.items() if k not in ("seed", "name")}
     if recipe.get("init_from"):
         recipe["init_from"] = [_source(Path(p)) for p in split_paths(str(recipe["init_from"]))]
     return recipe

@@ -120,3 +120,19 @@ def test_join_refuses_a_run_given_twice_and_runs_that_share_a_seed(tmp_path: Pat
     with pytest.raises(SystemExit, match="differ in more than seed and name"):
         tts.check_population([late["la"], late["lc"]], "late")
     assert not (tmp_path / "tts.json").exists()
+
+
+def test_a_setting_added_since_a_run_started_counts_as_its_default_when_joining(tmp_path: Path) -> None:
+    """A run begun before a lever existed and one begun after, with the lever off, are one recipe; with the
+    lever on they are not."""
+    tts = _module()
+    old, new = tmp_path / "old", tmp_path / "new"
+    for run in (old, new):
+        run.mkdir()
+    (old / "config.yaml").write_text("seed: 4\nname: old\nnum_envs: 8\n")
+    lever = "seed: 5\nname: new\nnum_envs: 8\nenv:\n  overcooked:\n    pass_reward: {}\n"
+    (new / "config.yaml").write_text(lever.format(0.0))
+    tts.check_population([old, new], "joined")
+    (new / "config.yaml").write_text(lever.format(2.0))
+    with pytest.raises(SystemExit, match="differ in more than seed and name"):
+        tts.check_population([old, new], "joined")
