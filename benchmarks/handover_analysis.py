@@ -73,6 +73,7 @@ def _summary(per_episode: list[Handovers]) -> dict[str, float]:
         "passes_per_episode": float(total.passes.sum()) / max(n, 1),
         "passes_taken_per_episode": float(total.passes_taken.sum()) / max(n, 1),
         "passes_taken_back_per_episode": float(total.passes_taken_back.sum()) / max(n, 1),
+        "taken_back_soon_per_episode": float(total.taken_back_soon.sum()) / max(n, 1),
     }
 
 

@@ -15,6 +15,9 @@ evaluation.crossplay.episode_states`), host-side:
                 pass reward, `EnvParams.pass_reward`, pays
     passes_taken, passes_taken_back
                 such items picked up by the partner, and by the seat that put them
+    taken_back_soon
+                items taken back within `SOON` steps of being put down: a seat that puts an item down and
+                picks it up again at once, rather than coming back for it later
 
 An episode that puts nothing on a shared counter never tried a hand-over; one whose items are never taken
 has a partner that does not look at the counter; one whose items are taken and still delivers nothing
@@ -35,6 +38,8 @@ from cec.envs.overcooked.state import POT_EMPTY, POT_READY
 from cec.levels import DIR_VEC, Item, Tile
 from cec.levels.solvability import usable_counters
 
+SOON = 4  # steps: time to put an item down and take it again without leaving the counter (turns included)
+
 
 @dataclass
 class Handovers:
@@ -47,12 +52,13 @@ class Handovers:
     passes: np.ndarray
     passes_taken: np.ndarray
     passes_taken_back: np.ndarray
+    taken_back_soon: np.ndarray
     soups: int = 0
 
     @staticmethod
     def zero() -> Handovers:
-        z = np.zeros(2, np.int64)
-        return Handovers(z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), z.copy(), soups=0)
+        counts = {f.name: np.zeros(2, np.int64) for f in fields(Handovers) if f.name != "soups"}
+        return Handovers(**counts, soups=0)
 
     def __add__(self, other: Handovers) -> Handovers:
         return Handovers(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -74,7 +80,7 @@ def count_handovers(states: Any) -> Handovers:
     pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
     inv, items, pot = np.asarray(states.agent_inv), np.asarray(states.items), np.asarray(states.pot)
     out = Handovers.zero()
-    owner: dict[tuple[int, int], tuple[int, bool]] = {}  # shared cell -> (whose item lies there, a pass)
+    owner: dict[tuple[int, int], tuple[int, bool, int]] = {}  # shared cell -> (whose item, a pass, when put)
     filled_by: dict[tuple[int, int], set[int]] = {}  # pot cell -> the seats that put onions in it
     for t in range(len(inv) - 1):
         for seat in (0, 1):
@@ -87,11 +93,12 @@ def count_handovers(states: Any) -> Handovers:
                 passed = not usable[seat, before] and usable[1 - seat, before]
                 out.puts[seat] += 1
                 out.passes[seat] += passed
-                owner[cell] = (seat, passed)
+                owner[cell] = (seat, passed, t)
             elif shared[r, c] and before == Item.NONE and after != Item.NONE and items[t, r, c] == after:
                 if cell in owner:
-                    who, passed = owner.pop(cell)
+                    who, passed, when = owner.pop(cell)
                     (out.taken if who != seat else out.taken_back)[seat] += 1
+                    out.taken_back_soon[seat] += who == seat and t - when <= SOON
                     if passed:
                         (out.passes_taken if who != seat else out.passes_taken_back)[seat] += 1
             elif grid[r, c] == Tile.POT:

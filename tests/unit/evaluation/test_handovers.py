@@ -48,6 +48,13 @@ def test_an_onion_taken_back_is_no_handover() -> None:
     assert counts.puts.tolist() == [1, 0] and counts.taken.tolist() == [0, 0]
     assert counts.taken_back.tolist() == [1, 0]
     assert counts.passes.tolist() == [1, 0] and counts.passes_taken_back.tolist() == [1, 0]
+    assert counts.taken_back_soon.tolist() == [1, 0]  # at once
+
+
+def test_an_onion_taken_back_after_a_walk_is_not_taken_back_soon() -> None:
+    walk = [(A.DOWN, A.STAY), (A.UP, A.STAY), (A.UP, A.STAY), (A.DOWN, A.STAY), (A.RIGHT, A.STAY)]
+    counts = count_handovers(_episode([*ONION_ON_COUNTER, *walk, (A.INTERACT, A.STAY)]))
+    assert counts.taken_back.tolist() == [1, 0] and counts.taken_back_soon.tolist() == [0, 0]
 
 
 def test_an_onion_put_back_by_a_seat_that_can_use_it_is_no_pass() -> None:
