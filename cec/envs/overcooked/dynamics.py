@@ -138,8 +138,9 @@ def _interact(
     """Resolves one seat's interact on the grids left by the seats before it.
 
     `sides`: what each seat's region can use (`sides_of`; everything when the hand-over levers are off).
-    Returns the updated (items, pot, inventories, sparse reward, shaped reward, handed-over item used) of
-    this seat.
+    Returns the updated (items, pot, inventories, sparse reward, shaped reward, hand-over events) of this
+    seat; the events' bit 0: it used an item it could not have fetched (`handover_reward`), bit 1: it
+    took up a pass of its partner's (`pass_taken_reward`, paid to the partner).
     """
     grid = state.level.grid
     cell = front[seat]
@@ -197,7 +198,10 @@ def _interact(
     passed = drop & ~mine[held] & theirs[held] & partner_side
     taken_back = from_counter & ~mine[item] & theirs[item] & partner_side
     shaped = shaped + (passed.astype(jnp.float32) - taken_back.astype(jnp.float32)) * params.pass_reward
-    return items, pot, inv.at[seat].set(new_held), reward, shaped, handed
+    # ... and the other way round: this seat took up an item only it can use, from the partner's side
+    received = from_counter & mine[item] & ~theirs[item] & partner_side
+    events = handed.astype(jnp.int32) | (received.astype(jnp.int32) << 1)
+    return items, pot, inv.at[seat].set(new_held), reward, shaped, events
 
 
 class Sides(NamedTuple):
@@ -256,7 +260,7 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     front = pos + _DIR_VEC[state.agent_dir]
     items, pot, inv = state.items, state.pot, state.agent_inv
     # only a run that rewards hand-overs pays for the flood fills (params are not batched: a real branch)
-    levers = (params.handover_reward != 0) | (params.pass_reward != 0)
+    levers = (params.handover_reward != 0) | (params.pass_reward != 0) | (params.pass_taken_reward != 0)
     sides = jax.lax.cond(levers, sides_of, _everything, state)
     items, pot, inv, r0, s0, h0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
     items, pot, inv, r1, s1, h1 = _interact(1, state, items, pot, inv, front, acts, params, sides)
@@ -270,8 +274,10 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
         agent_pos=new_pos, agent_dir=new_dir, agent_inv=inv, items=items, pot=pot, time=time
     )
     reward = (r0 + r1).astype(jnp.float32)
-    handover_bonus = (h0.astype(jnp.float32) + h1.astype(jnp.float32)) * params.handover_reward
-    shaped = (jnp.stack([s0, s1]) + handover_bonus).astype(jnp.float32)
+    used, received = jnp.stack([h0 & 1, h1 & 1]), jnp.stack([h0 >> 1, h1 >> 1])
+    handover_bonus = jnp.sum(used).astype(jnp.float32) * params.handover_reward
+    pass_bonus = received[::-1].astype(jnp.float32) * params.pass_taken_reward  # to the seat that passed
+    shaped = (jnp.stack([s0, s1]) + handover_bonus + pass_bonus).astype(jnp.float32)
     return Transition(next_state, reward, shaped, time >= params.max_steps, collision)
 
 

@@ -74,6 +74,12 @@ class EnvParams:
             back off such a counter costs the same, so putting an item down and picking it up again earns
             nothing. 0 (the default, and the paper's): off, and nothing of it is computed. A training lever
             only, off in evaluation. Not in the paper: a lever of docs/reproduce_overcooked.md.
+        pass_taken_reward: shaped reward to a seat when its partner takes up such an item (one the
+            partner can use and the seat cannot, off a counter next to the seat's region): the giver is
+            paid when the exchange completes, not when it puts the item down, so putting an item down and
+            taking it up again earns nothing by construction. Which seat put the item there is not
+            tracked: an onion that random start items laid on such a counter pays too. 0 (the default,
+            and the paper's): off. A training lever only, off in evaluation. Not in the paper.
     """
 
     max_steps: int = 400
@@ -86,13 +92,19 @@ class EnvParams:
     random_start_items: float = 0.0
     random_start_pot_onions: float = 0.0
     pass_reward: float = 0.0
+    pass_taken_reward: float = 0.0
 
     def without_training_levers(self) -> EnvParams:
         """These settings as evaluation plays them: the training-only levers (`handover_reward`,
-        `pass_reward`, `random_start_items`, `random_start_pot_onions`) off; everything the score depends
-        on (episode length, rewards) kept."""
+        `pass_reward`, `pass_taken_reward`, `random_start_items`, `random_start_pot_onions`) off;
+        everything the score depends on (episode length, rewards) kept."""
         return dataclasses.replace(
-            self, handover_reward=0.0, pass_reward=0.0, random_start_items=0.0, random_start_pot_onions=0.0
+            self,
+            handover_reward=0.0,
+            pass_reward=0.0,
+            pass_taken_reward=0.0,
+            random_start_items=0.0,
+            random_start_pot_onions=0.0,
         )
 
 

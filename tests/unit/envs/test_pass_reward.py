@@ -72,3 +72,14 @@ def test_off_by_default_and_in_evaluation() -> None:
     assert PARAMS.without_training_levers().pass_reward == 0.0
     evaluated = _shaped(FC, PASS, PARAMS.without_training_levers())
     assert evaluated.sum(0).tolist() == [0.0, 3.0]
+
+
+def test_the_pass_taken_reward_pays_the_giver_when_the_partner_takes_the_item() -> None:
+    params = EnvParams(random_start_facing=False, onion_in_pot_reward=3.0, pass_taken_reward=2.5)
+    shaped = _shaped(FC, PASS, params)
+    assert shaped[3].tolist() == [0.0, 0.0]  # the put alone pays nothing
+    assert shaped[4].tolist() == [2.5, 0.0]  # the partner takes it: the giver is paid
+    assert shaped.sum(0).tolist() == [2.5, 3.0]
+    back = [*PASS[:4], (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]  # taken back and put down again
+    assert not _shaped(FC, back, params).any()
+    assert params.without_training_levers() == EnvParams(random_start_facing=False, onion_in_pot_reward=3.0)
