@@ -233,7 +233,7 @@ def sides_of(state: EnvState) -> Sides:
 
 
 def _everything(state: EnvState) -> Sides:
-    """`Sides` that make neither hand-over lever fire (what a run without them gets, at no cost)."""
+    """`Sides` that make no hand-over lever fire (what a run without them gets, at no cost)."""
     del state
     return Sides(jnp.ones((2, 3), bool), jnp.ones((2, 4), bool), jnp.ones((2, GRID_SIZE, GRID_SIZE), bool))
 
