@@ -29,14 +29,12 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
-from cec.envs.overcooked.dynamics import sides_of
+from cec.envs.overcooked.dynamics import Sides, sides_of
 from cec.envs.overcooked.state import POT_EMPTY, POT_READY
 from cec.levels import DIR_VEC, Item, Tile
-from cec.levels.solvability import usable_counters
 
 SOON = 4  # steps: time to put an item down and take it again without leaving the counter (turns included)
 
@@ -67,16 +65,18 @@ class Handovers:
 def shared_counters(grid: np.ndarray, agent_pos: np.ndarray) -> np.ndarray:
     """bool[9, 9]: bare counters next to both seats' floor regions (where one can leave an item for the
     other); in a kitchen whose seats share a region, every counter they can reach."""
-    tiles = jnp.asarray(grid)
-    near = [usable_counters(tiles, jnp.asarray(pos)) for pos in np.asarray(agent_pos)]
-    return np.asarray((tiles == Tile.COUNTER) & near[0] & near[1])
+    return _shared(grid, sides_of(jnp.asarray(grid), jnp.asarray(agent_pos)))
+
+
+def _shared(grid: np.ndarray, sides: Sides) -> np.ndarray:
+    return (grid == Tile.COUNTER) & np.asarray(sides.counters).all(axis=0)
 
 
 def count_handovers(states: Any) -> Handovers:
     """The hand-overs of one episode from its states (leading axis T, host arrays, each with its level)."""
     grid = np.asarray(states.level.grid[0])
-    shared = shared_counters(grid, np.asarray(states.level.agent_pos[0]))
-    usable = np.asarray(sides_of(jax.tree.map(lambda x: x[0], states)).uses)  # as the pass reward reads them
+    sides = sides_of(jnp.asarray(grid), jnp.asarray(states.level.agent_pos[0]))  # as the rewards read them
+    shared, usable = _shared(grid, sides), np.asarray(sides.uses)
     pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
     inv, items, pot = np.asarray(states.agent_inv), np.asarray(states.items), np.asarray(states.pot)
     out = Handovers.zero()

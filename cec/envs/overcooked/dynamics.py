@@ -134,13 +134,13 @@ def _interact(
     acts: jax.Array,
     params: EnvParams,
     sides: Sides,
-) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
+) -> tuple[jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array, jax.Array]:
     """Resolves one seat's interact on the grids left by the seats before it.
 
     `sides`: what each seat's region can use (`sides_of`; everything when the hand-over levers are off).
-    Returns the updated (items, pot, inventories, sparse reward, shaped reward, hand-over events) of this
-    seat; the events' bit 0: it used an item it could not have fetched (`handover_reward`), bit 1: it
-    took up a pass of its partner's (`pass_taken_reward`, paid to the partner).
+    Returns the updated (items, pot, inventories, sparse reward, shaped reward) of this seat, and whether
+    it used an item it could not have fetched (`handover_reward`) and took up a pass of its partner's
+    (`pass_taken_reward`, paid to the partner).
     """
     grid = state.level.grid
     cell = front[seat]
@@ -200,8 +200,7 @@ def _interact(
     shaped = shaped + (passed.astype(jnp.float32) - taken_back.astype(jnp.float32)) * params.pass_reward
     # ... and the other way round: this seat took up an item only it can use, from the partner's side
     received = from_counter & mine[item] & ~theirs[item] & partner_side
-    events = handed.astype(jnp.int32) | (received.astype(jnp.int32) << 1)
-    return items, pot, inv.at[seat].set(new_held), reward, shaped, events
+    return items, pot, inv.at[seat].set(new_held), reward, shaped, handed, received
 
 
 class Sides(NamedTuple):
@@ -219,10 +218,9 @@ class Sides(NamedTuple):
     counters: jax.Array
 
 
-def sides_of(state: EnvState) -> Sides:
-    """What each seat's region can use in `state`'s kitchen (two flood fills)."""
-    grid = state.level.grid
-    counters = jnp.stack([usable_counters(grid, state.agent_pos[seat]) for seat in (0, 1)])
+def sides_of(grid: jax.Array, agent_pos: jax.Array) -> Sides:
+    """What each seat's region can use in the kitchen `grid`, the seats at `agent_pos` (two flood fills)."""
+    counters = jnp.stack([usable_counters(grid, agent_pos[seat]) for seat in (0, 1)])
 
     def has(tile: Tile) -> jax.Array:
         return jnp.any(counters & (grid == tile), axis=(1, 2))
@@ -232,9 +230,9 @@ def sides_of(state: EnvState) -> Sides:
     return Sides(jnp.stack([has(Tile.ONION_PILE), has(Tile.PLATE_PILE), pot], axis=1), uses, counters)
 
 
-def _everything(state: EnvState) -> Sides:
+def _everything(grid: jax.Array, agent_pos: jax.Array) -> Sides:
     """`Sides` that make no hand-over lever fire (what a run without them gets, at no cost)."""
-    del state
+    del grid, agent_pos
     return Sides(jnp.ones((2, 3), bool), jnp.ones((2, 4), bool), jnp.ones((2, GRID_SIZE, GRID_SIZE), bool))
 
 
@@ -261,9 +259,9 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     items, pot, inv = state.items, state.pot, state.agent_inv
     # only a run that rewards hand-overs pays for the flood fills (params are not batched: a real branch)
     levers = (params.handover_reward != 0) | (params.pass_reward != 0) | (params.pass_taken_reward != 0)
-    sides = jax.lax.cond(levers, sides_of, _everything, state)
-    items, pot, inv, r0, s0, h0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
-    items, pot, inv, r1, s1, h1 = _interact(1, state, items, pot, inv, front, acts, params, sides)
+    sides = jax.lax.cond(levers, sides_of, _everything, grid, pos)
+    items, pot, inv, r0, s0, h0, p0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
+    items, pot, inv, r1, s1, h1, p1 = _interact(1, state, items, pot, inv, front, acts, params, sides)
 
     # COOKING: full pots count down to ready, including on the step the third onion went in.
     cooking = (grid == Tile.POT) & (pot <= POT_FULL) & (pot > POT_READY)
@@ -274,9 +272,8 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
         agent_pos=new_pos, agent_dir=new_dir, agent_inv=inv, items=items, pot=pot, time=time
     )
     reward = (r0 + r1).astype(jnp.float32)
-    used, received = jnp.stack([h0 & 1, h1 & 1]), jnp.stack([h0 >> 1, h1 >> 1])
-    handover_bonus = jnp.sum(used).astype(jnp.float32) * params.handover_reward
-    pass_bonus = received[::-1].astype(jnp.float32) * params.pass_taken_reward  # to the seat that passed
+    handover_bonus = (h0.astype(jnp.float32) + h1.astype(jnp.float32)) * params.handover_reward
+    pass_bonus = jnp.stack([p1, p0]).astype(jnp.float32) * params.pass_taken_reward  # to the seat that passed
     shaped = (jnp.stack([s0, s1]) + handover_bonus + pass_bonus).astype(jnp.float32)
     return Transition(next_state, reward, shaped, time >= params.max_steps, collision)
 
