@@ -245,6 +245,9 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if not (args.runs or args.earlier):
         ap.error("give run directories and/or --with OUT.json of earlier evaluations")
+    missing = [str(run) for run in args.runs if not (run / "metrics.csv").is_file()]
+    if missing:  # before any evaluation starts: a mistyped or unexpanded path ("s40{0,1}" under sh)
+        ap.error(f"not a training run (no metrics.csv): {', '.join(missing)}; give each run's directory")
     rows = [r for path in args.earlier for r in json.loads(path.read_text())["rows"]]
     done = frozenset((r["run"], r["update"]) for r in rows)  # a run still training: only what is new
     groups = [(args.runs, args.join)] if args.join else [([run], run.name) for run in args.runs]

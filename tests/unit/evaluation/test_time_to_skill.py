@@ -101,6 +101,7 @@ def test_join_refuses_a_run_given_twice_and_runs_that_share_a_seed(tmp_path: Pat
         (runs[name] / "config.yaml").write_text(
             f"seed: {seed}\nnum_seeds: {seeds}\nname: {name}\nnum_envs: 8\n"
         )
+        (runs[name] / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n")
     out = ["--out", str(tmp_path / "tts")]
     twice = [str(runs["a"]), str(tmp_path / "b" / ".." / "a")]  # one run, spelled twice
     with pytest.raises(SystemExit, match=r"ab: .*a is given twice \(as .*a too\)"):
@@ -136,3 +137,19 @@ def test_a_setting_added_since_a_run_started_counts_as_its_default_when_joining(
     (new / "config.yaml").write_text(lever.format(2.0))
     with pytest.raises(SystemExit, match="differ in more than seed and name"):
         tts.check_population([old, new], "joined")
+
+
+def test_a_path_that_is_no_run_is_refused_before_anything_is_played(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A brace list that `sh` does not expand (`runs/x-s40{0,1}`) or a mistyped directory: named, with the
+    fix, before any checkpoint is compiled or played (it used to end in a traceback after the others)."""
+    tts = _module()
+    real = tmp_path / "x-s400"
+    real.mkdir()
+    (real / "metrics.csv").write_text("update,seed,env_steps,env_steps_per_s\n")
+    with pytest.raises(SystemExit):
+        tts.main(["--join", "x", str(real), str(tmp_path / "x-s40{1,2}"), "--out", str(tmp_path / "o")])
+    err = capsys.readouterr().err
+    assert "not a training run (no metrics.csv): " in err and "x-s40{1,2}" in err and "x-s400," not in err
+    assert not (tmp_path / "o.json").exists()
