@@ -23,6 +23,7 @@ from typing import Any
 
 import pytest
 
+pytest_plugins = ["tests.own_process"]
 _CACHE_ENV = "JAX_COMPILATION_CACHE_DIR"
 
 

@@ -44,14 +44,6 @@ MLP = [
 ]
 
 
-@pytest.fixture(scope="module")
-def local_ray() -> Any:
-    # "local": a Ray of its own, whatever other cluster this machine runs or last ran
-    ray.init(address="local", num_cpus=4, include_dashboard=False, logging_level="WARNING")
-    yield ray
-    ray.shutdown()
-
-
 def _rows(run_dir: Path) -> list[dict]:
     path = run_dir / "metrics.jsonl"
     return [json.loads(line) for line in path.read_text().splitlines()] if path.exists() else []
@@ -66,7 +58,8 @@ def _wait_rows(run_dir: Path, n: int, timeout: float = 300, log: Path | None = N
         time.sleep(0.2)
 
 
-def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: Any, tmp_path: Path) -> None:
+@pytest.mark.own_process  # hosts Ray's driver (tests/own_process.py)
+def test_sync_reproduces_the_single_process_trainer_and_async_learns(tmp_path: Path) -> None:
     """Dual Destination fixed task, `small` preset, same seed: sync mode plays the single-process trainer's
     updates to float rounding. The learner's update is compiled on its own (the trainer fuses rollout and
     update in one program), so losses differ in the 7th digit after a few updates (5 on a 2-core AMD EPYC;
@@ -81,11 +74,16 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(local_ray: 
         ("local", "sync", "local", LOCAL_UPDATES),
         ("async", "async", "ray", None),
     )
-    for name, mode, pool, updates in runs:
-        cfg = load_config(TrainConfig, DD_QUICK, [*base, f"name={name}"])
-        dist = DistributedConfig(num_actors=2, mode=mode, pool=pool, metrics_port=-1)
-        learner = Learner(cfg, dist, pool=RayPool(dist) if pool == "ray" else LocalPool())
-        learner.run(resume=False, max_updates=updates)
+    # "local": a Ray of its own, whatever other cluster this machine runs or last ran
+    ray.init(address="local", num_cpus=4, include_dashboard=False, logging_level="WARNING")
+    try:
+        for name, mode, pool, updates in runs:
+            cfg = load_config(TrainConfig, DD_QUICK, [*base, f"name={name}"])
+            dist = DistributedConfig(num_actors=2, mode=mode, pool=pool, metrics_port=-1)
+            learner = Learner(cfg, dist, pool=RayPool(dist) if pool == "ray" else LocalPool())
+            learner.run(resume=False, max_updates=updates)
+    finally:
+        ray.shutdown()
     want, sync, local, asyn = (_rows(tmp_path / n) for n in ("single", "sync", "local", "async"))
     assert [r["update"] for r in sync] == [r["update"] for r in want] == list(range(1, 41))
     # the actor-learner loop in one process (no Ray) plays the Ray run's updates (the first 12: where

@@ -25,6 +25,7 @@ REPO = Path(__file__).resolve().parents[2]
 DD_QUICK = str(REPO / "configs/train/dd_ippo_quick.yaml")
 
 
+@pytest.mark.own_process  # hosts Ray's driver (tests/own_process.py)
 def test_the_learners_events_hold_its_rows_with_policy_lag_and_the_level_feed(tmp_path: Path) -> None:
     # 4 updates of 25-step rollouts. The async learner drops stale batches and replaces held ones, so it need
     # not train on the rollout that holds an episode's end (with the game's 100 steps only every 4th rollout

@@ -63,6 +63,7 @@ def _actor_nodes() -> list[tuple[str, int]]:
     return sorted((a["Address"]["NodeID"], a["NumRestarts"]) for a in alive)
 
 
+@pytest.mark.own_process  # hosts Ray's driver (tests/own_process.py)
 def test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost(tmp_path: Path) -> None:
     redis = LocalRedis(tmp_path / "redis").start()
     done = threading.Event()
