@@ -31,6 +31,8 @@ demo: install
 # Every layer runs on every core (each worker has its own Redis and JAX cache; servers bind free ports),
 # except that the end-to-end tests, whole stacks of Ray processes timing their recoveries, run one at a
 # time on one worker (their xdist group, tests/conftest.py), listed first so that they start first.
+# The three that host Ray's driver run each in a child pytest of its own process group (tests/own_process.py),
+# so that a crash there fails that test instead of taking down a worker and its group.
 TEST_WORKERS ?= auto
 test: lint typecheck
 	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup tests/e2e tests/unit tests/parity tests/learning tests/services
