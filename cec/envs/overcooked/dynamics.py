@@ -197,7 +197,8 @@ def _interact(
     mine, theirs = sides.uses[seat], sides.uses[1 - seat]
     passed = drop & ~mine[held] & theirs[held] & partner_side
     taken_back = from_counter & ~mine[item] & theirs[item] & partner_side
-    shaped = shaped + (passed.astype(jnp.float32) - taken_back.astype(jnp.float32)) * params.pass_reward
+    shaped = shaped + passed.astype(jnp.float32) * params.pass_reward
+    shaped = shaped - taken_back.astype(jnp.float32) * (params.pass_reward + params.pass_take_back_cost)
     # ... and the other way round: this seat took up an item only it can use, from the partner's side
     received = from_counter & mine[item] & ~theirs[item] & partner_side
     return items, pot, inv.at[seat].set(new_held), reward, shaped, handed, received
@@ -258,7 +259,8 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     front = pos + _DIR_VEC[state.agent_dir]
     items, pot, inv = state.items, state.pot, state.agent_inv
     # only a run that rewards hand-overs pays for the flood fills (params are not batched: a real branch)
-    levers = (params.handover_reward != 0) | (params.pass_reward != 0) | (params.pass_taken_reward != 0)
+    levers = (params.handover_reward != 0) | (params.pass_reward != 0) | (params.pass_take_back_cost != 0)
+    levers = levers | (params.pass_taken_reward != 0)
     sides = jax.lax.cond(levers, sides_of, _everything, grid, pos)
     items, pot, inv, r0, s0, h0, p0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
     items, pot, inv, r1, s1, h1, p1 = _interact(1, state, items, pot, inv, front, acts, params, sides)

@@ -74,6 +74,10 @@ class EnvParams:
             back off such a counter costs the same, so putting an item down and picking it up again earns
             nothing. 0 (the default, and the paper's): off, and nothing of it is computed. A training lever
             only, off in evaluation. Not in the paper: a lever of docs/reproduce_overcooked.md.
+        pass_take_back_cost: what taking such an item back costs beyond `pass_reward`, so that putting an
+            item down and picking it up again costs this much instead of nothing (with a discount below 1
+            the symmetric loop even pays a little: the reward comes before the cost). 0 (the default):
+            the cost is `pass_reward`. A training lever only, off in evaluation. Not in the paper.
         pass_taken_reward: shaped reward to a seat when its partner takes up such an item (one the
             partner can use and the seat cannot, off a counter next to the seat's region): the giver is
             paid when the exchange completes, not when it puts the item down, so putting an item down and
@@ -92,16 +96,19 @@ class EnvParams:
     random_start_items: float = 0.0
     random_start_pot_onions: float = 0.0
     pass_reward: float = 0.0
+    pass_take_back_cost: float = 0.0
     pass_taken_reward: float = 0.0
 
     def without_training_levers(self) -> EnvParams:
         """These settings as evaluation plays them: the training-only levers (`handover_reward`,
-        `pass_reward`, `pass_taken_reward`, `random_start_items`, `random_start_pot_onions`) off;
+        `pass_reward`, `pass_take_back_cost`, `pass_taken_reward`, `random_start_items`,
+        `random_start_pot_onions`) off;
         everything the score depends on (episode length, rewards) kept."""
         return dataclasses.replace(
             self,
             handover_reward=0.0,
             pass_reward=0.0,
+            pass_take_back_cost=0.0,
             pass_taken_reward=0.0,
             random_start_items=0.0,
             random_start_pot_onions=0.0,

@@ -1,7 +1,10 @@
 """The pass reward (a lever, not the paper's): the seat that puts down an item only its partner can use, where
-the partner can reach it, is paid; taking it back costs the same; off by default and in evaluation."""
+the partner can reach it, is paid; taking it back costs the same, or more with the take-back cost; off by
+default and in evaluation."""
 
 from __future__ import annotations
+
+import dataclasses
 
 import jax
 import numpy as np
@@ -49,6 +52,14 @@ def test_putting_an_item_down_and_taking_it_back_earns_nothing() -> None:
     shaped = _shaped(FC, back, PARAMS)
     assert shaped[:, 0].tolist() == [0.0, 0.0, 0.0, 1.5, -1.5, 1.5]
     assert shaped[:5].sum() == 0
+
+
+def test_the_take_back_cost_makes_the_loop_cost_and_leaves_the_pass_as_it_was() -> None:
+    params = dataclasses.replace(PARAMS, pass_take_back_cost=1.0)
+    back = [*PASS[:4], (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]  # take it back, put it down again
+    assert _shaped(FC, back, params)[:, 0].tolist() == [0.0, 0.0, 0.0, 1.5, -2.5, 1.5]
+    assert _shaped(FC, PASS, params).sum(0).tolist() == [1.5, 3.0]  # a pass the partner takes: as before
+    assert params.without_training_levers().pass_take_back_cost == 0.0
 
 
 def test_a_plate_passed_pays_too() -> None:
