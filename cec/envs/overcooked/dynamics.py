@@ -140,7 +140,8 @@ def _interact(
     `sides`: what each seat's region can use (`sides_of`; everything when the hand-over levers are off).
     Returns the updated (items, pot, inventories, sparse reward, shaped reward) of this seat, and whether
     it used an item it could not have fetched (`handover_reward`) and took up a pass of its partner's
-    (`pass_taken_reward`, paid to the partner).
+    (`pass_taken_reward`, paid to the partner; `pass_received_reward`, paid to this seat, is in its shaped
+    reward).
     """
     grid = state.level.grid
     cell = front[seat]
@@ -201,6 +202,9 @@ def _interact(
     shaped = shaped - taken_back.astype(jnp.float32) * (params.pass_reward + params.pass_take_back_cost)
     # ... and the other way round: this seat took up an item only it can use, from the partner's side
     received = from_counter & mine[item] & ~theirs[item] & partner_side
+    put_back = drop & mine[held] & ~theirs[held] & partner_side
+    receipt = received.astype(jnp.float32) - put_back.astype(jnp.float32)
+    shaped = shaped + receipt * params.pass_received_reward
     return items, pot, inv.at[seat].set(new_held), reward, shaped, handed, received
 
 
@@ -260,7 +264,7 @@ def _transition(state: EnvState, actions: jax.Array, params: EnvParams) -> Trans
     items, pot, inv = state.items, state.pot, state.agent_inv
     # only a run that rewards hand-overs pays for the flood fills (params are not batched: a real branch)
     levers = (params.handover_reward != 0) | (params.pass_reward != 0) | (params.pass_take_back_cost != 0)
-    levers = levers | (params.pass_taken_reward != 0)
+    levers = levers | (params.pass_taken_reward != 0) | (params.pass_received_reward != 0)
     sides = jax.lax.cond(levers, sides_of, _everything, grid, pos)
     items, pot, inv, r0, s0, h0, p0 = _interact(0, state, items, pot, inv, front, acts, params, sides)
     items, pot, inv, r1, s1, h1, p1 = _interact(1, state, items, pot, inv, front, acts, params, sides)

@@ -84,6 +84,13 @@ class EnvParams:
             taking it up again earns nothing by construction. Which seat put the item there is not
             tracked: an onion that random start items laid on such a counter pays too. 0 (the default,
             and the paper's): off. A training lever only, off in evaluation. Not in the paper.
+        pass_received_reward: shaped reward to the receiver of such an exchange: a seat that takes up an
+            item only it can use (as `pass_reward` counts it, seen from the other side) off a counter next
+            to its partner's region is paid at once; putting such an item back on such a counter costs the
+            same, so taking an item up and putting it down again earns nothing. The receiver's half of a
+            hand-over, which otherwise pays only when the item is used. Which seat put the item there is
+            not tracked (a random start onion on such a counter pays too). 0 (the default, and the
+            paper's): off. A training lever only, off in evaluation. Not in the paper.
     """
 
     max_steps: int = 400
@@ -98,11 +105,12 @@ class EnvParams:
     pass_reward: float = 0.0
     pass_take_back_cost: float = 0.0
     pass_taken_reward: float = 0.0
+    pass_received_reward: float = 0.0
 
     def without_training_levers(self) -> EnvParams:
         """These settings as evaluation plays them: the training-only levers (`handover_reward`,
-        `pass_reward`, `pass_take_back_cost`, `pass_taken_reward`, `random_start_items`,
-        `random_start_pot_onions`) off;
+        `pass_reward`, `pass_take_back_cost`, `pass_taken_reward`, `pass_received_reward`,
+        `random_start_items`, `random_start_pot_onions`) off;
         everything the score depends on (episode length, rewards) kept."""
         return dataclasses.replace(
             self,
@@ -110,6 +118,7 @@ class EnvParams:
             pass_reward=0.0,
             pass_take_back_cost=0.0,
             pass_taken_reward=0.0,
+            pass_received_reward=0.0,
             random_start_items=0.0,
             random_start_pot_onions=0.0,
         )

@@ -94,3 +94,15 @@ def test_the_pass_taken_reward_pays_the_giver_when_the_partner_takes_the_item() 
     back = [*PASS[:4], (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]  # taken back and put down again
     assert not _shaped(FC, back, params).any()
     assert params.without_training_levers() == EnvParams(random_start_facing=False, onion_in_pot_reward=3.0)
+
+
+def test_the_pass_received_reward_pays_the_receiver_when_it_takes_the_item() -> None:
+    params = EnvParams(random_start_facing=False, onion_in_pot_reward=3.0, pass_received_reward=2.0)
+    shaped = _shaped(FC, PASS, params)
+    assert shaped[3].tolist() == [0.0, 0.0]  # the put pays the giver nothing
+    assert shaped[4].tolist() == [0.0, 2.0]  # the receiver takes it up: paid at once
+    assert shaped.sum(0).tolist() == [0.0, 5.0]  # and for the pot as before
+    # taken up, put back on the counter, taken up again: the loop earns what one take-up does
+    loop = [*PASS[:5], (A.STAY, A.INTERACT), (A.STAY, A.INTERACT)]
+    assert _shaped(FC, loop, params)[:, 1].tolist() == [0.0, 0.0, 0.0, 0.0, 2.0, -2.0, 2.0]
+    assert params.without_training_levers() == EnvParams(random_start_facing=False, onion_in_pot_reward=3.0)
