@@ -9,6 +9,12 @@ cross-play with its jackknife SE over seeds.
 
 The evaluations of the milestones are in curve/ (gzipped `cec eval` tables; the milestone policies
 themselves, 1.3 MB each, were not kept in the repository).
+
+Each point also carries its parts (`cec.evaluation.parts`: the held-out kitchens by kind, each classic
+kitchen), and `budget.json` what a straight line in log env steps through the parts says: the gain per
+doubling of the env steps, its jackknife SE over the four seeds (each seed left out in turn, every
+milestone's cross-play recomputed over the other three), and the env steps at which the line reaches the
+every-kitchen issue's targets. A reading of one recipe's curve (the LR restarted at each call), not a law.
 """
 
 from __future__ import annotations
@@ -19,8 +25,11 @@ from pathlib import Path
 
 import numpy as np
 
-from cec.evaluation.results import read_csv
+from cec.evaluation.parts import part_scores
+from cec.evaluation.results import EpisodeTable, read_csv
 from cec.evaluation.seeds import seed_matrix
+from cec.levels.classic import classic_levels
+from cec.levels.heldout import heldout_levels
 
 HERE = Path(__file__).parent
 START = 64_012_288  # the shipped 64M seeds' env steps per seed
@@ -29,8 +38,20 @@ STEPS_PER_UPDATE = 131_072
 # seeds), the third after 2,340 (the 758M seeds), the fourth after 940 (the 881M seeds). The LR restarted
 # at each call's start: 2e-3 in the first three, 1e-3 in the fourth.
 CALL_UPDATES = (1145, 1810, 2340, 940)
+KEYS = ("heldout", "classic")
 CALL_START = {
     w: START + sum(CALL_UPDATES[: w - 1]) * STEPS_PER_UPDATE for w in range(1, len(CALL_UPDATES) + 1)
+}
+
+
+# The parts fitted, and the every-kitchen issue's targets for the shipped seeds (and, for the hand-over
+# kitchens, its 10.5M-step target too)
+FITTED = {
+    ("heldout", "hand-over needed"): (20, 40),
+    ("heldout", "generated"): (55,),
+    ("classic", "classic"): (30, 70),
+    ("classic", "forced_coord"): (10, 30),
+    ("classic", "counter_circuit"): (10, 30),
 }
 
 
@@ -41,16 +62,66 @@ def point(table) -> dict[str, float]:  # noqa: ANN001
     return {"xp": round(xp.mean, 2), "xp_se": round(xp.se, 2), "sp": round(float(np.mean(s.sp)), 2)}
 
 
+def parts(table: EpisodeTable, key: str) -> dict[str, float]:
+    """{part: cross-play} of one evaluation (held-out by kind, or each classic kitchen)."""
+    levels = dict(heldout_levels()) if key == "heldout" else classic_levels()
+    return {name: round(p.xp, 2) for name, p in part_scores(table, "cec", levels).items()}
+
+
+def without_seed(table: EpisodeTable, seed: int) -> EpisodeTable:
+    return table.select((table.seed_a != seed) & (table.seed_b != seed))
+
+
+def line(steps: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """(gain per doubling of the env steps, value at the last point): the least-squares line in log2 steps."""
+    slope, intercept = np.polyfit(np.log2(steps), y, 1)
+    return float(slope), float(slope * np.log2(steps[-1]) + intercept)
+
+
+def budget(tables: list[tuple[int, dict[str, EpisodeTable]]]) -> dict[str, dict]:
+    """For each fitted part: the line through its cross-play over the milestones, the slope's jackknife SE
+    over seeds, and the env steps per seed at which the line reaches each target."""
+    steps = np.array([s for s, _ in tables], float)
+    seeds = sorted({int(x) for x in tables[0][1]["heldout"].seed_a})
+    out = {}
+    for (key, part), targets in FITTED.items():
+        y = np.array([parts(t[key], key)[part] for _, t in tables])
+        slope, last = line(steps, y)
+        loo = np.array(
+            [
+                line(steps, np.array([parts(without_seed(t[key], s), key)[part] for _, t in tables]))[0]
+                for s in seeds
+            ]
+        )
+        n = len(loo)
+        se = float(np.sqrt((n - 1) / n * np.sum((loo - loo.mean()) ** 2)))
+        doublings = {str(t): (round((t - last) / slope, 1) if slope > 0 else None) for t in targets}
+        out[f"{key}/{part}"] = {
+            "per_doubling": round(slope, 2),
+            "per_doubling_se": round(se, 2),
+            "at_last": round(last, 2),
+            "last_env_steps": int(steps[-1]),
+            "doublings_to_reach": doublings,
+            "env_steps_to_reach": {
+                t: (float(f"{steps[-1] * 2**d:.3g}") if d is not None else None) for t, d in doublings.items()
+            },
+        }
+    return out
+
+
 def main() -> None:
-    rows = [{"window": 0, "update": 0, "env_steps": START}]
-    rows[0] |= {k: point(read_csv(HERE.parent / "cec64m" / f"{k}.csv")) for k in ("heldout", "classic")}
+    evaluations = [(0, 0, START, {k: read_csv(HERE.parent / "cec64m" / f"{k}.csv") for k in KEYS})]
     for f in sorted((HERE / "curve").glob("window*-heldout-u*.csv.gz")):
         w, u = (int(x) for x in re.match(r"window(\d)-heldout-u(\d+)", f.name).groups())
-        steps = CALL_START[w] + u * STEPS_PER_UPDATE
-        row = {"window": w, "update": u, "env_steps": steps, "heldout": point(read_csv(f))}
-        row["classic"] = point(read_csv(f.with_name(f.name.replace("heldout", "classic"))))
-        rows.append(row)
-    rows.sort(key=lambda r: r["env_steps"])
+        pair = {k: read_csv(f.with_name(f.name.replace("heldout", k))) for k in KEYS}
+        evaluations.append((w, u, CALL_START[w] + u * STEPS_PER_UPDATE, pair))
+    evaluations.sort(key=lambda e: e[2])
+    rows = [
+        {"window": w, "update": u, "env_steps": steps}
+        | {k: point(t[k]) for k in KEYS}
+        | {f"{k}_parts": parts(t[k], k) for k in KEYS}
+        for w, u, steps, t in evaluations
+    ]
     print(f"{'env steps/seed':>15s} {'held-out XP':>14s} {'SP':>6s} {'classic XP':>14s} {'SP':>6s}")
     for r in rows:
         h, c = r["heldout"], r["classic"]
@@ -59,6 +130,19 @@ def main() -> None:
             f"{c['xp']:7.1f} ± {c['xp_se']:4.1f} {c['sp']:6.1f}"
         )
     (HERE / "curve.json").write_text(json.dumps(rows, indent=1) + "\n")
+    fits = budget([(steps, t) for _, _, steps, t in evaluations])
+    (HERE / "budget.json").write_text(json.dumps(fits, indent=1) + "\n")
+    for name, f in fits.items():
+        reach = ", ".join(
+            f"{t} after {d:+.1f} doublings ({f['env_steps_to_reach'][t]:.2g})"
+            if d is not None
+            else f"{t}: never"
+            for t, d in f["doublings_to_reach"].items()
+        )
+        print(
+            f"{name:28s} {f['at_last']:5.1f} at the end, "
+            f"{f['per_doubling']:+5.2f} ± {f['per_doubling_se']:.2f} per doubling; {reach}"
+        )
 
     import matplotlib
 
@@ -80,6 +164,31 @@ def main() -> None:
     ax.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(HERE / "curve.png", dpi=110)
+    plot_budget(plt, rows, fits)
+
+
+def plot_budget(plt, rows: list[dict], fits: dict[str, dict]) -> None:  # noqa: ANN001
+    """budget.png: the fitted parts over the env steps (log scale), their lines, the 20-per-400 mark."""
+    fig, ax = plt.subplots(figsize=(6.5, 3.8))
+    x = np.array([r["env_steps"] for r in rows], float)
+    for name, f in fits.items():
+        if name == "heldout/generated":
+            continue
+        key, part = name.split("/")
+        y = [r[f"{key}_parts"][part] for r in rows]
+        dots = ax.plot(
+            x, y, marker="o", ms=3, lw=0.8, label=f"{name} ({f['per_doubling']:+.2f} per doubling)"
+        )
+        fit = f["at_last"] + f["per_doubling"] * np.log2(x / x[-1])
+        ax.plot(x, fit, color=dots[0].get_color(), lw=1.6, alpha=0.6)
+    ax.axhline(20, color="grey", lw=0.8, ls="--", label="20 per 400 steps (one soup)")
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("env steps per seed (log scale)")
+    ax.set_ylabel("cross-play per 400 steps")
+    ax.set_title("Shipped CEC seeds: the hard parts over their training, least-squares lines", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(HERE / "budget.png", dpi=110)
 
 
 if __name__ == "__main__":
