@@ -92,6 +92,9 @@ class Game:
             policy, read from the full state (a training partner, `cec.training.partners`): uniformly
             random with probability `epsilon` per seat; `yields` (static) whether it gives way where its
             route and its partner's collide. None: the game has none.
+        needs_partner(state) -> bool[]: whether neither seat can reach the goal alone in this state's level
+            (Overcooked: a kitchen that needs a hand-over across a counter), for a scripted partner kept to
+            such levels (`partner.scripted_where_needed`). None: the game cannot tell.
         evaluation_params(params) -> params: the settings evaluation plays a policy under, given those it
             trained with: training-only levers (e.g. Overcooked's random start items) off.
     """
@@ -116,6 +119,7 @@ class Game:
     deliveries: Callable[[np.ndarray, int, Any], np.ndarray]
     single_task_own_level: bool
     scripted: Callable[[jax.Array, Any, Any, bool], jax.Array] | None = None
+    needs_partner: Callable[[Any], jax.Array] | None = None
     evaluation_params: Callable[[Any], Any] = lambda params: params
 
     @property

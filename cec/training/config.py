@@ -144,6 +144,11 @@ class TrainConfig:
                 f"algorithm {self.algorithm} needs a scripted partner, and {self.env.name} has none: "
                 "choose another algorithm"
             )
+        if self.partner.scripted_where_needed and self.env.game.needs_partner is None:
+            raise ConfigError(
+                f"partner.scripted_where_needed needs a game that tells which levels need both seats, and "
+                f"{self.env.name} cannot: drop it"
+            )
         if self.algorithm == "cec_finetune" and not self.init_from:
             raise ConfigError("algorithm cec_finetune needs init_from (the CEC checkpoint to fine-tune)")
         if len(self.init_from_paths) not in (0, 1, self.num_seeds):

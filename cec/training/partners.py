@@ -14,7 +14,9 @@
                learner's seat trains. `scripted_yields` false makes the cook never give way (it walks
                into the learner until the learner moves), so the learner meets someone it must go around;
                `scripted_both_seats` trains both seats of the episodes without the cook (as self-play does)
-               and masks only the cook's seat, so self-play keeps its full data
+               and masks only the cook's seat, so self-play keeps its full data; `scripted_where_needed`
+               draws the cook only where the level needs both seats (`Game.needs_partner`: Overcooked's
+               kitchens that need a hand-over), so that no soup comes without the learner's half
 
 Seats and partners are redrawn where an episode starts (the LSTM resets there anyway), independently per
 env, from split keys; the partner's LSTM state lives in the partner seat's slot of the rollout carry.
@@ -71,6 +73,9 @@ class PartnerConfig:
         scripted_normalise_apart: the advantages of the steps with the scripted partner and of those
             without it are standardised apart (`cec.training.ppo.make_batch`), so the cook's episodes, whose
             returns spread several times wider, do not carry most of the policy gradient.
+        scripted_where_needed: the scripted partner plays only episodes whose level neither seat can
+            finish alone (`Game.needs_partner`; `scripted_share` of those), where it cannot score without
+            the learner doing its half; the other episodes are self-play.
     """
 
     kind: str = "self_play"
@@ -82,6 +87,7 @@ class PartnerConfig:
     scripted_yields: bool = True
     scripted_both_seats: bool = False
     scripted_normalise_apart: bool = False
+    scripted_where_needed: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in PARTNER_KINDS:
@@ -92,9 +98,10 @@ class PartnerConfig:
             )
         if self.predict_partner < 0:
             raise ConfigError(f"partner.predict_partner must be >= 0, got {self.predict_partner}")
-        if self.kind != "scripted" and (self.scripted_both_seats or self.scripted_normalise_apart):
+        scripted_only = ("scripted_both_seats", "scripted_normalise_apart", "scripted_where_needed")
+        if self.kind != "scripted" and any(getattr(self, name) for name in scripted_only):
             raise ConfigError(
-                "partner.scripted_both_seats and partner.scripted_normalise_apart apply to kind scripted; "
+                f"partner.{', partner.'.join(scripted_only)} apply to kind scripted; "
                 f"this partner is {self.kind!r}: drop them or set partner.kind: scripted"
             )
         for name in ("epsilon", "scripted_share", "scripted_epsilon"):

@@ -231,6 +231,9 @@ def rollout(
                 index = jnp.where(c.first, draw(k_partner, p), index)
             elif partner.kind == "scripted":  # index 1: the scripted partner plays this episode
                 coin = jax.vmap(jax.random.uniform)(k_partner) < partner.scripted_share
+                needs = task.game.needs_partner
+                if partner.scripted_where_needed and needs is not None:  # TrainConfig: None is refused
+                    coin = coin & jax.vmap(needs)(c.env_state)
                 index = jnp.where(c.first, coin.astype(index.dtype), index)
         lstm, logits, value = policy_step(
             network, params, c.lstm, c.obs, c.first, c.history, per_seat=per_seat

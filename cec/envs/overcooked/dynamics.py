@@ -235,6 +235,14 @@ def sides_of(grid: jax.Array, agent_pos: jax.Array) -> Sides:
     return Sides(jnp.stack([has(Tile.ONION_PILE), has(Tile.PLATE_PILE), pot], axis=1), uses, counters)
 
 
+def needs_handover(state: EnvState) -> jax.Array:
+    """bool[]: whether neither seat can finish a soup alone from where it stands (its region misses an onion
+    pile, a plate pile, a pot or a goal), so a soup needs a hand-over (`cec.levels.kinds`' kind)."""
+    sides = sides_of(state.level.grid, state.agent_pos)
+    alone = jnp.all(sides.reach, axis=1) & sides.uses[:, 3]
+    return ~jnp.any(alone)
+
+
 def _everything(grid: jax.Array, agent_pos: jax.Array) -> Sides:
     """`Sides` that make no hand-over lever fire (what a run without them gets, at no cost)."""
     del grid, agent_pos

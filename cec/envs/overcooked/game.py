@@ -9,7 +9,7 @@ import numpy as np
 
 from cec.config import ConfigError
 from cec.envs import base
-from cec.envs.overcooked.dynamics import initial_state, reset, transition
+from cec.envs.overcooked.dynamics import initial_state, needs_handover, reset, transition
 from cec.envs.overcooked.observation import get_obs
 from cec.envs.overcooked.scripted import scripted_actions
 from cec.envs.overcooked.state import NUM_ACTIONS, NUM_CHANNELS, EnvParams, EnvState, StepOutput
@@ -62,6 +62,7 @@ GAME = base.Game(
     deliveries=_deliveries,
     single_task_own_level=True,
     scripted=scripted_actions,
+    needs_partner=needs_handover,
     evaluation_params=EnvParams.without_training_levers,
 )
 

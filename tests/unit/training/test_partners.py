@@ -420,3 +420,30 @@ def test_init_from_one_checkpoint_per_seed_continues_each_seed_from_its_own(ippo
         )
     with pytest.raises(ConfigError, match="give the entry a `seed`"):
         Trainer(_config(tmp_path, "cec_finetune", init_from=str(last), num_seeds=3)).init()
+
+
+def test_scripted_where_needed_draws_the_cook_only_in_kitchens_that_need_a_hand_over(tmp_path):
+    from cec.envs.overcooked.dynamics import needs_handover
+    from cec.envs.overcooked.scripted import state_from_obs
+
+    trainer = Trainer(_scripted_config(tmp_path, scripted_share=1.0, scripted_where_needed=True))
+    _, traj = _rollout(trainer)
+    obs = np.asarray(traj.obs)[:, :, 0]  # seat 0's view shows the whole kitchen and both seats
+    needed = jax.jit(jax.vmap(lambda o: needs_handover(state_from_obs(o))))(obs.reshape((-1, *obs.shape[2:])))
+    needed = np.asarray(needed).reshape(NUM_STEPS, NUM_ENVS)
+    cook = np.asarray(traj.partner_index) == 1
+    np.testing.assert_array_equal(cook, needed)  # share 1: the cook in every such episode, and only there
+    assert 0.05 < needed.mean() < 0.6
+
+
+def test_scripted_where_needed_is_refused_for_a_game_that_cannot_tell(tmp_path, monkeypatch):
+    import dataclasses
+
+    from cec.envs import registry
+
+    blind = dataclasses.replace(registry.GAMES["overcooked"], needs_partner=None)
+    monkeypatch.setattr(registry, "GAMES", {**registry.GAMES, "overcooked": blind})
+    with pytest.raises(ConfigError, match="scripted_where_needed needs a game that tells"):
+        _scripted_config(tmp_path, scripted_where_needed=True)
+    with pytest.raises(ConfigError, match="apply to kind scripted"):
+        PartnerConfig(kind="self_play", scripted_where_needed=True)
