@@ -52,8 +52,12 @@ def test_preset_loads_and_is_consistent(path):
         recipe = _load("cec_overcooked_tts")
         params = dataclasses.replace(recipe.env.overcooked, random_start_items=0.1)
         assert config == dataclasses.replace(recipe, env=dataclasses.replace(recipe.env, overcooked=params))
-    if config.algorithm == "cec_scripted":  # a lever on the time-to-skill recipe: everything else equal
+    if config.algorithm == "cec_scripted":  # a lever on a recipe: everything else equal
         recipe = _load("cec_overcooked_tts")
+        if path.stem == "cec_starts_cook_handover":  # on the random-start preset, with coverage 0.5
+            recipe = _load("cec_overcooked_starts")
+            generator = dataclasses.replace(recipe.env.generator, handover_share=0.5)
+            recipe = dataclasses.replace(recipe, env=dataclasses.replace(recipe.env, generator=generator))
         assert config == dataclasses.replace(recipe, algorithm=config.algorithm, partner=config.partner)
 
 
