@@ -158,13 +158,19 @@ def main() -> None:
     for w in range(2, len(CALL_UPDATES) + 1):
         label = "a call starts (the LR restarts)" if w == 2 else None
         ax.axvline(CALL_START[w] / 1e6, color="grey", lw=0.8, ls=":", label=label)
-    ax.set_xlabel("env steps per seed (M)")
-    ax.set_ylabel("team return per 400 steps (20 per soup)")
-    ax.set_title("Shipped CEC seeds 200-203 over their training (± jackknife SE over seeds)", fontsize=9)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(HERE / "curve.png", dpi=110)
+    title = "Shipped CEC seeds 200-203 over their training (± jackknife SE over seeds)"
+    save(fig, ax, ("env steps per seed (M)", "team return per 400 steps (20 per soup)", title), "curve.png")
     plot_budget(plt, rows, fits)
+
+
+def save(fig, ax, labels: tuple[str, str, str], name: str) -> None:  # noqa: ANN001
+    """Labels (x, y, title), legend, and the figure written to `name` beside this script."""
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_title(labels[2], fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(HERE / name, dpi=110)
 
 
 def plot_budget(plt, rows: list[dict], fits: dict[str, dict]) -> None:  # noqa: ANN001
@@ -183,12 +189,8 @@ def plot_budget(plt, rows: list[dict], fits: dict[str, dict]) -> None:  # noqa: 
         ax.plot(x, fit, color=dots[0].get_color(), lw=1.6, alpha=0.6)
     ax.axhline(20, color="grey", lw=0.8, ls="--", label="20 per 400 steps (one soup)")
     ax.set_xscale("log", base=2)
-    ax.set_xlabel("env steps per seed (log scale)")
-    ax.set_ylabel("cross-play per 400 steps")
-    ax.set_title("Shipped CEC seeds: the hard parts over their training, least-squares lines", fontsize=9)
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(HERE / "budget.png", dpi=110)
+    title = "Shipped CEC seeds: the hard parts over their training, least-squares lines"
+    save(fig, ax, ("env steps per seed (log scale)", "cross-play per 400 steps", title), "budget.png")
 
 
 if __name__ == "__main__":
