@@ -161,13 +161,15 @@ def crossplay_estimate(matrix: np.ndarray) -> CrossPlay:
     if n < 3:
         return CrossPlay(mean, math.nan, n)
     loo = np.array([_off_diagonal_mean(np.delete(np.delete(m, i, 0), i, 1)) for i in range(n)])
-    loo = loo[~np.isnan(loo)]
-    se = (
-        float(np.sqrt((loo.size - 1) / loo.size * np.sum((loo - loo.mean()) ** 2)))
-        if loo.size > 1
-        else math.nan
-    )
-    return CrossPlay(mean, se, n)
+    return CrossPlay(mean, jackknife_se(loo[~np.isnan(loo)]), n)
+
+
+def jackknife_se(leave_one_out: np.ndarray) -> float:
+    """The jackknife standard error of an estimate from its leave-one-unit-out values:
+    SE^2 = (n - 1) / n * sum((theta_-i - theta_.)^2); NaN with fewer than 2."""
+    loo = np.asarray(leave_one_out, np.float64)
+    n = loo.size
+    return float(np.sqrt((n - 1) / n * np.sum((loo - loo.mean()) ** 2))) if n > 1 else math.nan
 
 
 def compare_estimates(a: CrossPlay, b: CrossPlay, *, confidence: float = 0.95) -> Comparison:

@@ -28,6 +28,7 @@ import numpy as np
 from cec.evaluation.parts import part_scores
 from cec.evaluation.results import EpisodeTable, read_csv
 from cec.evaluation.seeds import seed_matrix
+from cec.evaluation.stats import jackknife_se
 from cec.levels.classic import classic_levels
 from cec.levels.heldout import heldout_levels
 
@@ -83,22 +84,20 @@ def budget(tables: list[tuple[int, dict[str, EpisodeTable]]]) -> dict[str, dict]
     over seeds, and the env steps per seed at which the line reaches each target."""
     steps = np.array([s for s, _ in tables], float)
     seeds = sorted({int(x) for x in tables[0][1]["heldout"].seed_a})
+    # every milestone's parts, with all seeds (None) and with each seed left out, computed once per key
+    scored = {
+        (key, seed): [parts(t[key] if seed is None else without_seed(t[key], seed), key) for _, t in tables]
+        for key in KEYS
+        for seed in (None, *seeds)
+    }
     out = {}
     for (key, part), targets in FITTED.items():
-        y = np.array([parts(t[key], key)[part] for _, t in tables])
-        slope, last = line(steps, y)
-        loo = np.array(
-            [
-                line(steps, np.array([parts(without_seed(t[key], s), key)[part] for _, t in tables]))[0]
-                for s in seeds
-            ]
-        )
-        n = len(loo)
-        se = float(np.sqrt((n - 1) / n * np.sum((loo - loo.mean()) ** 2)))
+        slope, last = line(steps, np.array([p[part] for p in scored[key, None]]))
+        loo = [line(steps, np.array([p[part] for p in scored[key, s]]))[0] for s in seeds]
         doublings = {str(t): (round((t - last) / slope, 1) if slope > 0 else None) for t in targets}
         out[f"{key}/{part}"] = {
             "per_doubling": round(slope, 2),
-            "per_doubling_se": round(se, 2),
+            "per_doubling_se": round(jackknife_se(np.array(loo)), 2),
             "at_last": round(last, 2),
             "last_env_steps": int(steps[-1]),
             "doublings_to_reach": doublings,
