@@ -16,7 +16,9 @@
                `scripted_both_seats` trains both seats of the episodes without the cook (as self-play does)
                and masks only the cook's seat, so self-play keeps its full data; `scripted_where_needed`
                draws the cook only where the level needs both seats (`Game.needs_partner`: Overcooked's
-               kitchens that need a hand-over), so that no soup comes without the learner's half
+               kitchens that need a hand-over), so that no soup comes without the learner's half;
+               `scripted_anneal_env_steps` lowers the share linearly to 0 over that many env steps, so that
+               the learner meets the cook early and a copy of itself in the same kitchens later
 
 Seats and partners are redrawn where an episode starts (the LSTM resets there anyway), independently per
 env, from split keys; the partner's LSTM state lives in the partner seat's slot of the rollout carry.
@@ -76,6 +78,8 @@ class PartnerConfig:
         scripted_where_needed: the scripted partner plays only episodes whose level neither seat can
             finish alone (`Game.needs_partner`; `scripted_share` of those), where it cannot score without
             the learner doing its half; the other episodes are self-play.
+        scripted_anneal_env_steps: > 0: the scripted share falls linearly from `scripted_share` to 0 over
+            this many env steps of training (`scripted_share_at`); 0: it stays at `scripted_share`.
     """
 
     kind: str = "self_play"
@@ -88,6 +92,7 @@ class PartnerConfig:
     scripted_both_seats: bool = False
     scripted_normalise_apart: bool = False
     scripted_where_needed: bool = False
+    scripted_anneal_env_steps: int = 0
 
     def __post_init__(self) -> None:
         if self.kind not in PARTNER_KINDS:
@@ -98,11 +103,21 @@ class PartnerConfig:
             )
         if self.predict_partner < 0:
             raise ConfigError(f"partner.predict_partner must be >= 0, got {self.predict_partner}")
-        scripted_only = ("scripted_both_seats", "scripted_normalise_apart", "scripted_where_needed")
+        scripted_only = (
+            "scripted_both_seats",
+            "scripted_normalise_apart",
+            "scripted_where_needed",
+            "scripted_anneal_env_steps",
+        )
         if self.kind != "scripted" and any(getattr(self, name) for name in scripted_only):
             raise ConfigError(
                 f"partner.{', partner.'.join(scripted_only)} apply to kind scripted; "
                 f"this partner is {self.kind!r}: drop them or set partner.kind: scripted"
+            )
+        if self.scripted_anneal_env_steps < 0:
+            raise ConfigError(
+                "partner.scripted_anneal_env_steps must be >= 0 (0: no anneal), "
+                f"got {self.scripted_anneal_env_steps}"
             )
         for name in ("epsilon", "scripted_share", "scripted_epsilon"):
             if not 0.0 <= getattr(self, name) <= 1.0:
@@ -114,6 +129,14 @@ class PartnerConfig:
                     f"partner.population: checkpoints {bad} of {entry.run!r} are neither "
                     f"{'/'.join(CHECKPOINT_PICKS)} nor update numbers"
                 )
+
+    def scripted_share_at(self, env_steps: jax.Array) -> jax.Array:
+        """The scripted partner's share of episodes after `env_steps` env steps of training (traced)."""
+        share = jnp.float32(self.scripted_share)
+        if self.scripted_anneal_env_steps <= 0:
+            return share
+        done = jnp.asarray(env_steps, jnp.float32) / float(self.scripted_anneal_env_steps)
+        return share * jnp.clip(1.0 - done, 0.0, 1.0)
 
     @property
     def learner_seat_only(self) -> bool:

@@ -193,6 +193,7 @@ def rollout(
     partner: PartnerConfig = SELF_PLAY,
     population: Any = None,
     record: str = "obs",
+    scripted_share: jax.Array | None = None,
 ) -> tuple[RolloutCarry, Trajectory]:
     """Plays `num_steps` steps of E envs in self-play (both seats act with `params`), or in cross-play.
 
@@ -211,12 +212,15 @@ def rollout(
         population: FCP's frozen partners' parameters (leaves with a leading axis P); None otherwise.
         record: static; `obs` records the observations (the trainer), `state` the env states without
             their level instead (the compact form Ray actors ship; see `Trajectory.state`).
+        scripted_share: the scripted partner's share of episodes now (traced; the trainer's schedule,
+            `PartnerConfig.scripted_share_at`); None: `partner.scripted_share`.
 
     Returns:
         (carry after the last step, `Trajectory` with T = num_steps).
     """
     if record not in ("obs", "state"):
         raise ValueError(f"record must be 'obs' or 'state', got {record!r}")
+    share = partner.scripted_share if scripted_share is None else scripted_share
 
     def body(c: RolloutCarry, step_key: jax.Array) -> tuple[RolloutCarry, dict[str, Any]]:
         # [E, 4, 2]: per env, keys for its actions, its env step, its seat draw and its partner draw
@@ -230,7 +234,7 @@ def rollout(
                 p = jax.tree.leaves(population)[0].shape[0]
                 index = jnp.where(c.first, draw(k_partner, p), index)
             elif partner.kind == "scripted":  # index 1: the scripted partner plays this episode
-                coin = jax.vmap(jax.random.uniform)(k_partner) < partner.scripted_share
+                coin = jax.vmap(jax.random.uniform)(k_partner) < share
                 needs = task.game.needs_partner
                 if partner.scripted_where_needed and needs is not None:  # TrainConfig: None is refused
                     coin = coin & jax.vmap(needs)(c.env_state)

@@ -167,12 +167,17 @@ class Trainer:
         envs from `k_levels` unless given (streamed kitchens), then `rollout`. With `config.level_repeats`
         R > 1 and the `update_index` given, only an update whose index R divides plays its draw; the others
         replay each env's current kitchen (the draw is made either way, so the random streams are the
-        same)."""
+        same). The `update_index` also sets the scripted partner's share where it is annealed
+        (`partner.scripted_anneal_env_steps`)."""
         cfg = self.config
         if levels is None:
             levels = self.task.sample_levels(k_levels, carry.env_id, cfg.levels_per_env)
         if cfg.level_repeats > 1 and update_index is not None:
             levels = replay_current(levels, carry.env_state.level, update_index % cfg.level_repeats != 0)
+        share = None
+        if cfg.partner.scripted_anneal_env_steps and update_index is not None:
+            env_steps = jnp.asarray(update_index, jnp.float32) * cfg.steps_per_update
+            share = cfg.partner.scripted_share_at(env_steps)
         return rollout(
             params,
             carry,
@@ -185,6 +190,7 @@ class Trainer:
             partner=cfg.partner,
             population=population,
             record=record,
+            scripted_share=share,
         )
 
     def learn(

@@ -113,13 +113,27 @@ class RolloutActor:
         )
 
     def _collect_fn(
-        self, params: Any, carry: RolloutCarry, k_levels: jax.Array, k_roll: jax.Array, levels: Any
+        self,
+        params: Any,
+        carry: RolloutCarry,
+        k_levels: jax.Array,
+        k_roll: jax.Array,
+        levels: Any,
+        version: jax.Array,
     ) -> tuple[RolloutCarry, CompactRollout]:
         if levels is None:
             levels = self.trainer.task.sample_levels(k_levels, carry.env_id, self.config.levels_per_env)
         start_level = carry.env_state.level
+        # the weights' version is the learner's update count: the update index of this rollout
         carry, traj = self.trainer.collect(
-            params, carry, k_levels, k_roll, self.trainer.population, record="state", levels=levels
+            params,
+            carry,
+            k_levels,
+            k_roll,
+            self.trainer.population,
+            record="state",
+            levels=levels,
+            update_index=version,
         )
         return carry, CompactRollout(traj, start_level, levels)
 
@@ -148,7 +162,7 @@ class RolloutActor:
         k_levels = jnp.asarray(k_levels, jnp.uint32)
         levels = self._levels(k_levels, False) if self.stream is not None else None
         self.carry, compact = self._collect(
-            self.params, self.carry, k_levels, jnp.asarray(k_roll, jnp.uint32), levels
+            self.params, self.carry, k_levels, jnp.asarray(k_roll, jnp.uint32), levels, jnp.int32(version)
         )
         jax.block_until_ready(compact)
         t1 = time.perf_counter()

@@ -447,3 +447,29 @@ def test_scripted_where_needed_is_refused_for_a_game_that_cannot_tell(tmp_path, 
         _scripted_config(tmp_path, scripted_where_needed=True)
     with pytest.raises(ConfigError, match="apply to kind scripted"):
         PartnerConfig(kind="self_play", scripted_where_needed=True)
+
+
+def test_an_annealed_scripted_share_falls_from_its_start_to_none_with_the_updates(tmp_path):
+    steps_per_update = NUM_ENVS * NUM_STEPS
+    annealed = _scripted_config(tmp_path, scripted_share=1.0, scripted_anneal_env_steps=4 * steps_per_update)
+    trainer = Trainer(annealed)
+    state = jax.tree.map(lambda x: x[0], trainer.init())
+    collect = jax.jit(trainer.collect)
+
+    def cook_share(update: int) -> float:
+        _, traj = collect(state.params, state.carry, jax.random.PRNGKey(1), jax.random.PRNGKey(2),
+                          update_index=jnp.int32(update))  # fmt: skip
+        return float((np.asarray(traj.partner_index) == 1).mean())
+
+    # update 0: every episode has the cook; halfway (update 2): about half; from update 4 on: none
+    assert cook_share(0) == 1.0
+    assert 0.25 < cook_share(2) < 0.75
+    assert cook_share(4) == 0.0 and cook_share(9) == 0.0
+    # the schedule itself, in env steps
+    partner = trainer.config.partner
+    np.testing.assert_allclose([float(partner.scripted_share_at(s * steps_per_update)) for s in (0, 1, 4, 8)],
+                               [1.0, 0.75, 0.0, 0.0])  # fmt: skip
+    with pytest.raises(ConfigError, match="scripted_anneal_env_steps must be >= 0"):
+        PartnerConfig(kind="scripted", scripted_anneal_env_steps=-1)
+    with pytest.raises(ConfigError, match="apply to kind scripted"):
+        PartnerConfig(kind="self_play", scripted_anneal_env_steps=100)

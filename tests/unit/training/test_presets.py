@@ -54,6 +54,14 @@ def test_preset_loads_and_is_consistent(path):
         assert config == dataclasses.replace(recipe, env=dataclasses.replace(recipe.env, overcooked=params))
     if config.algorithm == "cec_scripted":  # a lever on a recipe: everything else equal
         recipe = _load("cec_overcooked_tts")
+        if path.stem == "cec_starts_cook_anneal":  # lever (m) with the cook's share annealed, else equal
+            cook = _load("cec_starts_cook_handover")
+            annealed = dataclasses.replace(
+                cook.partner, scripted_share=1.0, scripted_anneal_env_steps=7_864_320
+            )
+            assert config == dataclasses.replace(cook, partner=annealed)
+            assert config.partner.scripted_anneal_env_steps == config.total_env_steps * 3 // 4
+            return
         if path.stem == "cec_starts_cook_handover":  # on the random-start preset, with coverage 0.5
             recipe = _load("cec_overcooked_starts")
             generator = dataclasses.replace(recipe.env.generator, handover_share=0.5)
