@@ -90,7 +90,8 @@ def summarise(table: EpisodeTable, seeds: list[str], sides: dict[str, tuple[bool
         ret = [float(table.returns[i]) for i in rows]
         return {"episodes": len(rows), "return": _mean(ret), "delivered": _mean([float(r > 0) for r in ret])}
 
-    per_seed, sides_of_all = {}, {"onion": [], "other": []}
+    per_seed: dict[str, Any] = {}
+    sides_of_all: dict[str, list[int]] = {"onion": [], "other": []}
     for s in seeds:
         with_cook = episodes(s, COOK)
         # the learner's seat: `seat` is policy_a's; with the cook as policy_a, the learner sits in the other
