@@ -35,17 +35,13 @@ def test_each_seed_is_read_with_the_cook_by_its_side_beside_self_play_and_cross_
     out = wc.summarise(table, ["A", "B"], sides)
     a = out["per_seed"]["A"]
     assert a["with_cook"] == {"episodes": 4, "return": 30.0, "delivered": 0.75}
-    assert a["with_cook_on_the_onion_side"]["return"] == pytest.approx(
-        40.0
-    )  # 20 (k1, seat 0), 60 (k2, seat 1)
-    assert a["with_cook_on_the_other_side"]["return"] == pytest.approx(
-        20.0
-    )  # 40 (k1, seat 1), 0 (k2, seat 0)
+    # on the onion side: 20 (k1, seat 0) and 60 (k2, seat 1); on the other: 40 (k1, seat 1) and 0 (k2, seat 0)
+    assert a["with_cook_on_the_onion_side"]["return"] == pytest.approx(40.0)
+    assert a["with_cook_on_the_other_side"]["return"] == pytest.approx(20.0)
     assert a["self_play"]["return"] == 20.0 and a["cross_play"]["return"] == 20.0
     assert out["per_seed"]["B"]["self_play"]["return"] == 0.0
-    assert (
-        out["seeds_with_cook"]["episodes"] == 6 and out["seeds_with_cook_on_the_onion_side"]["episodes"] == 3
-    )
+    assert out["seeds_with_cook"]["episodes"] == 6
+    assert out["seeds_with_cook_on_the_onion_side"]["episodes"] == 3  # A's two, B's seat 0 of k1
     assert out["seeds_cross_play"]["episodes"] == 2 and out["seeds_self_play"]["episodes"] == 2
     assert out["cook_with_noop"]["return"] == 0.0 and out["cook_with_cook"]["return"] == 80.0
     text = wc.markdown(out, {"kitchens": 2, "date": "d", "machine": "m", "command": "c", "max_steps": 400})
