@@ -11,6 +11,13 @@ in which a seat served a pot the partner had filled, and that delivered; and the
     python benchmarks/handover_analysis.py --out docs/reproduce_overcooked/handovers_shipped   # shipped seeds
     python benchmarks/handover_analysis.py --runs runs/levers/cov35-s400 runs/levers/cov35-s402 \\
         --out docs/reproduce_overcooked/handovers_cov35      # the latest checkpoints of runs, their seeds
+    python benchmarks/handover_analysis.py --runs ... --update 1280 --with-cook --kinds "hand-over needed" \\
+        --out ...    # one milestone, and each seed with Overcooked's scripted cook too
+
+Passes (an item put on a shared counter that only the partner can use: `cec.evaluation.handovers`) are also
+read per direction, giver -> receiver: per episode, and the shares the receiver took and the giver took
+back; with `--with-cook`, in both directions between each seed and the cook (where the cook gives, where it
+receives), so a seed's take-up of the cook's passes stands beside its take-up of its own.
 
 Writes OUT.json and OUT.png: the frames of one cross-play episode in Forced Coordination (the pair of the
 first two seeds, seat order as listed, episode 0: chosen by that rule, not by what it shows), every 25th
@@ -27,27 +34,22 @@ from typing import Any
 
 from cec.agents.policy import Policy, load_policies
 from cec.agents.zoo import ZooEntry, load_zoo, shipped_entries
-from cec.checkpoints import read_meta
 from cec.evaluation.crossplay import episode_states, eval_levels
-from cec.evaluation.handovers import Handovers, count_handovers
-from cec.evaluation.milestones import checkpoints_by_update
+from cec.evaluation.handovers import Handovers, count_handovers, pass_directions, summarise_directions
+from cec.evaluation.milestones import run_entries
 from cec.levels.kinds import subsets
 from cec.levels.level import unstack_levels
 
 SHOW_LEVEL, SHOW_EVERY = "forced_coord", 25
+COOK = "cook"
 
 
 def _entries(args: argparse.Namespace) -> list[ZooEntry]:
     if args.runs:
-        entries = []
-        for run in args.runs:
-            update, [path] = list(checkpoints_by_update([run]).items())[-1]
-            meta = read_meta(path)
-            entries += [
-                ZooEntry(f"{run.name}-s{seed}", str(path), algorithm="cec", seed=int(seed))
-                for seed in meta["metadata"]["seeds"]
-            ]
-        return entries
+        try:
+            return run_entries(args.runs, args.update)
+        except ValueError as e:
+            raise SystemExit(str(e)) from None
     zoo = shipped_entries() if args.zoo == "shipped" else load_zoo(args.zoo)
     return [e for e in zoo if e.algorithm == args.algorithm]
 
@@ -78,18 +80,33 @@ def _summary(per_episode: list[Handovers]) -> dict[str, float]:
 
 
 def analyse(policies: list[Policy], kinds: list[str], max_steps: int) -> dict[str, Any]:
+    """Every ordered pair of `policies` (a scripted one plays only the others) in the validation kitchens
+    of `kinds`: the seeds' self-play (`sp`) and cross-play (`xp`) summaries, and under `passes` the passes
+    read per direction (giver -> receiver) in self-play, cross-play and with the cook."""
     levels = eval_levels("overcooked", "validation")
     named = dict(zip(levels.names, unstack_levels(levels.levels), strict=True))
     parts = {k: v for k, v in subsets(named).items() if k in kinds}
     out: dict[str, Any] = {}
     for part, names in parts.items():
         games: dict[str, list[Handovers]] = {"sp": [], "xp": []}
+        directions: dict[str, list[tuple[str, str, int, int, int]]] = {"sp": [], "xp": [], COOK: []}
         for i, a in enumerate(policies):
             for j, b in enumerate(policies):
+                if a.scripted and b.scripted:
+                    continue
+                group = COOK if a.scripted or b.scripted else "sp" if i == j else "xp"
+                seats = (COOK if a.scripted else "seed", COOK if b.scripted else "seed")
                 for name in names:
                     states, _ = episode_states(a, b, named[name], name, max_steps=max_steps)
-                    games["sp" if i == j else "xp"].append(count_handovers(states))
-        out[part] = {"levels": len(names), **{k: _summary(v) for k, v in games.items()}}
+                    counts = count_handovers(states)
+                    if group != COOK:
+                        games[group].append(counts)
+                    directions[group] += pass_directions(counts, seats)
+        out[part] = {
+            "levels": len(names),
+            **{k: _summary(v) for k, v in games.items()},
+            "passes": {k: summarise_directions(v) for k, v in directions.items() if v},
+        }
         print(f"{part} ({len(names)} kitchens): " + json.dumps(out[part]), flush=True)
     return out
 
@@ -112,13 +129,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--zoo", default="shipped", help="a zoo manifest, or `shipped` (default)")
     ap.add_argument("--algorithm", default="cec", help="the zoo's entries of this algorithm play")
     ap.add_argument("--runs", nargs="+", type=Path, default=[], help="run directories instead of a zoo")
+    ap.add_argument("--update", type=int, default=None, help="the runs' checkpoint (default: the latest)")
+    ap.add_argument("--with-cook", action="store_true", help="each seed also plays the scripted cook")
     ap.add_argument(
         "--kinds", nargs="+", default=["hand-over needed", "one seat alone"], help="kitchen kinds to read"
     )
     ap.add_argument("--max-steps", type=int, default=400)
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
     args = ap.parse_args(argv)
-    policies, skipped = load_policies(_entries(args))
+    entries = _entries(args) + ([ZooEntry(COOK, "", scripted="cook")] if args.with_cook else [])
+    policies, skipped = load_policies(entries)
     if skipped or len(policies) < 2:
         raise SystemExit(f"need two or more loadable policies; skipped: {skipped}")
     from apps.machine import machine_info

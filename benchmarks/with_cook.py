@@ -36,9 +36,8 @@ import numpy as np
 
 from cec.agents.policy import load_policies
 from cec.agents.zoo import ZooEntry
-from cec.checkpoints import read_meta
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
-from cec.evaluation.milestones import checkpoints_by_update
+from cec.evaluation.milestones import run_entries
 from cec.evaluation.results import EpisodeTable, read_csv, write_csv
 from cec.levels.kinds import subsets
 from cec.levels.level import REQUIRED_TILES, Tile, unstack_levels
@@ -50,18 +49,11 @@ COOK, NOOP = "cook", "noop"
 
 def entries(runs: list[Path], update: int | None) -> list[ZooEntry]:
     """The seeds of `runs` at checkpoint `update` (None: each run's latest), then the cook and the noop."""
-    out = []
-    for run in runs:
-        by_update = checkpoints_by_update([run])
-        if not by_update:
-            raise SystemExit(f"{run}: no checkpoints (is it a run directory of `cec train`?)")
-        if update is not None and update not in by_update:
-            raise SystemExit(f"{run}: no checkpoint at update {update}; it has {sorted(by_update)}")
-        u = update if update is not None else max(by_update)
-        [path] = by_update[u]
-        for seed in read_meta(path)["metadata"]["seeds"]:
-            out.append(ZooEntry(f"{run.name}-u{u}-s{seed}", str(path), algorithm="cec", seed=int(seed)))
-    return out + [ZooEntry(COOK, "", scripted="cook"), ZooEntry(NOOP, "", scripted="noop")]
+    try:
+        seeds = run_entries(runs, update)
+    except ValueError as e:
+        raise SystemExit(str(e)) from None
+    return seeds + [ZooEntry(COOK, "", scripted="cook"), ZooEntry(NOOP, "", scripted="noop")]
 
 
 def onion_side(levels: dict[str, Any]) -> dict[str, tuple[bool, ...]]:

@@ -112,3 +112,38 @@ def count_handovers(states: Any) -> Handovers:
             if before == Item.DISH and after == Item.NONE and grid[r, c] == Tile.GOAL:
                 out.soups += 1
     return out
+
+
+def pass_directions(h: Handovers, givers: tuple[str, str]) -> list[tuple[str, str, int, int, int]]:
+    """The two directions of one episode's passes: (giver, receiver, passes, taken by the receiver, taken
+    back by the giver), `givers` naming the players of seats 0 and 1 (a label each, e.g. `seed`, `cook`)."""
+    return [
+        (givers[s], givers[1 - s], int(h.passes[s]), int(h.passes_taken[1 - s]), int(h.passes_taken_back[s]))
+        for s in (0, 1)
+    ]
+
+
+def summarise_directions(rows: list[tuple[str, str, int, int, int]]) -> dict[str, dict[str, float | None]]:
+    """Per direction `giver -> receiver` over episodes (`pass_directions`' rows): episodes, passes per
+    episode, the share of episodes with one, and the shares of the passes the receiver took and the giver
+    took back (None where nothing was passed)."""
+    out: dict[str, dict[str, Any]] = {}
+    for giver, receiver, passes, taken, back in rows:
+        d = out.setdefault(
+            f"{giver} -> {receiver}", {"episodes": 0, "passes": 0, "with_pass": 0, "taken": 0, "back": 0}
+        )
+        d["episodes"] += 1
+        d["passes"] += passes
+        d["with_pass"] += passes > 0
+        d["taken"] += taken
+        d["back"] += back
+    return {
+        key: {
+            "episodes": d["episodes"],
+            "passes_per_episode": d["passes"] / d["episodes"],
+            "share_with_a_pass": d["with_pass"] / d["episodes"],
+            "share_taken": d["taken"] / d["passes"] if d["passes"] else None,
+            "share_taken_back": d["back"] / d["passes"] if d["passes"] else None,
+        }
+        for key, d in out.items()
+    }

@@ -70,6 +70,25 @@ def checkpoints_by_update(runs: Sequence[Path]) -> dict[int, list[Path]]:
     return {u: [s[u] for s in saved] for u in sorted(common)}
 
 
+def run_entries(runs: Sequence[Path], update: int | None = None) -> list[ZooEntry]:
+    """The seeds of `runs` at checkpoint `update` (None: each run's latest) as zoo entries named
+    `<run>-u<update>-s<seed>`; a run without checkpoints, or without that update, is refused by name."""
+    out = []
+    for run in runs:
+        by_update = {c.update: c.path for c in CheckpointStore(run, keep_last=1).list()}
+        if not by_update:
+            raise ValueError(f"{run}: no checkpoints (is it a run directory of `cec train`?)")
+        if update is not None and update not in by_update:
+            raise ValueError(f"{run}: no checkpoint at update {update}; it has {sorted(by_update)}")
+        u = max(by_update) if update is None else update
+        path = by_update[u]
+        out += [
+            ZooEntry(f"{run.name}-u{u}-s{seed}", str(path), algorithm="cec", seed=int(seed))
+            for seed in read_meta(path)["metadata"]["seeds"]
+        ]
+    return out
+
+
 def play_milestone(name: str, checkpoints: Sequence[Path], levels: Any, config: EvalConfig) -> EpisodeTable:
     """Every seed of `checkpoints` (one update of one population) with every other and itself on `levels`
     (`config.pairs` is replaced by `all`); their algorithm is `milestone_label(name, env steps per seed)`."""

@@ -8,7 +8,7 @@ import numpy as np
 
 from cec.envs.overcooked.dynamics import reset, step
 from cec.envs.overcooked.state import Action, EnvParams
-from cec.evaluation.handovers import count_handovers, shared_counters
+from cec.evaluation.handovers import count_handovers, pass_directions, shared_counters, summarise_directions
 from cec.levels.classic import classic_level
 
 A = Action
@@ -62,3 +62,22 @@ def test_an_onion_put_back_by_a_seat_that_can_use_it_is_no_pass() -> None:
     counts = count_handovers(_episode([*ONION_ON_COUNTER, (A.STAY, A.INTERACT), (A.STAY, A.INTERACT)]))
     assert counts.puts.tolist() == [1, 1] and counts.passes.tolist() == [1, 0]
     assert counts.passes_taken.tolist() == [0, 1] and counts.passes_taken_back.tolist() == [0, 0]
+
+
+def test_passes_read_per_direction_name_the_giver_and_the_receiver() -> None:
+    """A seed's pass taken by the cook and one it took back, read as `seed -> cook`; the cook's seat passed
+    nothing (its direction counts the episode, with no share where nothing was passed)."""
+    taken = count_handovers(_episode([*ONION_ON_COUNTER, (A.STAY, A.INTERACT), (A.STAY, A.UP)]))
+    back = count_handovers(_episode([*ONION_ON_COUNTER, (A.INTERACT, A.STAY)]))
+    rows = pass_directions(taken, ("seed", "cook")) + pass_directions(back, ("seed", "cook"))
+    assert rows[0] == ("seed", "cook", 1, 1, 0) and rows[1] == ("cook", "seed", 0, 0, 0)
+    summary = summarise_directions(rows)
+    assert summary["seed -> cook"] == {
+        "episodes": 2,
+        "passes_per_episode": 1.0,
+        "share_with_a_pass": 1.0,
+        "share_taken": 0.5,
+        "share_taken_back": 0.5,
+    }
+    assert summary["cook -> seed"]["passes_per_episode"] == 0.0
+    assert summary["cook -> seed"]["share_taken"] is None

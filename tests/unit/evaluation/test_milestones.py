@@ -68,3 +68,18 @@ def test_each_checkpoint_reads_back_as_its_own_seed_matrix() -> None:
     assert second.xp == pytest.approx(20.0) and second.sp == pytest.approx(40.0) and second.sp_se == 0.0
     m = np.array([[40.0, 0.0, 0.0], [0.0, 40.0, 60.0], [0.0, 60.0, 40.0]])
     assert second.xp_se == pytest.approx(crossplay_estimate(m).se) and second.xp_se > 0
+
+
+def test_run_entries_name_each_seed_at_its_checkpoint_and_refuse_a_missing_one(
+    saved_run: tuple[Path, Path, Any], tmp_path: Path
+) -> None:
+    run = tmp_path / "r"
+    shutil.copytree(saved_run[0], run)  # seeds 4 and 5 at update 0
+    entries = ms.run_entries([run])
+    assert [(e.name, e.seed) for e in entries] == [("r-u0-s4", 4), ("r-u0-s5", 5)]
+    assert ms.run_entries([run], 0) == entries
+    with pytest.raises(ValueError, match="no checkpoint at update 7; it has \\[0\\]"):
+        ms.run_entries([run], 7)
+    shutil.rmtree(run / "checkpoints")
+    with pytest.raises(ValueError, match="no checkpoints"):
+        ms.run_entries([run])
