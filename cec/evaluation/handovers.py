@@ -124,9 +124,10 @@ def pass_directions(h: Handovers, givers: tuple[str, str]) -> list[tuple[str, st
 
 
 def summarise_directions(rows: list[tuple[str, str, int, int, int]]) -> dict[str, dict[str, float | None]]:
-    """Per direction `giver -> receiver` over episodes (`pass_directions`' rows): episodes, passes per
-    episode, the share of episodes with one, and the shares of the passes the receiver took and the giver
-    took back (None where nothing was passed)."""
+    """Per direction `giver -> receiver` over `pass_directions`' rows (one per giver seat and episode, so an
+    episode of two seeds gives two `seed -> seed` rows): rows (`episodes`), passes per row, the share of rows
+    with a pass, and the shares of the passes the receiver took and the giver took back (None where nothing
+    was passed)."""
     out: dict[str, dict[str, Any]] = {}
     for giver, receiver, passes, taken, back in rows:
         d = out.setdefault(
