@@ -15,9 +15,9 @@ in which a seat served a pot the partner had filled, and that delivered; and the
         --out ...    # one milestone, and each seed with Overcooked's scripted cook too
 
 Passes (an item put on a shared counter that only the partner can use: `cec.evaluation.handovers`) are also
-read per direction, giver -> receiver: per episode, and the shares the receiver took and the giver took
-back; with `--with-cook`, in both directions between each seed and the cook (where the cook gives, where it
-receives), so a seed's take-up of the cook's passes stands beside its take-up of its own.
+read per direction, giver -> receiver: per giver seat and episode, and the shares the receiver took and the
+giver took back; with `--with-cook`, in both directions between each seed and the cook (where the cook
+gives, where it receives), so a seed's take-up of the cook's passes stands beside its take-up of its own.
 
 Writes OUT.json and OUT.png: the frames of one cross-play episode in Forced Coordination (the pair of the
 first two seeds, seat order as listed, episode 0: chosen by that rule, not by what it shows), every 25th
@@ -137,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--max-steps", type=int, default=400)
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
     args = ap.parse_args(argv)
+    if args.update is not None and not args.runs:
+        ap.error("--update picks a checkpoint of --runs; give the run directories too")
     entries = _entries(args) + ([ZooEntry(COOK, "", scripted="cook")] if args.with_cook else [])
     policies, skipped = load_policies(entries)
     if skipped or len(policies) < 2:
