@@ -75,13 +75,13 @@ def run_entries(runs: Sequence[Path], update: int | None = None) -> list[ZooEntr
     `<run>-u<update>-s<seed>`; a run without checkpoints, or without that update, is refused by name."""
     out = []
     for run in runs:
-        by_update = {c.update: c.path for c in CheckpointStore(run, keep_last=1).list()}
+        by_update = checkpoints_by_update([run])
         if not by_update:
             raise ValueError(f"{run}: no checkpoints (is it a run directory of `cec train`?)")
         if update is not None and update not in by_update:
             raise ValueError(f"{run}: no checkpoint at update {update}; it has {sorted(by_update)}")
         u = max(by_update) if update is None else update
-        path = by_update[u]
+        [path] = by_update[u]
         out += [
             ZooEntry(f"{run.name}-u{u}-s{seed}", str(path), algorithm="cec", seed=int(seed))
             for seed in read_meta(path)["metadata"]["seeds"]
