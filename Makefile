@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: install up demo test test-fast lint typecheck unit bench clean
+.PHONY: install up demo test test-all test-fast lint typecheck unit bench clean
 
 # Not quiet: the install takes minutes on a fresh machine, and pip's lines show that it is moving.
 $(VENV)/.installed: pyproject.toml
@@ -33,9 +33,14 @@ demo: install
 # time on one worker (their xdist group, tests/conftest.py), listed first so that they start first.
 # The three that host Ray's driver run each in a child pytest of its own process group (tests/own_process.py),
 # so that a crash there fails that test instead of taking down a worker and its group.
+# `make test` is the CI gate: it leaves out the heavy tier (tests/conftest.py HEAVY), which `make test-all` adds.
 TEST_WORKERS ?= auto
+TEST_PATHS := tests/e2e tests/unit tests/parity tests/learning tests/services
 test: lint typecheck
-	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup tests/e2e tests/unit tests/parity tests/learning tests/services
+	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup -m "not heavy" $(TEST_PATHS)
+
+test-all: lint typecheck
+	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup $(TEST_PATHS)
 
 lint: install
 	$(BIN)/ruff check .

@@ -68,7 +68,10 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(tmp_path: P
     single-process seeds 0-7 of this run take off (first positive return) anywhere from update 11 to 17, and
     all end at 0.94-0.95 (measured on that AMD EPYC, 2026-11-26)."""
     base = ["total_env_steps=512000", "updates_per_call=1", f"run_dir={tmp_path}"]  # 40 updates
-    train(load_config(TrainConfig, DD_QUICK, [*base, "name=single"]), progress=False)
+    # the single-process run only as far as the runs are compared update by update: that it learns the
+    # task in 40 updates is tests/learning's (the same preset)
+    single = load_config(TrainConfig, DD_QUICK, [*base, "name=single"])
+    train(single, progress=False, max_updates=LOCAL_UPDATES)
     runs = (
         ("sync", "sync", "ray", None),
         ("local", "sync", "local", LOCAL_UPDATES),
@@ -85,7 +88,8 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(tmp_path: P
     finally:
         ray.shutdown()
     want, sync, local, asyn = (_rows(tmp_path / n) for n in ("single", "sync", "local", "async"))
-    assert [r["update"] for r in sync] == [r["update"] for r in want] == list(range(1, 41))
+    assert [r["update"] for r in sync] == list(range(1, 41))
+    assert [r["update"] for r in want] == list(range(1, LOCAL_UPDATES + 1))
     # the actor-learner loop in one process (no Ray) plays the Ray run's updates (the first 12: where
     # the two could first part, past the first update's warm-up and several weight publications)
     assert [r["update"] for r in local] == list(range(1, LOCAL_UPDATES + 1))
@@ -101,8 +105,7 @@ def test_sync_reproduces_the_single_process_trainer_and_async_learns(tmp_path: P
     def late(rows: list[dict]) -> float:
         return float(np.mean([r["normalised_return"] for r in rows[-3:]]))
 
-    assert late(want) > 0.9, "the single-process run itself must learn for the comparison to mean much"
-    assert late(sync) == pytest.approx(late(want), abs=0.05), "sync learns the task as well"
+    assert late(sync) > 0.9, "sync learns the task as the single-process trainer does (tests/learning)"
     # async: batches are one version old after the first update; measured on an idle machine it learns the
     # task some 7 updates later than sync (docs/distributed.md); how much later depends on the machine's load
     early = float(np.mean([r["normalised_return"] for r in asyn[:3]]))

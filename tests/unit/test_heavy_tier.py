@@ -1,0 +1,32 @@
+"""The heavy tier (tests/conftest.py `HEAVY`), which `make test` leaves out and `make test-all` runs: every
+entry names a test that exists, so a renamed test cannot leave a stale entry behind, and pytest marks exactly
+those tests `heavy`."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+from tests.conftest import HEAVY
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_the_heavy_tier_names_existing_tests_and_marks_exactly_them() -> None:
+    files = sorted({nodeid.split("::")[0] for nodeid in HEAVY})
+    proc = subprocess.run(
+        [sys.executable, "-m", "pytest", "--collect-only", "-q", "-p", "no:cacheprovider", "-m", "heavy",
+         *files],
+        cwd=REPO, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    collected = {line for line in proc.stdout.splitlines() if "::" in line}
+    assert collected == set(HEAVY), (sorted(set(HEAVY) - collected), sorted(collected - set(HEAVY)))
+
+
+def test_make_test_leaves_the_heavy_tier_out_and_make_test_all_runs_it() -> None:
+    makefile = (REPO / "Makefile").read_text()
+    test = makefile.split("\ntest: ")[1].split("\n\n")[0]
+    everything = makefile.split("\ntest-all: ")[1].split("\n\n")[0]
+    assert '-m "not heavy"' in test and "-m" not in everything.replace("-m pytest", "")
