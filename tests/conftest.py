@@ -68,7 +68,7 @@ def _lighter_xla_optimisation() -> None:
 
 # The heavy tier (`make test-all`; `make test`, the CI gate, leaves it out): whole workflows, and repeats of a
 # check in more kitchens or seeds, each a minute or more of CPU, whose code the gate also runs in a cheaper
-# test (named in the comment above each). Together about 1,330 of the suite's 5,760 test-seconds (2,924 s
+# test (named in the comment above each). Together 1,274 of the suite's 5,764 test-seconds (2,924 s
 # of wall time on two workers on the 2-vCPU AMD EPYC, 2026-12-05), which had outgrown the CI's time.
 _PARITY = "tests/parity/test_jaxmarl_parity.py::test_random_and_scripted_play_matches_jaxmarl"
 _SHIPPED = "tests/unit/agents/test_shipped.py::test_each_shipped"
