@@ -35,12 +35,13 @@ demo: install
 # so that a crash there fails that test instead of taking down a worker and its group.
 # `make test` is the CI gate: it leaves out the heavy tier (tests/conftest.py HEAVY), which `make test-all` adds.
 TEST_WORKERS ?= auto
-TEST_PATHS := tests/e2e tests/unit tests/parity tests/learning tests/services
+SUITE = $(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup \
+	tests/e2e tests/unit tests/parity tests/learning tests/services
 test: lint typecheck
-	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup -m "not heavy" $(TEST_PATHS)
+	$(SUITE) -m "not heavy"
 
 test-all: lint typecheck
-	$(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup $(TEST_PATHS)
+	$(SUITE)
 
 lint: install
 	$(BIN)/ruff check .
