@@ -144,6 +144,8 @@ def flops_and_bytes(trainer: Any) -> dict[str, float]:
         seq(jnp.int32, c.history.shape[-1]),
         i32,
         None,
+        None,
+        None,
         lstm,
     )
     grad = jax.jit(jax.value_and_grad(lambda p, b: ppo_loss(p, net, b, cfg.ppo)[0]))

@@ -144,6 +144,11 @@ class TrainConfig:
                 f"algorithm {self.algorithm} needs a scripted partner, and {self.env.name} has none: "
                 "choose another algorithm"
             )
+        if self.ppo.teacher_coef > 0 and self.env.game.scripted is None:
+            raise ConfigError(
+                f"ppo.teacher_coef pulls the policy towards the game's scripted policy, and {self.env.name} "
+                "has none: set ppo.teacher_coef to 0"
+            )
         if self.partner.scripted_where_needed and self.env.game.needs_partner is None:
             raise ConfigError(
                 f"partner.scripted_where_needed needs a game that tells which levels need both seats, and "

@@ -46,6 +46,12 @@ class PPOConfig:
         team_shaping: each seat is paid both seats' shaped rewards (the team's), not only its own; the paper
             (as JaxMARL) pays each seat its own. With its own only, a seat that puts an item where its partner
             uses it is paid nothing until a soup is delivered tens of steps later.
+        teacher_coef: weight of a teacher loss, the cross-entropy of the game's scripted policy's action
+            (`Game.scripted`, greedy) at each trained step under the learner's policy: the policy is pulled
+            towards what the script would do in its place (kickstarting), beside the PPO objective. 0: none.
+            Not in the paper.
+        teacher_anneal_env_steps: > 0: the teacher's weight falls linearly from `teacher_coef` to 0 over this
+            many env steps (`teacher_coef_at`); 0: it stays at `teacher_coef`.
     """
 
     lr: float = 3e-4
@@ -64,6 +70,8 @@ class PPOConfig:
     shaping_anneal_env_steps: int = 0
     partner_coef: float = 1.0
     team_shaping: bool = False
+    teacher_coef: float = 0.0
+    teacher_anneal_env_steps: int = 0
 
     def __post_init__(self) -> None:
         if self.lr <= 0 or self.update_epochs < 1 or self.num_minibatches < 1:
@@ -76,6 +84,19 @@ class PPOConfig:
                 f"(got max_grad_norm={self.max_grad_norm}, ent_coef={self.ent_coef}, vf_coef={self.vf_coef}, "
                 f"partner_coef={self.partner_coef}, adam_eps={self.adam_eps})"
             )
+        if self.teacher_coef < 0 or self.teacher_anneal_env_steps < 0:
+            raise ConfigError(
+                "ppo: need teacher_coef >= 0 (0: no teacher) and teacher_anneal_env_steps >= 0 "
+                f"(0: no anneal), got {self.teacher_coef} and {self.teacher_anneal_env_steps}"
+            )
+
+    def teacher_coef_at(self, env_steps: jax.Array) -> jax.Array:
+        """The teacher loss's weight after `env_steps` env steps of training (traced)."""
+        coef = jnp.float32(self.teacher_coef)
+        if self.teacher_anneal_env_steps <= 0:
+            return coef
+        done = jnp.asarray(env_steps, jnp.float32) / float(self.teacher_anneal_env_steps)
+        return coef * jnp.clip(1.0 - done, 0.0, 1.0)
 
 
 class Batch(NamedTuple):
@@ -90,6 +111,8 @@ class Batch(NamedTuple):
     target: jax.Array
     history: jax.Array  # [T, N, K] the partner's recent actions each row's policy saw (K may be 0)
     partner_action: jax.Array  # [T, N] what the partner did at that step (the partner model's target)
+    teacher_action: jax.Array | None  # [T, N] the scripted teacher's action (None: no teacher)
+    teacher_coef: jax.Array | None  # [T, N] the teacher loss's weight now, the same at every step
     weight: jax.Array | None  # [T, N] each step's weight in the loss (None: all 1, plain means)
     init_lstm: LSTMState
 
@@ -104,6 +127,7 @@ class LossInfo(NamedTuple):
     approx_kl: jax.Array
     clip_fraction: jax.Array
     partner_loss: jax.Array  # cross-entropy of the partner model's prediction (0 without one)
+    teacher_loss: jax.Array  # cross-entropy of the scripted teacher's action under the policy (0 without one)
     grad_norm: jax.Array
 
 
@@ -145,10 +169,13 @@ def make_batch(
     mask_scripted_seat: bool = False,
     normalise_apart: bool = False,
     team_shaping: bool = False,
+    teacher_coef: jax.Array | None = None,
 ) -> Batch:
     """Per-seat rewards (team reward + `shaping_weight` x own shaped reward), GAE, and seat flattening.
 
     `team_shaping`: each seat's shaped reward is both seats' (the team's) instead of its own.
+    `teacher_coef`: the teacher loss's weight now (`PPOConfig.teacher_coef_at`), with a trajectory that
+    recorded the teacher's actions (`rollout(..., teacher=True)`); None: no teacher loss.
 
     With `learner_seat_only` (partner strategies) the batch holds only the learner's own seat of every env
     (N = E sequences; the seat may change only where an episode starts, where the LSTM resets); otherwise
@@ -204,6 +231,12 @@ def make_batch(
             _standardise(advantage, trained * with_script),
             _standardise(advantage, trained * ~with_script),
         )
+    teacher_action = teacher_weight = None
+    if teacher_coef is not None:
+        if traj.teacher_action is None:
+            raise ValueError("a teacher loss needs a trajectory recorded with rollout(..., teacher=True)")
+        teacher_action = rows(traj.teacher_action)
+        teacher_weight = jnp.broadcast_to(jnp.asarray(teacher_coef, jnp.float32), teacher_action.shape)
     return Batch(
         obs=rows(traj.obs),
         first=first,
@@ -214,6 +247,8 @@ def make_batch(
         target=rows(target),
         history=rows(traj.history),
         partner_action=rows(partner_action),
+        teacher_action=teacher_action,
+        teacher_coef=teacher_weight,
         weight=weight,
         init_lstm=init_lstm,
     )
@@ -252,7 +287,8 @@ def ppo_loss(
     loss is the share's (its gradients averaged over the devices give the whole minibatch's).
 
     Returns:
-        (total loss, (policy loss, value loss, entropy, approx KL, clip fraction, partner-model loss)).
+        (total loss, (policy loss, value loss, entropy, approx KL, clip fraction, partner-model loss,
+        teacher loss)).
     """
     w = batch.weight
     partner_loss = jnp.float32(0.0)
@@ -289,9 +325,14 @@ def ppo_loss(
 
     total = policy_loss + config.vf_coef * value_loss - config.ent_coef * entropy
     total = total + config.partner_coef * partner_loss
+    teacher_loss = jnp.float32(0.0)
+    if batch.teacher_action is not None and batch.teacher_coef is not None:  # kickstarting
+        cross_entropy = -jnp.take_along_axis(log_probs, batch.teacher_action[..., None], axis=-1)[..., 0]
+        teacher_loss = _mean(cross_entropy, w, axis)
+        total = total + _mean(batch.teacher_coef * cross_entropy, w, axis)
     approx_kl = _mean((ratio - 1.0) - log_ratio, w, axis)
     clip_fraction = _mean(jnp.abs(ratio - 1.0) > config.clip_eps, w, axis)
-    return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction, partner_loss)
+    return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction, partner_loss, teacher_loss)
 
 
 def _sharded_grads(grad_fn: Any, mesh: Mesh, network: ActorCritic, config: PPOConfig) -> Any:

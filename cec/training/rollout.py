@@ -82,6 +82,8 @@ class Trajectory(NamedTuple):
         state: with `record="state"`, the env states the actions were taken in, without their level
             ([T, E] leaves; `obs` is then None): a Ray actor ships these instead of observations and the
             learner recomputes `obs` (`cec.training.compact`).
+        teacher_action: with `teacher`, int32[T, E, 2] what the game's scripted policy (greedy) would have
+            done in each seat's place (the teacher loss's target, `PPOConfig.teacher_coef`); else None.
     """
 
     obs: jax.Array
@@ -101,6 +103,7 @@ class Trajectory(NamedTuple):
     init_lstm: LSTMState
     last_value: jax.Array
     state: Any = None
+    teacher_action: Any = None
 
 
 def _per_seat(x: jax.Array) -> jax.Array:
@@ -194,6 +197,7 @@ def rollout(
     population: Any = None,
     record: str = "obs",
     scripted_share: jax.Array | None = None,
+    teacher: bool = False,
 ) -> tuple[RolloutCarry, Trajectory]:
     """Plays `num_steps` steps of E envs in self-play (both seats act with `params`), or in cross-play.
 
@@ -214,6 +218,8 @@ def rollout(
             their level instead (the compact form Ray actors ship; see `Trajectory.state`).
         scripted_share: the scripted partner's share of episodes now (traced; the trainer's schedule,
             `PartnerConfig.scripted_share_at`); None: `partner.scripted_share`.
+        teacher: static; also record what the game's scripted policy would do in each seat's place
+            (`Trajectory.teacher_action`, the teacher loss's target).
 
     Returns:
         (carry after the last step, `Trajectory` with T = num_steps).
@@ -271,6 +277,7 @@ def rollout(
             learner_seat=seat,
             partner_index=index,
             history=c.history,
+            teacher_action=_teacher_actions(task, k_act, c.env_state) if teacher else None,
         )
         zero = jnp.zeros_like(ep_return)
         nxt = RolloutCarry(
@@ -314,6 +321,14 @@ def _scripted_partner_actions(
     )
     use = (jnp.arange(NUM_SEATS)[None, :] != seat[:, None]) & (index[:, None] == 1)
     return jnp.where(use, scripted, action)
+
+
+def _teacher_actions(task: Task, keys: jax.Array, env_state: Any) -> jax.Array:
+    """[E, 2] the game's scripted policy's greedy actions for both seats (no random actions: `epsilon` 0, so
+    its keys, folded from the action keys, draw nothing that is used)."""
+    script = task.game.scripted
+    assert script is not None  # TrainConfig refuses a teacher for a game without one
+    return jax.vmap(lambda k, s: script(jax.random.fold_in(k, 2), s, 0.0, True))(keys, env_state)
 
 
 def _push_partner_actions(history: jax.Array, action: jax.Array, done: jax.Array) -> jax.Array:

@@ -102,8 +102,12 @@ class MetricsWriter:
             for row in rows:
                 f.write(json.dumps(row) + "\n")
         new = not self.csv.exists()
+        fields = list(rows[0])
+        if not new:  # a resumed run keeps its file's columns (a newer version's extra ones are in the JSONL)
+            with open(self.csv, newline="") as f:
+                fields = next(csv.reader(f), None) or fields
         with open(self.csv, "a", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]), extrasaction="ignore")
+            writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
             if new:
                 writer.writeheader()
             writer.writerows(rows)

@@ -191,6 +191,7 @@ class Trainer:
             population=population,
             record=record,
             scripted_share=share,
+            teacher=cfg.ppo.teacher_coef > 0,
         )
 
     def learn(
@@ -199,6 +200,9 @@ class Trainer:
         """The PPO update on one trajectory of a seed's envs (the trainer's and the Ray learner's)."""
         cfg = self.config
         weight = self.shaping_weight(update_index)
+        teacher = None
+        if cfg.ppo.teacher_coef > 0:
+            teacher = cfg.ppo.teacher_coef_at(jnp.asarray(update_index, jnp.float32) * cfg.steps_per_update)
         batch = make_batch(
             traj,
             weight,
@@ -208,6 +212,7 @@ class Trainer:
             cfg.partner.masks_scripted_seat,
             cfg.partner.scripted_normalise_apart,
             cfg.ppo.team_shaping,
+            teacher,
         )
         lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(

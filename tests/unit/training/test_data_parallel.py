@@ -54,7 +54,7 @@ CHILD = textwrap.dedent(
         batch = Batch(
             jnp.asarray(rng.standard_normal((steps, n, *t.task.obs_shape)), p0.carry.obs.dtype),
             jnp.zeros((steps, n), bool).at[0].set(True), draw(jnp.int32, 6), normal() - 1.8, normal(),
-            normal(), normal(), draw(jnp.int32, 1, 0), draw(jnp.int32, 6), draw(jnp.float32, 2),
+            normal(), normal(), draw(jnp.int32, 1, 0), draw(jnp.int32, 6), None, None, draw(jnp.float32, 2),
             jax.tree.map(lambda x: jnp.zeros((n, x.shape[-1]), x.dtype), p0.carry.lstm),
         )
         sgd = optax.sgd(1e-3)  # not Adam: its step would hide a wrong scale and magnify rounding

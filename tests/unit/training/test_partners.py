@@ -5,6 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import pytest
 
 from cec.agents.policy import load_policy
@@ -163,7 +164,7 @@ def test_e3t_behaviour_log_probs_and_importance_ratio(tmp_path):
     np.testing.assert_allclose(np.exp(mix), (1 - eps) * np.exp(pi) + eps / 5, rtol=1e-5)
     # the trained rows are the learner's: before any gradient step the PPO ratio is exactly 1
     batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, learner_seat_only=True)
-    _, (_, _, _, approx_kl, clip_fraction, _) = ppo_loss(state.params, trainer.network, batch, PPOConfig())
+    _, (_, _, _, approx_kl, clip_fraction, *_) = ppo_loss(state.params, trainer.network, batch, PPOConfig())
     assert abs(float(approx_kl)) < 1e-6 and float(clip_fraction) == 0.0
 
 
@@ -473,3 +474,66 @@ def test_an_annealed_scripted_share_falls_from_its_start_to_none_with_the_update
         PartnerConfig(kind="scripted", scripted_anneal_env_steps=-1)
     with pytest.raises(ConfigError, match="apply to kind scripted"):
         PartnerConfig(kind="self_play", scripted_anneal_env_steps=100)
+
+
+def _teacher_config(tmp_path, **ppo):
+    return _config(
+        tmp_path, "cec", ppo={"teacher_coef": 1.0, **ppo},
+        env={"name": "overcooked", "levels": "generator", "overcooked": {"max_steps": EPISODE}},
+    )  # fmt: skip
+
+
+def test_the_teacher_records_the_cooks_greedy_action_for_each_seat_and_its_loss_pulls_the_policy_there(
+    tmp_path,
+):
+    """Kickstarting (`ppo.teacher_coef`): the trajectory holds, per seat, what the scripted cook would have
+    done in that seat's place; an update with only the teacher's loss makes those actions likelier."""
+    from cec.envs.overcooked.scripted import scripted_actions, state_from_obs
+    from cec.training.ppo import update
+
+    trainer = Trainer(_teacher_config(tmp_path))
+    state = jax.tree.map(lambda x: x[0], trainer.init())
+    _, traj = jax.jit(trainer.collect)(
+        state.params, state.carry, jax.random.PRNGKey(1), jax.random.PRNGKey(2), update_index=jnp.int32(0)
+    )
+    obs = np.asarray(traj.obs)  # [T, E, 2, ...]: each seat's view, that seat as seat 0
+    cook = jax.jit(jax.vmap(lambda o: scripted_actions(jax.random.PRNGKey(0), state_from_obs(o), 0.0)[0]))
+    expected = np.asarray(cook(obs.reshape((-1, *obs.shape[3:])))).reshape(obs.shape[:3])
+    np.testing.assert_array_equal(np.asarray(traj.teacher_action), expected)
+    acted = np.asarray(traj.action)
+    assert (acted != expected).mean() > 0.3  # the untrained policy acts on its own, not as the cook
+
+    # the teacher's cross-entropy alone (no policy, value or entropy terms) falls with a few Adam steps
+    only_teacher = PPOConfig(vf_coef=0.0, ent_coef=0.0, teacher_coef=1.0)
+    batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, teacher_coef=jnp.float32(1.0))
+    batch = batch._replace(advantage=jnp.zeros_like(batch.advantage))  # no policy gradient either
+    adam = optax.adam(0.01)
+
+    def step(params, opt_state, b, i):
+        return update(params, opt_state, b, jax.random.PRNGKey(i), network=trainer.network, optimizer=adam,
+                      config=only_teacher)  # fmt: skip
+
+    params, opt_state, losses = state.params, adam.init(state.params), []
+    for i in range(12):
+        params, opt_state, info = step(params, opt_state, batch, i)
+        losses.append(float(info.teacher_loss))
+    assert losses[0] > 1.6 and losses[-1] < 0.8 * losses[0], losses  # chance: log 6 = 1.79
+    # without a teacher the loss has no such term, and the batch needs the recorded actions to have one
+    plain = batch._replace(teacher_action=None, teacher_coef=None)
+    assert float(step(state.params, adam.init(state.params), plain, 0)[2].teacher_loss) == 0.0
+    with pytest.raises(ValueError, match="teacher=True"):
+        make_batch(
+            traj._replace(teacher_action=None), jnp.float32(1.0), 0.99, 0.95, teacher_coef=jnp.float32(1.0)
+        )
+
+
+def test_the_teachers_weight_anneals_and_a_game_without_a_script_refuses_it(tmp_path):
+    ppo = PPOConfig(teacher_coef=2.0, teacher_anneal_env_steps=1000)
+    np.testing.assert_allclose(
+        [float(ppo.teacher_coef_at(s)) for s in (0, 250, 1000, 5000)], [2.0, 1.5, 0.0, 0.0]
+    )
+    assert float(PPOConfig(teacher_coef=0.5).teacher_coef_at(10**9)) == 0.5
+    with pytest.raises(ConfigError, match="teacher_coef >= 0"):
+        PPOConfig(teacher_coef=-1.0)
+    with pytest.raises(ConfigError, match="dual_destination has none: set ppo.teacher_coef to 0"):
+        _config(tmp_path, "ippo", ppo={"teacher_coef": 1.0})

@@ -75,10 +75,12 @@ def test_ppo_loss_matches_hand_computed_values():
         target=target,
         history=jnp.zeros((2, 1, 0), jnp.int32),
         partner_action=jnp.zeros((2, 1), jnp.int32),
+        teacher_action=None,
+        teacher_coef=None,
         weight=None,
         init_lstm=LSTMState(jnp.zeros((1, 1)), jnp.zeros((1, 1))),
     )
-    total, (pg, vf, ent, kl, clipfrac, partner) = ppo_loss(
+    total, (pg, vf, ent, kl, clipfrac, partner, teacher) = ppo_loss(
         {"logits": logits, "value": value}, _FixedOutputs(), batch, cfg
     )
 
@@ -99,11 +101,11 @@ def test_ppo_loss_matches_hand_computed_values():
     assert float(ent) == pytest.approx(ent_want, rel=1e-5)
     assert float(total) == pytest.approx(pg_want + 0.5 * vf_want - 0.01 * ent_want, rel=1e-5)
     assert float(clipfrac) == pytest.approx(np.mean(np.abs(ratio - 1) > 0.2))
-    assert float(partner) == 0.0
+    assert float(partner) == 0.0 and float(teacher) == 0.0
     assert float(kl) == pytest.approx(np.mean((ratio - 1) - np.log(ratio)), rel=1e-4)
     # weighted (the scripted cook's seat weighs 0): the second step leaves every term
     only_first = batch._replace(weight=jnp.array([[1.0], [0.0]]))
-    _, (pg1, vf1, ent1, _, _, _) = ppo_loss(
+    _, (pg1, vf1, ent1, *_) = ppo_loss(
         {"logits": logits, "value": value}, _FixedOutputs(), only_first, cfg
     )
     assert float(vf1) == pytest.approx(0.5 * max((1.0 - 1.5) ** 2, (0.9 - 1.5) ** 2), rel=1e-5)

@@ -16,7 +16,7 @@ from cec.config import ConfigError, from_dict
 from cec.training.config import TrainConfig
 from cec.training.ppo import make_batch
 from cec.training.rollout import rollout
-from cec.training.run import config_dict, train, trains_as
+from cec.training.run import MetricsWriter, config_dict, train, trains_as
 from cec.training.trainer import Trainer
 
 
@@ -252,6 +252,21 @@ def test_resume_passes_over_a_damaged_newest_checkpoint_and_says_so(tmp_path):
         (path / "meta.json").write_text("[]")
     with pytest.raises(checkpoints.CorruptCheckpointError, match="no checkpoint of .* can be loaded"):
         train(cfg, resume=True, progress=False, log=io.StringIO())
+
+
+def test_a_resumed_runs_metrics_keep_their_csv_columns_when_a_newer_version_adds_one(tmp_path):
+    """A run started before a metric existed and resumed after: its CSV stays aligned to its own header
+    (the new metric is in the JSONL only)."""
+    import csv
+
+    writer = MetricsWriter(tmp_path)
+    writer.write([{"update": 1, "total_loss": 0.5, "grad_norm": 2.0}])
+    writer.write([{"update": 2, "total_loss": 0.4, "teacher_loss": 1.7, "grad_norm": 1.5}])
+    with open(tmp_path / "metrics.csv", newline="") as f:
+        rows = list(csv.DictReader(f))
+    assert list(rows[0]) == ["update", "total_loss", "grad_norm"]
+    assert rows[1] == {"update": "2", "total_loss": "0.4", "grad_norm": "1.5"}
+    assert json.loads((tmp_path / "metrics.jsonl").read_text().splitlines()[1])["teacher_loss"] == 1.7
 
 
 def test_resume_refuses_a_changed_config(tmp_path):
