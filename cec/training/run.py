@@ -105,7 +105,7 @@ class MetricsWriter:
         fields = list(rows[0])
         if not new:  # a resumed run keeps its file's columns (a newer version's extra ones are in the JSONL)
             with open(self.csv, newline="") as f:
-                fields = next(csv.reader(f), None) or fields
+                fields = next(csv.reader(f), []) or fields
         with open(self.csv, "a", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
             if new:

@@ -105,9 +105,7 @@ def test_ppo_loss_matches_hand_computed_values():
     assert float(kl) == pytest.approx(np.mean((ratio - 1) - np.log(ratio)), rel=1e-4)
     # weighted (the scripted cook's seat weighs 0): the second step leaves every term
     only_first = batch._replace(weight=jnp.array([[1.0], [0.0]]))
-    _, (pg1, vf1, ent1, *_) = ppo_loss(
-        {"logits": logits, "value": value}, _FixedOutputs(), only_first, cfg
-    )
+    _, (pg1, vf1, ent1, *_) = ppo_loss({"logits": logits, "value": value}, _FixedOutputs(), only_first, cfg)
     assert float(vf1) == pytest.approx(0.5 * max((1.0 - 1.5) ** 2, (0.9 - 1.5) ** 2), rel=1e-5)
     assert float(ent1) == pytest.approx(-np.sum(p[0, 0] * lp[0, 0]), rel=1e-5)
     assert float(pg1) == pytest.approx(0.0, abs=1e-6)  # one step's advantage, normalised alone, is 0
