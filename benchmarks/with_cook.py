@@ -177,27 +177,42 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(policies)} policies x {len(kitchens)} kitchens ({PART})", flush=True)
         config = EvalConfig(levels=",".join(kitchens), episodes=1, max_steps=args.max_steps, pairs="all")
         table = crossplay(policies, eval_levels("overcooked", config.levels), config, progress=print)
-        csv_path = write_csv(table, args.out.with_suffix(".csv"))
-        with open(csv_path, "rb") as src, bz2.open(args.out.with_suffix(".csv.bz2"), "wb") as dst:
-            shutil.copyfileobj(src, dst)
-        csv_path.unlink()
+        save_episodes(table, args.out)
         seeds = [p.name for p in policies if p.scripted is None]
     summary = summarise(table, seeds, onion_side({k: named[k] for k in kitchens}))
+    meta = run_meta("with_cook.py", argv, kitchens=len(kitchens),
+                    max_steps=int(table.episode_steps.max()) if len(table) else args.max_steps)  # fmt: skip
+    save_summary(args.out, {"meta": meta, **summary}, markdown(summary, meta))
+    return 0
+
+
+def save_episodes(table: EpisodeTable, out: Path) -> None:
+    """Every episode as OUT.csv.bz2."""
+    csv_path = write_csv(table, out.with_suffix(".csv"))
+    with open(csv_path, "rb") as src, bz2.open(out.with_suffix(".csv.bz2"), "wb") as dst:
+        shutil.copyfileobj(src, dst)
+    csv_path.unlink()
+
+
+def run_meta(script: str, argv: list[str] | None, **extra: Any) -> dict[str, Any]:
+    """The date, the machine and the command of a run of `benchmarks/<script>`, then `extra`."""
     from apps.machine import machine_info
 
     info = machine_info()
-    meta = {
+    args = sys.argv[1:] if argv is None else argv
+    return {
         "date": datetime.date.today().isoformat(),
         "machine": f"{info['cpu']}, {info['cpu_count']} cores",
-        "command": "python benchmarks/with_cook.py " + " ".join(sys.argv[1:] if argv is None else argv),
-        "kitchens": len(kitchens),
-        "max_steps": int(table.episode_steps.max()) if len(table) else args.max_steps,
+        "command": f"python benchmarks/{script} " + " ".join(args),
+        **extra,
     }
-    args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, **summary}, indent=1) + "\n")
-    text = markdown(summary, meta)
-    args.out.with_suffix(".md").write_text(text)
+
+
+def save_summary(out: Path, data: dict[str, Any], text: str) -> None:
+    """OUT.json (`data`) and OUT.md (`text`, also printed)."""
+    out.with_suffix(".json").write_text(json.dumps(data, indent=1) + "\n")
+    out.with_suffix(".md").write_text(text)
     print(text)
-    return 0
 
 
 if __name__ == "__main__":

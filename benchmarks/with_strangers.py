@@ -25,12 +25,7 @@ the partners are the same for every seed, so the error is over the group's seeds
 from __future__ import annotations
 
 import argparse
-import bz2
-import datetime
-import json
-import shutil
 import statistics
-import sys
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +33,13 @@ from cec.agents.policy import load_policies
 from cec.agents.zoo import ZooEntry
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from cec.evaluation.milestones import run_entries
-from cec.evaluation.results import EpisodeTable, write_csv
+from cec.evaluation.results import EpisodeTable
 from cec.levels.classic import CLASSIC_NAMES
+
+try:  # run as a script (benchmarks/ on sys.path) or as a module
+    from with_cook import run_meta, save_episodes, save_summary  # type: ignore[import-not-found]
+except ImportError:
+    from benchmarks.with_cook import run_meta, save_episodes, save_summary
 
 SHIPPED = Path(__file__).resolve().parents[1] / "cec" / "shipped"
 SHIPPED_SEEDS = [f"cec758m-s{s}" for s in (200, 201, 202, 203)]
@@ -134,24 +134,10 @@ def main(argv: list[str] | None = None) -> int:
             raise SystemExit(str(e)) from None
     table = play(groups, args.episodes, args.max_steps)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    csv_path = write_csv(table, args.out.with_suffix(".csv"))
-    with open(csv_path, "rb") as src, bz2.open(args.out.with_suffix(".csv.bz2"), "wb") as dst:
-        shutil.copyfileobj(src, dst)
-    csv_path.unlink()
+    save_episodes(table, args.out)
     summary = summarise(table, {g: [e.name for e in entries] for g, entries in groups.items()})
-    from apps.machine import machine_info
-
-    info = machine_info()
-    meta = {
-        "date": datetime.date.today().isoformat(),
-        "machine": f"{info['cpu']}, {info['cpu_count']} cores",
-        "command": "python benchmarks/with_strangers.py " + " ".join(sys.argv[1:] if argv is None else argv),
-        "max_steps": args.max_steps,
-    }
-    args.out.with_suffix(".json").write_text(json.dumps({"meta": meta, "groups": summary}, indent=1) + "\n")
-    text = markdown(summary, meta)
-    args.out.with_suffix(".md").write_text(text)
-    print(text)
+    meta = run_meta("with_strangers.py", argv, max_steps=args.max_steps)
+    save_summary(args.out, {"meta": meta, "groups": summary}, markdown(summary, meta))
     return 0
 
 
