@@ -38,6 +38,17 @@ PARTNER_KINDS = ("self_play", "fcp", "e3t", "scripted")
 CHECKPOINT_PICKS = ("first", "middle", "last")
 
 
+def anneal_to_zero(start: float, env_steps: jax.Array, horizon: int) -> jax.Array:
+    """`start` falling linearly to 0 over `horizon` env steps, then 0, after `env_steps` (traced); `horizon`
+    <= 0: `start` throughout. Every schedule of training on env steps (the shaped reward's weight, the
+    scripted partner's share, the teacher's weight)."""
+    value = jnp.float32(start)
+    if horizon <= 0:
+        return value
+    done = jnp.asarray(env_steps, jnp.float32) / float(horizon)
+    return value * jnp.clip(1.0 - done, 0.0, 1.0)
+
+
 @dataclass(frozen=True)
 class PopulationEntry:
     """Frozen partners from one training run.
@@ -132,11 +143,7 @@ class PartnerConfig:
 
     def scripted_share_at(self, env_steps: jax.Array) -> jax.Array:
         """The scripted partner's share of episodes after `env_steps` env steps of training (traced)."""
-        share = jnp.float32(self.scripted_share)
-        if self.scripted_anneal_env_steps <= 0:
-            return share
-        done = jnp.asarray(env_steps, jnp.float32) / float(self.scripted_anneal_env_steps)
-        return share * jnp.clip(1.0 - done, 0.0, 1.0)
+        return anneal_to_zero(self.scripted_share, env_steps, self.scripted_anneal_env_steps)
 
     @property
     def learner_seat_only(self) -> bool:

@@ -18,6 +18,7 @@ from jax.sharding import Mesh, PartitionSpec
 
 from cec.agents.network import ActorCritic, LSTMState, forward, forward_partner
 from cec.config import ConfigError
+from cec.training.partners import anneal_to_zero
 from cec.training.rollout import NUM_SEATS, Trajectory
 
 
@@ -92,11 +93,7 @@ class PPOConfig:
 
     def teacher_coef_at(self, env_steps: jax.Array) -> jax.Array:
         """The teacher loss's weight after `env_steps` env steps of training (traced)."""
-        coef = jnp.float32(self.teacher_coef)
-        if self.teacher_anneal_env_steps <= 0:
-            return coef
-        done = jnp.asarray(env_steps, jnp.float32) / float(self.teacher_anneal_env_steps)
-        return coef * jnp.clip(1.0 - done, 0.0, 1.0)
+        return anneal_to_zero(self.teacher_coef, env_steps, self.teacher_anneal_env_steps)
 
 
 class Batch(NamedTuple):

@@ -36,6 +36,7 @@ from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
 from cec.envs.task import Task
 from cec.training.config import TrainConfig
+from cec.training.partners import anneal_to_zero
 from cec.training.population import load_population
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
 from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
@@ -134,12 +135,15 @@ class Trainer:
         k_levels = jax.random.split(key, 4)[2]
         return self.task.sample_levels(k_levels, self.env_ids, self.config.levels_per_env)
 
+    def env_steps_at(self, update_index: jax.Array) -> jax.Array:
+        """Env steps per seed before update `update_index` (traced float32), what the schedules read."""
+        return jnp.asarray(update_index, jnp.float32) * self.config.steps_per_update
+
     def shaping_weight(self, update_index: jax.Array) -> jax.Array:
         """Weight of the shaped reward at an update: 1 falling linearly to 0 over the shaping horizon."""
         if self.shaping_horizon < 0:
             return jnp.float32(1.0)
-        steps = update_index.astype(jnp.float32) * self.config.steps_per_update
-        return jnp.clip(1.0 - steps / float(max(self.shaping_horizon, 1)), 0.0, 1.0)
+        return anneal_to_zero(1.0, self.env_steps_at(update_index), max(self.shaping_horizon, 1))
 
     @property
     def env_ids(self) -> jax.Array:
@@ -176,8 +180,7 @@ class Trainer:
             levels = replay_current(levels, carry.env_state.level, update_index % cfg.level_repeats != 0)
         share = None
         if cfg.partner.scripted_anneal_env_steps and update_index is not None:
-            env_steps = jnp.asarray(update_index, jnp.float32) * cfg.steps_per_update
-            share = cfg.partner.scripted_share_at(env_steps)
+            share = cfg.partner.scripted_share_at(self.env_steps_at(update_index))
         return rollout(
             params,
             carry,
@@ -202,7 +205,7 @@ class Trainer:
         weight = self.shaping_weight(update_index)
         teacher = None
         if cfg.ppo.teacher_coef > 0:
-            teacher = cfg.ppo.teacher_coef_at(jnp.asarray(update_index, jnp.float32) * cfg.steps_per_update)
+            teacher = cfg.ppo.teacher_coef_at(self.env_steps_at(update_index))
         batch = make_batch(
             traj,
             weight,
