@@ -78,12 +78,11 @@ def summarise(table: EpisodeTable, groups: dict[str, list[str]]) -> dict[str, An
             if seed is None:
                 continue
             stranger = b if seed == a else a
-            part = (
-                f"{level} with its proxy"
-                if stranger.startswith("hp_")
-                else "generated with the shipped seeds"
-            )
-            for key in (part, "classic five with the proxies") if stranger.startswith("hp_") else (part,):
+            if stranger.startswith("hp_"):
+                keys: tuple[str, ...] = (f"{level} with its proxy", "classic five with the proxies")
+            else:
+                keys = ("generated with the shipped seeds",)
+            for key in keys:
                 parts.setdefault(key, {}).setdefault(seed, []).append(float(ret))
         out[group] = {}
         for part, by_seed in parts.items():

@@ -4,32 +4,22 @@ from __future__ import annotations
 
 import pytest
 
-from cec.evaluation.results import ARRAY_FIELDS, make_table
 from tests.scripts import benchmark
-
-
-def _table(rows: list[tuple[str, str, str, float]]):
-    """Rows of (policy_a, policy_b, level, team return)."""
-    cols = {f: [] for f in ARRAY_FIELDS}
-    for a, b, level, ret in rows:
-        values = dict(policy_a=a, algorithm_a="x", seed_a=0, policy_b=b, algorithm_b="x", seed_b=0,
-                      level=level, seat=0, episode=0, returns=ret, deliveries=ret / 20, collisions=0,
-                      shaped_return=0, env="overcooked", episode_steps=400, actions="sampled")  # fmt: skip
-        for f in ARRAY_FIELDS:
-            cols[f].append(values[f])
-    return make_table(cols)
+from tests.unit.evaluation.test_with_cook import _table
 
 
 def test_each_group_is_the_mean_over_its_seeds_with_the_error_over_them_and_strangers_pairs_only() -> None:
     ws = benchmark("with_strangers")
     table = _table([
-        ("A1", "hp_forced_coord", "forced_coord", 20.0), ("hp_forced_coord", "A1", "forced_coord", 40.0),
-        ("A2", "hp_forced_coord", "forced_coord", 0.0),
-        ("A1", "hp_cramped_room", "cramped_room", 60.0), ("A2", "hp_cramped_room", "cramped_room", 20.0),
-        ("A1", "cec758m-s200", "gen-1", 40.0), ("cec758m-s201", "A2", "gen-1", 80.0),
-        ("B1", "hp_forced_coord", "forced_coord", 0.0),
-        ("hp_forced_coord", "hp_forced_coord", "forced_coord", 100.0),  # the proxy alone: no group's
-        ("cec758m-s200", "cec758m-s200", "gen-1", 100.0),
+        ("A1", "hp_forced_coord", "forced_coord", 0, 20.0),
+        ("hp_forced_coord", "A1", "forced_coord", 0, 40.0),
+        ("A2", "hp_forced_coord", "forced_coord", 0, 0.0),
+        ("A1", "hp_cramped_room", "cramped_room", 0, 60.0),
+        ("A2", "hp_cramped_room", "cramped_room", 0, 20.0),
+        ("A1", "cec758m-s200", "gen-1", 0, 40.0), ("cec758m-s201", "A2", "gen-1", 0, 80.0),
+        ("B1", "hp_forced_coord", "forced_coord", 0, 0.0),
+        ("hp_forced_coord", "hp_forced_coord", "forced_coord", 0, 100.0),  # the proxy alone: no group's
+        ("cec758m-s200", "cec758m-s200", "gen-1", 0, 100.0),
     ])  # fmt: skip
     out = ws.summarise(table, {"teacher": ["A1", "A2"], "control": ["B1"]})
     a = out["teacher"]
