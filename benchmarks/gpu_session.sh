@@ -11,21 +11,25 @@
 #   benchmarks/gpu_session.sh crossplay    # cross-play throughput (paper preset)
 #   benchmarks/gpu_session.sh pack         # stop the paper run (checkpoint), pack results, policies, curves
 #   benchmarks/gpu_session.sh window       # ALL OF IT IN ONE CALL (<= 9 min; docs/gpu.md): the paper
-#                                          # preset's profile, the shipped CEC seeds trained further, the
-#                                          # paper preset's throughput at each matmul precision, the new
-#                                          # policies exported
+#                                          # preset's profile, four seeds of the best recipe (or the shipped
+#                                          # seeds trained further), the paper preset's throughput at each
+#                                          # matmul precision, the new policies exported
 #
 # `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
-# end to end at tiny sizes on a CPU, 4 minutes): WINDOW_TRAIN_S (260) seconds of CEC training, stopped by
-# SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset at each precision of
+# end to end at tiny sizes on a CPU, 4 minutes): WINDOW_RECIPE (configs/train/cec_overcooked_teacher.yaml,
+# the every-kitchen issue's candidate) the config of the four seeds, seeds WINDOW_SEED.. (500); WINDOW_INIT
+# empty: fresh seeds, `shipped`: the shipped CEC seeds continued (with WINDOW_RECIPE=
+# configs/train/cec_overcooked_cpu.yaml, their recipe), or four comma-separated checkpoints continued;
+# WINDOW_TEACHER_ANNEAL (a quarter of WINDOW_STEPS) the env steps over which a recipe's teacher weight falls
+# to 0; WINDOW_TRAIN_S (260) seconds of CEC training, stopped by SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset at each precision of
 # WINDOW_PRECISIONS ("default bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32
 # accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
-# paper preset) with WINDOW_PROFILE_SET overrides; WINDOW_LR (1e-3; two restarts at 2e-3 each lost cross-play first, docs/gpu.md) the
-# continued seeds' LR, annealed to 0 over WINDOW_STEPS per seed (270M: what 4 seeds at 4M env-steps/s on an
-# H200 train in the time left after the compile); WINDOW_BATCH the continued seeds' and the profile's batch (1024
-# envs, 2 epochs x 16 minibatches); WINDOW_SET extra overrides for every run;
-# WINDOW_INIT the four checkpoints continued (comma-separated; default: the shipped seeds). A time of 0 skips
-# the profile or the paper preset (a second window continuing the first's seeds).
+# paper preset) with WINDOW_PROFILE_SET overrides; WINDOW_LR (fresh seeds: the recipe's; continued: 1e-3, two
+# restarts at 2e-3 each lost cross-play first, docs/gpu.md) the seeds' LR, annealed to 0 over WINDOW_STEPS
+# per seed (270M: what 4 seeds at 4M env-steps/s on an H200 train in the time left after the compile);
+# WINDOW_BATCH the seeds' and the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra
+# overrides for every run. A time of 0 skips the profile or the paper preset (a second window continuing the
+# first's seeds).
 #
 # Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
 # checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
@@ -117,7 +121,8 @@ pack)
     ;;
 window)
     T_TRAIN=${WINDOW_TRAIN_S:-260} T_PAPER=${WINDOW_PAPER_S:-60} T_PROFILE=${WINDOW_PROFILE_S:-90}
-    STEPS=${WINDOW_STEPS:-270000000} LR=${WINDOW_LR:-0.001}
+    STEPS=${WINDOW_STEPS:-270000000} RECIPE=${WINDOW_RECIPE:-configs/train/cec_overcooked_teacher.yaml}
+    SEED=${WINDOW_SEED:-500} INIT=${WINDOW_INIT:-}
     PROFILE_CONFIG=${WINDOW_PROFILE_CONFIG:-configs/train/cec_overcooked.yaml}
     read -r -a PRECISIONS <<< "${WINDOW_PRECISIONS-default bfloat16}"
     read -r -a PROFILE_SET <<< "${WINDOW_PROFILE_SET:-}"
@@ -140,24 +145,32 @@ window)
                 --config "$PROFILE_CONFIG" --repeats 2 --set "${PROFILE_SET[@]}" "${EXTRA[@]}" \
                 --out "$OUT/train_profile_gpu.json" || echo "profile: exit $?"
         fi
-        # The shipped CEC seeds as cec/shipped/zoo.yaml names them (a directory glob also matched a replaced
-        # seed the GPU machine's copy still held).
-        seeds=${WINDOW_INIT:-$("$PY" -c "import yaml; print(','.join('cec/shipped/' + e['checkpoint'] for e in \
-yaml.safe_load(open('cec/shipped/zoo.yaml'))['policies'] if e['algorithm'] == 'cec'))")}
-        echo "== 2. CEC seeds trained further from $seeds (4 seeds in one process, SIGTERM after ${T_TRAIN}s)"
-        timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config configs/train/cec_overcooked_cpu.yaml \
-            seed=200 num_seeds=4 init_from="$seeds" total_env_steps="$STEPS" ppo.lr="$LR" "${BATCH[@]}" \
+        # The seeds: fresh ones of the recipe, or checkpoints continued (the shipped CEC seeds as
+        # cec/shipped/zoo.yaml names them: a directory glob also matched a replaced seed the GPU machine's
+        # copy still held) at a restarted LR of 1e-3.
+        train=(seed="$SEED" num_seeds=4 total_env_steps="$STEPS")
+        if [ "$INIT" = shipped ]; then
+            INIT=$("$PY" -c "import yaml; print(','.join('cec/shipped/' + e['checkpoint'] for e in \
+yaml.safe_load(open('cec/shipped/zoo.yaml'))['policies'] if e['algorithm'] == 'cec'))")
+        fi
+        if [ -n "$INIT" ]; then train+=(init_from="$INIT" ppo.lr="${WINDOW_LR:-0.001}")
+        elif [ -n "${WINDOW_LR:-}" ]; then train+=(ppo.lr="$WINDOW_LR"); fi
+        # A teacher's weight (where the recipe has one) falls to 0 over a quarter of the steps: at this batch
+        # (8x the CPU recipe's samples per Adam step) about the CPU recipe's 960 updates' worth of Adam steps.
+        train+=(ppo.teacher_anneal_env_steps="${WINDOW_TEACHER_ANNEAL:-$((STEPS / 4))}")
+        echo "== 2. four seeds of $RECIPE ${INIT:+continued from $INIT }(one process, SIGTERM after ${T_TRAIN}s)"
+        timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config "$RECIPE" "${train[@]}" "${BATCH[@]}" \
             checkpoint.every_updates=50 'checkpoint.milestones=[0.125,0.25,0.5,0.75,1.0]' \
-            run_dir=$RUN name=cec-continued "${EXTRA[@]}"
+            run_dir=$RUN name=cec-window "${EXTRA[@]}"
         echo "training: exit $? (124: stopped by the window's SIGTERM, after its checkpoint)"
         echo "== 3. export: every seed at each milestone and at the last checkpoint"
-        "$PY" - "$RUN/cec-continued" <<'PYEOF'
+        "$PY" - "$RUN/cec-window" "$SEED" <<'PYEOF'
 import sys, yaml
 from pathlib import Path
 from cec.checkpoints import CheckpointStore
-run = Path(sys.argv[1]).resolve()
+run, seed = Path(sys.argv[1]).resolve(), int(sys.argv[2])
 entries = [
-    {"name": f"cec-gpu-s{200 + i}-u{c.update}", "algorithm": "cec", "seed": 200 + i, "checkpoint": str(c.path)}
+    {"name": f"cec-gpu-s{seed + i}-u{c.update}", "algorithm": "cec", "seed": seed + i, "checkpoint": str(c.path)}
     for c in CheckpointStore(run, keep_last=1).list()
     for i in range(4)
 ]
@@ -165,7 +178,7 @@ entries = [
 print(len(entries), "policies:", ", ".join(e["name"] for e in entries))
 PYEOF
         cec zoo export $RUN/zoo.yaml --out $RUN/exported
-        tar czf - $RUN/exported $RUN/zoo.yaml $RUN/cec-continued/metrics.csv $RUN/cec-continued/config.yaml \
+        tar czf - $RUN/exported $RUN/zoo.yaml $RUN/cec-window/metrics.csv $RUN/cec-window/config.yaml \
             | split -b 15M - "$OUT/cec-window.tgz.part-"
         ls -la "$OUT"
         if [ "$T_PAPER" -gt 0 ]; then
