@@ -22,7 +22,8 @@ from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from services.play.main import free_play_config, prepare
 
 SHIPPED_NAMES = [e.name for e in load_zoo(SHIPPED)]
-CEC_NAMES = [e.name for e in load_zoo(SHIPPED) if e.algorithm == "cec"]
+CEC_GROUPS = ("cec", "cec_teacher")  # the generalists: the paper's recipe at 758M, kickstarted at 10.5M
+CEC_NAMES = [e.name for e in load_zoo(SHIPPED) if e.algorithm in CEC_GROUPS]
 PROXIES = [e for e in load_zoo(SHIPPED) if e.algorithm == "human_proxy"]
 FINETUNED = [e for e in load_zoo(SHIPPED) if e.algorithm == "cec_finetune"]
 CLASSIC = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
@@ -82,16 +83,19 @@ def test_the_shipped_human_proxies_deliver_with_the_cook_in_their_kitchens() -> 
         assert np.mean(table.returns[mine]) >= 20, f"{p.name} with the cook: {table.returns[mine]}"
 
 
-def test_the_shipped_cec_agents_cook_with_partners_they_never_met() -> None:
-    """`cec play serve --partner cec` draws one of these seeds per round: every pair of two different shipped
-    seeds delivers on Cramped Room, the free-play default kitchen (benchmarks/results/overcooked/shipped:
-    61.7 per 400 steps over the pairs, 4 episodes each, both seat orders)."""
-    policies = [load_policy(ZooEntry(name, name)) for name in CEC_NAMES]
+@pytest.mark.parametrize("group", CEC_GROUPS)
+def test_the_shipped_cec_agents_cook_with_partners_they_never_met(group: str) -> None:
+    """`cec play serve --partner cec` (or `cec_teacher`) draws one of these seeds per round: every pair of two
+    different seeds of the group delivers on Cramped Room, the free-play default kitchen
+    (benchmarks/results/overcooked/shipped: 61.7 per 400 steps over the 758M seeds' pairs, 4 episodes each,
+    both seat orders)."""
+    names = [e.name for e in load_zoo(SHIPPED) if e.algorithm == group]
+    policies = [load_policy(ZooEntry(name, name)) for name in names]
     config = EvalConfig(episodes=4, max_steps=400, pairs="all")
     table = crossplay(policies, eval_levels("overcooked", "cramped_room"), config)
     xp = table.returns[table.policy_a != table.policy_b]
-    assert len(CEC_NAMES) >= 4 and xp.size == len(CEC_NAMES) * (len(CEC_NAMES) - 1) * 4
-    assert np.mean(xp) >= 30, f"shipped CEC cross-play on cramped_room: {np.mean(xp)} (one soup is 20)"
+    assert len(names) >= 4 and xp.size == len(names) * (len(names) - 1) * 4
+    assert np.mean(xp) >= 30, f"shipped {group} cross-play on cramped_room: {np.mean(xp)} (one soup is 20)"
 
 
 def test_a_shipped_policy_whose_state_changed_is_refused(tmp_path: Path) -> None:
@@ -112,6 +116,9 @@ def test_cec_play_serve_partner_cec_starts_with_the_shipped_agents(tmp_path: Pat
     pools = prepare(free_play_config(args), tmp_path)
     (pool,) = pools.values()
     assert pool.policies and {p.algorithm for p in pool.policies} == {"cec"}
+    args = parse_args(build_parser(), ["play", "serve", "--partner", "cec_teacher"])
+    (pool,) = prepare(free_play_config(args), tmp_path).values()
+    assert len(pool.policies) == 4 and {p.algorithm for p in pool.policies} == {"cec_teacher"}
     args = parse_args(build_parser(), ["play", "serve", "--partner", "no_such_agent"])
     with pytest.raises(ConfigError, match="no loadable entry of group 'no_such_agent'"):
         prepare(free_play_config(args), tmp_path)

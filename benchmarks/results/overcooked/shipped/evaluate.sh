@@ -29,23 +29,8 @@ for t in classic:classic:4 heldout:generated:1 test:test:1; do
         --out "$W/steps100-$name.csv"
     bzip2 -9 -c "$W/steps100-$name.csv" > "$S/steps100/$name.csv.bz2"
 done
-parts() {  # the cross-play and self-play of every part of validation and test, from the tables in $1
-    "$PY" - "$1" "$2" <<'EOF'
-import sys
-from pathlib import Path
-from cec.evaluation.parts import part_scores, parts_markdown
-from cec.evaluation.results import read_csv
-from cec.levels.heldout import heldout_levels, test_levels
-S, ext = Path(sys.argv[1]), sys.argv[2]
-sets = (("validation (the set that chose the checkpoint)", ("heldout", "classic"), heldout_levels()),
-        ("test (nothing chosen on it)", ("test",), test_levels()))
-for title, tables, levels in sets:
-    table = read_csv([S / f"{t}{ext}" for t in tables])
-    print(f"## {title}\n\n{parts_markdown(part_scores(table, 'cec', dict(levels)))}\n")
-EOF
-}
-parts $S .csv > $S/parts.md
-parts $S/steps100 .csv.bz2 > $S/steps100/parts.md
+"$PY" $S/parts.py $S .csv > $S/parts.md
+"$PY" $S/parts.py $S/steps100 .csv.bz2 > $S/steps100/parts.md
 "$PY" - "$W/controls.yaml" "$W/random_init" <<'EOF'
 import sys, yaml
 from cec.agents.zoo import SHIPPED_ZOO
