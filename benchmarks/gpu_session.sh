@@ -21,9 +21,9 @@
 # empty: fresh seeds, `shipped`: the shipped CEC seeds continued (with WINDOW_RECIPE=
 # configs/train/cec_overcooked_cpu.yaml, their recipe), or four comma-separated checkpoints continued;
 # WINDOW_TEACHER_ANNEAL (a quarter of WINDOW_STEPS) the env steps over which a recipe's teacher weight falls
-# to 0; WINDOW_TRAIN_S (260) seconds of CEC training, stopped by SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (60) of the paper preset at each precision of
-# WINDOW_PRECISIONS ("default bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32
-# accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
+# to 0; WINDOW_TRAIN_S (260) seconds of CEC training, stopped by SIGTERM (the trainer checkpoints and
+# exits); WINDOW_PAPER_S (60) of the paper preset at each precision of WINDOW_PRECISIONS ("default
+# bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32 accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
 # paper preset) with WINDOW_PROFILE_SET overrides; WINDOW_LR (fresh seeds: the recipe's; continued: 1e-3, two
 # restarts at 2e-3 each lost cross-play first, docs/gpu.md) the seeds' LR, annealed to 0 over WINDOW_STEPS
 # per seed (270M: what 4 seeds at 4M env-steps/s on an H200 train in the time left after the compile);
