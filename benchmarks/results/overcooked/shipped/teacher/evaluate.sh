@@ -14,19 +14,9 @@ PY=.venv/bin/python
 cec() { .venv/bin/cec "$@"; }
 [ -d "$W/random_init" ] || cec train --config configs/train/cec_overcooked_teacher.yaml --max-updates 1 --quiet \
     checkpoint.every_updates=1 run_dir="$W" name=random_init
-"$PY" - "$W" <<'PYEOF'
-import sys, yaml
-from cec.agents.zoo import SHIPPED_ZOO
-work = sys.argv[1]
-shipped = yaml.safe_load(SHIPPED_ZOO.read_text())["policies"]
-at = lambda e: {**e, "checkpoint": str(SHIPPED_ZOO.parent / e["checkpoint"])}
-seeds = [at(e) for e in shipped if e["algorithm"] == "cec_teacher"]
-proxies = [at(e) for e in shipped if e["algorithm"] == "human_proxy"]
-controls = [{"name": "random_init", "algorithm": "random_init", "seed": 0, "checkpoint": f"{work}/random_init"},
-            {"name": "noop", "scripted": "noop"}, {"name": "cook", "scripted": "cook"}]
-for name, entries in (("seeds", seeds), ("proxies", seeds + proxies), ("controls", seeds + controls)):
-    open(f"{work}/{name}.yaml", "w").write(yaml.safe_dump({"policies": entries}, sort_keys=False))
-PYEOF
+"$PY" $S/manifest.py "$W/seeds.yaml" cec_teacher
+"$PY" $S/manifest.py "$W/proxies.yaml" cec_teacher human_proxy
+"$PY" $S/manifest.py "$W/controls.yaml" cec_teacher --controls "$W/random_init"
 cec eval --zoo "$W/seeds.yaml" --levels generated --episodes 1 --max-steps 400 --out "$W/heldout.csv"
 cec eval --zoo "$W/seeds.yaml" --levels classic --episodes 4 --max-steps 400 --out "$W/classic.csv"
 # the test set (cec.levels.heldout.test_levels): played once, after the recipe was chosen on validation
