@@ -20,7 +20,7 @@
 # the every-kitchen issue's candidate) the config of the four seeds, seeds WINDOW_SEED.. (500); WINDOW_INIT
 # empty: fresh seeds, `shipped`: the shipped CEC seeds continued (with WINDOW_RECIPE=
 # configs/train/cec_overcooked_cpu.yaml, their recipe), or four comma-separated checkpoints continued;
-# WINDOW_TEACHER_ANNEAL (a quarter of WINDOW_STEPS) the env steps over which a recipe's teacher weight falls
+# WINDOW_TEACHER_ANNEAL (a third of WINDOW_STEPS) the env steps over which a recipe's teacher weight falls
 # to 0; WINDOW_TRAIN_S (260) seconds of CEC training, stopped by SIGTERM (the trainer checkpoints and
 # exits); WINDOW_PAPER_S (60) of the paper preset at each precision of WINDOW_PRECISIONS ("default
 # bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32 accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
@@ -155,9 +155,10 @@ yaml.safe_load(open('cec/shipped/zoo.yaml'))['policies'] if e['algorithm'] == 'c
         fi
         if [ -n "$INIT" ]; then train+=(init_from="$INIT" ppo.lr="${WINDOW_LR:-0.001}")
         elif [ -n "${WINDOW_LR:-}" ]; then train+=(ppo.lr="$WINDOW_LR"); fi
-        # A teacher's weight (where the recipe has one) falls to 0 over a quarter of the steps: at this batch
-        # (8x the CPU recipe's samples per Adam step) about the CPU recipe's 960 updates' worth of Adam steps.
-        train+=(ppo.teacher_anneal_env_steps="${WINDOW_TEACHER_ANNEAL:-$((STEPS / 4))}")
+        # A teacher's weight (where the recipe has one) falls to 0 over a third of the steps: at this batch
+        # (8x the CPU recipe's samples per Adam step) about the Adam steps of the CPU recipe's whole 1,280
+        # updates, over which lever (s) (docs/reproduce_overcooked.md) scored above a teacher gone at 960.
+        train+=(ppo.teacher_anneal_env_steps="${WINDOW_TEACHER_ANNEAL:-$((STEPS / 3))}")
         echo "== 2. four seeds of $RECIPE ${INIT:+continued from $INIT }(one process, SIGTERM after ${T_TRAIN}s)"
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config "$RECIPE" "${train[@]}" "${BATCH[@]}" \
             checkpoint.every_updates=50 'checkpoint.milestones=[0.125,0.25,0.5,0.75,1.0]' \
