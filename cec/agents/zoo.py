@@ -171,15 +171,19 @@ def load_zoo(path: str | Path) -> list[ZooEntry]:
     return parse_zoo(data, p.parent, where=str(p))
 
 
+#: The key of `SHIPPED_BEST` that names the partner of every kitchen it does not name.
+OTHER_KITCHENS = "other_kitchens"
+
+
 def best_shipped(level: str) -> str:
-    """The shipped partner `--partner best` plays in `level`: what `SHIPPED_BEST` names for it, else the CEC
-    seeds (`cec`), the generalists."""
+    """The shipped partner `--partner best` plays in `level`: what `SHIPPED_BEST` names for it, else what it
+    names for `OTHER_KITCHENS`, else the CEC seeds (`cec`), the generalists."""
     if not SHIPPED_BEST.is_file():
         return "cec"
     data = read_user_yaml(SHIPPED_BEST, "shipped partner choice", ZOO_MAX_BYTES, f"{__name__}.ZOO_MAX_BYTES")
     if not isinstance(data, Mapping) or not all(isinstance(v, str) for v in data.values()):
         raise ConfigError(f"{SHIPPED_BEST}: expected a mapping of level name -> shipped policy or algorithm")
-    return str(data.get(level, "cec"))
+    return str(data.get(level, data.get(OTHER_KITCHENS, "cec")))
 
 
 def shipped_entries() -> list[ZooEntry]:

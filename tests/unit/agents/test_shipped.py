@@ -16,7 +16,7 @@ import cec.agents.zoo as zoo_module
 from apps.cli import build_parser, parse_args
 from cec import checkpoints
 from cec.agents.policy import load_policy, resolve_checkpoint, scripted_policy
-from cec.agents.zoo import SHIPPED, SHIPPED_BEST, SHIPPED_ZOO, ZooEntry, load_zoo
+from cec.agents.zoo import OTHER_KITCHENS, SHIPPED, SHIPPED_BEST, SHIPPED_ZOO, ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from services.play.main import free_play_config, prepare
@@ -173,14 +173,15 @@ def test_each_shipped_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its
 
 def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_each_kitchen(tmp_path: Path) -> None:
     """`--partner best` plays, per classic kitchen, what cec/shipped/best.yaml names (a fine-tuned agent, or
-    the CEC seeds where those cooked more with the validation proxy), and the CEC seeds anywhere else."""
+    a group of generalist seeds where those cooked more with the validation proxy), and anywhere else the
+    generalists it names for every other kitchen."""
     choice = yaml.safe_load(SHIPPED_BEST.read_text())
-    assert set(choice) == set(CLASSIC)
+    assert set(choice) == {*CLASSIC, OTHER_KITCHENS}
     for level in ("forced_coord", "asymm_advantages", "generated_003"):
         args = parse_args(build_parser(), ["play", "serve", "--partner", "best", "--level", level])
         (pool,) = prepare(free_play_config(args), tmp_path).values()
         played = [pool.policies[i] for i in pool.eligible(level)]
-        want = choice.get(level, "cec")
+        want = choice.get(level, choice[OTHER_KITCHENS])
         assert played and all(want in (p.name, p.algorithm) for p in played), (
             level,
             [p.name for p in played],

@@ -14,9 +14,9 @@ Validation chooses, test reports (DESIGN rule 13), with people as in Carroll et 
 proxy (`cec humans bc`, cloned from the train games' players; `--proxies`) is the partner the choices are
 made with, the shipped `hp_<kitchen>` proxy (the test games' players) reports. The seed shipped per kitchen
 is the fine-tuned seed that cooked most with the bc proxy (`--work`/ship.yaml, for `cec zoo export ship.yaml
---out cec/shipped`), and `cec play serve --partner best` plays, per kitchen, the group whose seeds cooked
-more with it on average: that seed, or the four shipped CEC seeds (`best.yaml`, copied to
-`cec/shipped/best.yaml`). The hp proxies' and the cook's figures choose nothing.
+--out cec/shipped`); which shipped partner `cec play serve --partner best` plays per kitchen is chosen by
+`../best.py` among that seed and the shipped generalists. The hp proxies' and the cook's figures choose
+nothing.
 """
 
 from __future__ import annotations
@@ -42,12 +42,6 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[4]
 KITCHENS = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
 FINETUNE, CEC, PROXY, BC = "cec_finetune", "cec", "human_proxy", "bc_proxy"
-#: The comment of `cec/shipped/best.yaml`, so that the file written here is the one shipped, as it is.
-BEST_HEADER = """\
-# `cec play serve --partner best`: per classic kitchen, the shipped partner that cooked most with the
-# validation proxy there (bc_<kitchen>: people of the train games; the hp_ proxies report), written by
-# benchmarks/results/overcooked/shipped/finetune/evaluate.py. Other kitchens: the CEC seeds (`cec`).
-"""
 
 
 def run_seeds(run: Path) -> list[int]:
@@ -195,7 +189,7 @@ def main() -> int:
     runs, work, out = Path(args.runs), Path(args.work), Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
-    rows, ship, best = [], [], {}
+    rows, ship = [], []
     for kitchen in args.kitchens.split(","):
         run = runs / f"ft758m-{kitchen}"
         table = out / f"{kitchen}.csv.bz2"
@@ -216,12 +210,10 @@ def main() -> int:
         name = f"ft758m-{kitchen}"
         ship.append({"name": name, "algorithm": FINETUNE, "seed": row["shipped_seed"],
                      "checkpoint": str(run.resolve()), "levels": [kitchen]})  # fmt: skip
-        best[kitchen] = name if row["best"] == FINETUNE else CEC
         print(markdown(rows[-1:]), flush=True)
-        print(f"{kitchen}: ships seed {row['shipped_seed']}; `--partner best` plays {best[kitchen]}")
+        print(f"{kitchen}: ships seed {row['shipped_seed']}")
     (work / "ship.yaml").write_text(yaml.safe_dump({"policies": ship}, sort_keys=False))
-    (work / "best.yaml").write_text(BEST_HEADER + yaml.safe_dump(best, sort_keys=False))
-    print(f"to ship: cec zoo export {work}/ship.yaml --out cec/shipped; cp {work}/best.yaml cec/shipped/")
+    print(f"to ship: cec zoo export {work}/ship.yaml --out cec/shipped; then ../best.py for `--partner best`")
     (out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
     (out / "summary.md").write_text(markdown(rows))
     print(markdown(rows))
