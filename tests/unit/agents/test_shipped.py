@@ -188,6 +188,17 @@ def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_each_kitchen(t
         )
 
 
+def test_a_kitchen_best_yaml_leaves_out_gets_other_kitchens_then_cec(tmp_path: Path, monkeypatch) -> None:
+    """A kitchen best.yaml does not name gets its `other_kitchens` entry; without one, the CEC seeds."""
+    choice = tmp_path / "best.yaml"
+    monkeypatch.setattr(zoo_module, "SHIPPED_BEST", choice)
+    choice.write_text(f"forced_coord: ft758m-forced_coord\n{OTHER_KITCHENS}: cec_teacher\n")
+    assert zoo_module.best_shipped("forced_coord") == "ft758m-forced_coord"
+    assert zoo_module.best_shipped("generated_003") == "cec_teacher"
+    choice.write_text("forced_coord: ft758m-forced_coord\n")
+    assert zoo_module.best_shipped("generated_003") == "cec"
+
+
 def test_a_malformed_partner_choice_is_refused_naming_the_file(tmp_path: Path, monkeypatch) -> None:
     bad = tmp_path / "best.yaml"
     bad.write_text("- forced_coord\n")
