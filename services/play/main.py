@@ -49,9 +49,8 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
         metavar="NAME",
         help="a policy shipped with the package (`cec zoo`: cec/shipped/zoo.yaml), or an algorithm of them "
         "(e.g. `cec`: one of its seeds drawn per round), or `best`: the shipped partner that cooked most "
-        "with a cloned person in --level (cec/shipped/best.yaml, which also names the partner of every other "
-        "kitchen); no "
-        "training, no download",
+        "with a cloned person in --level (cec/shipped/best.yaml, which also names the partner of every "
+        "other kitchen); no training, no download",
     )
     src.add_argument("--checkpoint", help="checkpoint or run directory of the partner")
     src.add_argument("--seed", type=int, help="with --checkpoint: the seed of a multi-seed checkpoint")

@@ -35,11 +35,11 @@ from cec.evaluation.parts import part_scores
 from cec.evaluation.results import read_csv
 from cec.evaluation.seeds import seed_matrix
 from cec.evaluation.stats import sem
+from cec.humans.data import KITCHENS
 from cec.levels.heldout import heldout_levels
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[3]
-KITCHENS = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
 #: The generalist groups, with the release table of each on the validation kitchens.
 GENERALISTS = {"cec": HERE / "heldout.csv", "cec_teacher": HERE / "teacher" / "heldout.csv.bz2"}
 FINETUNE, PROXY, BC = "cec_finetune", "human_proxy", "bc_proxy"
@@ -92,12 +92,13 @@ def main() -> int:
     best: dict[str, str] = {}
     rows = []
     for kitchen in KITCHENS:
-        scores = {}
+        scores, manifest = {}, work / f"zoo_{kitchen}.yaml"
+        if not args.summarise_only:
+            manifest.write_text(yaml.safe_dump(zoo(kitchen, proxies), sort_keys=False))
         for proxy, algorithm in (("bc", BC), ("hp", PROXY)):
             table = tables / f"{kitchen}_{proxy}.csv.bz2"
             if not args.summarise_only:
-                manifest, raw = work / f"zoo_{kitchen}.yaml", work / f"{kitchen}_{proxy}.csv"
-                manifest.write_text(yaml.safe_dump(zoo(kitchen, proxies), sort_keys=False))
+                raw = work / f"{kitchen}_{proxy}.csv"
                 cmd = [str(ROOT / ".venv/bin/cec"), "eval", "--zoo", str(manifest), "--levels", kitchen,
                        "--episodes", str(args.episodes), "--max-steps", "400",
                        "--pairs", f"with:{proxy}_{kitchen}", "--out", str(raw)]  # fmt: skip

@@ -37,10 +37,10 @@ from cec.evaluation.markdown import pm
 from cec.evaluation.results import read_csv
 from cec.evaluation.seeds import seed_matrix
 from cec.evaluation.stats import compare_crossplay_paired, sem
+from cec.humans.data import KITCHENS
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[4]
-KITCHENS = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
 FINETUNE, CEC, PROXY, BC = "cec_finetune", "cec", "human_proxy", "bc_proxy"
 
 
