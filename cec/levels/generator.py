@@ -15,7 +15,9 @@ Recipe (the paper's Algorithm 1, extended; docs/generator.md has the details and
 
 Coverage: with `handover_share` > 0 a kitchen is, with that probability, redrawn until neither seat can
 finish a soup alone (`cec.levels.kinds`: a hand-over is needed; about 19% of the default draws), so that
-training meets the skill the hard kitchens ask for more often. The set of possible kitchens is unchanged.
+training meets the skill the hard kitchens ask for more often. With `structure_weights` the base structures
+are drawn in those proportions instead of uniformly (e.g. Counter Circuit's long loop more often). Neither
+changes the set of possible kitchens.
 """
 
 from __future__ import annotations
@@ -68,6 +70,8 @@ class GeneratorConfig:
         handover_share: the probability that a kitchen is drawn among those that need a hand-over (neither
             seat can finish a soup alone; `cec.levels.kinds`); 0 draws kitchens as they come (about 19%
             need one), 1 draws only such kitchens.
+        structure_weights: how often each of `structures` is drawn, in its order (positive; normalised);
+            empty: uniformly.
     """
 
     structures: tuple[str, ...] = STRUCTURE_NAMES
@@ -79,6 +83,7 @@ class GeneratorConfig:
     allow_decoys: bool = False
     exclude_heldout: bool = True
     handover_share: float = 0.0
+    structure_weights: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.structures:
@@ -96,6 +101,14 @@ class GeneratorConfig:
                 f"handover_share={self.handover_share} asks for kitchens that need a hand-over, but none of "
                 f"the structures {list(self.structures)} is split in two; add forced_coord or "
                 "asymm_advantages"
+            )
+        if self.structure_weights and (
+            len(self.structure_weights) != len(self.structures) or min(self.structure_weights) <= 0
+        ):
+            raise ConfigError(
+                f"structure_weights {list(self.structure_weights)} must give a positive weight to each of "
+                f"the {len(self.structures)} structures {list(self.structures)}, in that order (to leave a "
+                "structure out, drop it from structures)"
             )
         if not 0.0 < self.count_decay <= 1.0:
             raise ConfigError(f"count_decay must lie in (0, 1], got {self.count_decay}")
@@ -179,7 +192,12 @@ def _sample(key: jax.Array, config: GeneratorConfig) -> tuple[Level, jax.Array, 
     cell_ids = jnp.arange(CELLS)
 
     # 1. STRUCTURE AND TRANSFORM
-    s = jnp.minimum((u[0] * len(config.structures)).astype(jnp.int32), len(config.structures) - 1)
+    if config.structure_weights:
+        weights = np.cumsum(config.structure_weights) / np.sum(config.structure_weights)
+        s = jnp.minimum(jnp.sum(u[0] >= jnp.asarray(weights[:-1], jnp.float32)), len(config.structures) - 1)
+        s = s.astype(jnp.int32)
+    else:
+        s = jnp.minimum((u[0] * len(config.structures)).astype(jnp.int32), len(config.structures) - 1)
     t = jnp.minimum((u[1] * NUM_TRANSFORMS).astype(jnp.int32), NUM_TRANSFORMS - 1)
     reachable, shared, access = st["reachable"][s], st["shared"][s], st["access"][s]
     divided = st["divided"][s]

@@ -129,6 +129,8 @@ def test_decoys_only_when_allowed() -> None:
         ({"goals": (3, 2)}, "1 <= min <= max"),
         ({"onion_piles": (4, 5), "plate_piles": (4, 5), "pots": (2, 2)}, "'cramped_room' has 10 counters"),
         ({"count_decay": 0.0}, "count_decay"),
+        ({"structure_weights": (1.0, 2.0)}, "positive weight to each of the 5 structures"),
+        ({"structure_weights": (1.0, 1.0, 0.0, 1.0, 1.0)}, "drop it from structures"),
     ],
 )
 def test_impossible_configs_are_rejected_when_built(changes: dict[str, object], message: str) -> None:
@@ -143,6 +145,17 @@ def test_config_loads_from_yaml_overrides() -> None:
         load_config(
             GeneratorConfig, None, ["structures=[forced_coord]", "onion_piles=[6, 6]", "plate_piles=[5, 5]"]
         )
+
+
+def test_structure_weights_draw_the_structures_in_proportion() -> None:
+    """Counter Circuit weighted 3 of 7 is drawn about three times as often as each other structure; every
+    kitchen is still one the uniform generator can draw (same structures, transforms and objects)."""
+    config = GeneratorConfig(structure_weights=(1.0, 1.0, 3.0, 1.0, 1.0))
+    keys = jax.random.split(jax.random.PRNGKey(3), 4096)
+    levels, info = jax.vmap(lambda k: generate_with_info(k, config))(keys)
+    shares = np.bincount(np.asarray(info.structure), minlength=5) / len(keys)
+    np.testing.assert_allclose(shares, np.array([1, 1, 3, 1, 1]) / 7, atol=0.03)
+    assert np.all(np.asarray(jax.vmap(check)(levels).solvable))
 
 
 def test_generate_batch_equals_vmapped_generate() -> None:

@@ -1,0 +1,69 @@
+"""Chores of a soup read from an episode: an onion taken from the pile and put in the pot, an item put on a
+counter and taken back at once, and the scripted cook's episode, whose chain of chores must add up."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+from cec.agents.policy import load_policies
+from cec.agents.zoo import ZooEntry
+from cec.envs.overcooked.dynamics import reset, step
+from cec.envs.overcooked.state import Action, EnvParams
+from cec.evaluation.chores import count_chores
+from cec.evaluation.crossplay import episode_states, eval_levels
+from cec.levels import Item
+from cec.levels.classic import classic_level
+from cec.levels.level import unstack_levels
+
+A = Action
+
+
+def _episode(actions: list[tuple[Action, Action]]) -> object:
+    """Cramped Room: seat 0 starts at (1, 1) beside the onion pile on its left, the pot above-right."""
+    level = classic_level("cramped_room")
+    params = EnvParams(random_start_facing=False)
+    _, state = reset(jax.random.PRNGKey(0), level, params)
+    states = [state]
+    for a in actions:
+        state = step(jax.random.PRNGKey(1), state, np.asarray(a, np.int32), params).state
+        states.append(state)
+    return jax.tree.map(lambda *x: np.stack([np.asarray(v) for v in x]), *states)
+
+
+ONION = [(A.LEFT, A.STAY), (A.INTERACT, A.STAY)]  # face the pile, take an onion
+
+
+def test_an_onion_from_the_pile_into_the_pot() -> None:
+    chores = count_chores(_episode([*ONION, (A.RIGHT, A.STAY), (A.UP, A.STAY), (A.INTERACT, A.STAY)]))
+    assert chores.onions_taken.tolist() == [1, 0] and chores.onions_in.tolist() == [1, 0]
+    assert chores.put_down.tolist() == [0, 0] and chores.soups.tolist() == [0, 0]
+    assert chores.carrying[0, Item.ONION] == 3  # held over the three steps after taking it
+    assert chores.soups_ready == 0 and chores.ready_wait == 0
+
+
+def test_an_item_put_on_a_counter_and_taken_again_at_once_is_dithering() -> None:
+    walk = [(A.DOWN, A.STAY), (A.LEFT, A.STAY)]  # to (2, 1), then face the bare counter at (2, 0)
+    chores = count_chores(_episode([*ONION, *walk, (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]))
+    assert chores.put_down.tolist() == [1, 0] and chores.taken_back_soon.tolist() == [1, 0]
+    assert chores.onions_in.tolist() == [0, 0]
+    assert chores.still[1] > 0  # the other seat stayed put throughout
+
+
+def test_the_cooks_chain_of_chores_adds_up() -> None:
+    """Two scripted cooks in Cramped Room: every delivered soup was plated, every plated soup cooked, every
+    cooked soup took three onions, and the soups delivered are the team return's (20 each)."""
+    [cook] = load_policies([ZooEntry("cook", "", scripted="cook")])[0]
+    levels = eval_levels("overcooked", "cramped_room")
+    states, team_return = episode_states(
+        cook, cook, unstack_levels(levels.levels)[0], "cramped_room", max_steps=200
+    )
+    chores = count_chores(states)
+    soups = int(chores.soups.sum())
+    assert soups >= 3 and 20 * soups == team_return
+    assert int(chores.soups_plated.sum()) >= soups and chores.soups_ready >= int(chores.soups_plated.sum())
+    assert int(chores.onions_in.sum()) >= 3 * chores.soups_ready
+    assert int(chores.plates_taken.sum()) >= int(chores.soups_plated.sum())
+    assert chores.carrying.sum() == 2 * (len(states.agent_inv) - 1)  # both seats, every step taken
+    per = chores.per_episode(1)
+    assert abs(sum(per["carrying"].values()) - 1.0) < 1e-9 and per["soups"] == soups
