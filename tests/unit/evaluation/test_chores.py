@@ -5,16 +5,18 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 
 from cec.agents.policy import load_policies
 from cec.agents.zoo import ZooEntry
 from cec.envs.overcooked.dynamics import reset, step
 from cec.envs.overcooked.state import Action, EnvParams
-from cec.evaluation.chores import count_chores
+from cec.evaluation.chores import Chores, count_chores
 from cec.evaluation.crossplay import episode_states, eval_levels
-from cec.levels import Item
+from cec.levels import Item, Tile
 from cec.levels.classic import classic_level
 from cec.levels.level import unstack_levels
+from tests.scripts import benchmark
 
 A = Action
 
@@ -67,3 +69,38 @@ def test_the_cooks_chain_of_chores_adds_up() -> None:
     assert chores.carrying.sum() == 2 * (len(states.agent_inv) - 1)  # both seats, every step taken
     per = chores.per_episode(1)
     assert abs(sum(per["carrying"].values()) - 1.0) < 1e-9 and per["soups"] == soups
+
+
+def test_counter_circuits_variants_keep_its_floor_and_its_objects() -> None:
+    """`benchmarks/chores.py`'s variants move one thing each: the floor (turned 180 degrees for the control)
+    and the number of each object stay Counter Circuit's; an unknown part is refused with the choices."""
+    chores = benchmark("chores")
+    base = np.asarray(classic_level("counter_circuit").grid)
+    parts = chores._parts(list(chores.VARIANTS))
+    for name, levels in parts.items():
+        grid = np.asarray(levels[name].grid)
+        floor = grid == Tile.FLOOR
+        expected = (
+            np.rot90(base[:5, :8] == Tile.FLOOR, 2)
+            if name.endswith("rotated")
+            else base[:5, :8] == Tile.FLOOR
+        )
+        assert (floor[:5, :8] == expected).all(), name
+        for tile in (Tile.ONION_PILE, Tile.PLATE_PILE, Tile.POT, Tile.GOAL):
+            assert (grid == tile).sum() == (base == tile).sum(), (name, tile)
+    moved = np.argwhere(
+        np.asarray(parts["counter_circuit/window_on_island"]["counter_circuit/window_on_island"].grid)
+        == Tile.GOAL
+    )
+    assert moved.tolist() == [[2, 4]]
+    with pytest.raises(SystemExit, match="window_top"):
+        chores._parts(["counter_circuit/nowhere"])
+
+
+def test_the_table_has_a_column_per_part_and_group() -> None:
+    chores = benchmark("chores")
+    per = Chores.zero().per_episode(1)
+    result = {"counter_circuit": {"levels": 1, "xp": {"episodes": 2, "return": 15.0, **per}}}
+    text = chores.table(result)
+    assert "| per 400-step episode | counter_circuit: xp |" in text
+    assert "| team return per episode | 15.0 |" in text and "| soups delivered | 0.0 |" in text
