@@ -63,8 +63,10 @@ class Chores:
 
     @staticmethod
     def zero() -> Chores:
-        seats = {name: np.zeros(2, np.int64) for name in ("still", *PER_SEAT)}
-        return Chores(carrying=np.zeros((2, len(Item)), np.int64), **seats)
+        def z() -> np.ndarray:
+            return np.zeros(2, np.int64)
+
+        return Chores(np.zeros((2, len(Item)), np.int64), z(), z(), z(), z(), z(), z(), z(), z())
 
     def __add__(self, other: Chores) -> Chores:
         return Chores(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
