@@ -29,16 +29,14 @@ from pathlib import Path
 from typing import Any
 
 from cec.agents.policy import Policy, load_policies
-from cec.agents.zoo import ZooEntry, load_zoo, shipped_entries
 from cec.evaluation.chores import Chores, count_chores
 from cec.evaluation.crossplay import episode_states, eval_levels
-from cec.evaluation.milestones import run_entries
+from cec.evaluation.milestones import COOK, add_seed_arguments, seed_entries
 from cec.humans.data import KITCHENS
 from cec.levels.ascii import from_ascii
 from cec.levels.kinds import subsets
 from cec.levels.level import unstack_levels
 
-COOK = "cook"
 VARIANTS = {  # Counter Circuit (cec.levels.classic) with one thing moved; the seats start where they do there
     "counter_circuit/rotated": "WWWOOWWW\nW1     W\nX WWWW B\nW    0 W\nWWWPPWWW",  # the control: turned 180
     "counter_circuit/window_top": "WWWPPWXW\nW 0    W\nB WWWW W\nW     1W\nWWWOOWWW",
@@ -62,16 +60,6 @@ ROWS = (  # (label, key in a group's summary, item of `carrying` or None)
     ("items put on a counter", "put_down", None),
     ("... taken back at once by the same seat", "taken_back_soon", None),
 )
-
-
-def _entries(args: argparse.Namespace) -> list[ZooEntry]:
-    if args.runs:
-        try:
-            return run_entries(args.runs, args.update)
-        except ValueError as e:
-            raise SystemExit(str(e)) from None
-    zoo = shipped_entries() if args.zoo == "shipped" else load_zoo(args.zoo)
-    return [e for e in zoo if e.algorithm == args.algorithm]
 
 
 def _parts(names: list[str]) -> dict[str, dict[str, Any]]:
@@ -140,20 +128,14 @@ def table(result: dict[str, Any]) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--zoo", default="shipped", help="a zoo manifest, or `shipped` (default)")
-    ap.add_argument("--algorithm", default="cec", help="the zoo's entries of this algorithm play")
-    ap.add_argument("--runs", nargs="+", type=Path, default=[], help="run directories instead of a zoo")
-    ap.add_argument("--update", type=int, default=None, help="the runs' checkpoint (default: the latest)")
-    ap.add_argument("--with-cook", action="store_true", help="each seed also plays the scripted cook")
+    add_seed_arguments(ap)
     ap.add_argument("--parts", nargs="+", default=["counter_circuit", "coord_ring", "loop"])
     ap.add_argument("--episodes", type=int, default=1, help="episodes per pairing, seat order and kitchen")
     ap.add_argument("--max-steps", type=int, default=400)
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.md")
     args = ap.parse_args(argv)
-    if args.update is not None and not args.runs:
-        ap.error("--update picks a checkpoint of --runs; give the run directories too")
     parts = _parts(args.parts)
-    entries = _entries(args) + ([ZooEntry(COOK, "", scripted="cook")] if args.with_cook else [])
+    entries = seed_entries(ap, args)
     policies, skipped = load_policies(entries)
     if skipped or not policies:
         raise SystemExit(f"need one or more loadable policies; skipped: {skipped}")

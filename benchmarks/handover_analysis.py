@@ -33,25 +33,13 @@ from pathlib import Path
 from typing import Any
 
 from cec.agents.policy import Policy, load_policies
-from cec.agents.zoo import ZooEntry, load_zoo, shipped_entries
 from cec.evaluation.crossplay import episode_states, eval_levels
 from cec.evaluation.handovers import Handovers, count_handovers, pass_directions, summarise_directions
-from cec.evaluation.milestones import run_entries
+from cec.evaluation.milestones import COOK, add_seed_arguments, seed_entries
 from cec.levels.kinds import subsets
 from cec.levels.level import unstack_levels
 
 SHOW_LEVEL, SHOW_EVERY = "forced_coord", 25
-COOK = "cook"
-
-
-def _entries(args: argparse.Namespace) -> list[ZooEntry]:
-    if args.runs:
-        try:
-            return run_entries(args.runs, args.update)
-        except ValueError as e:
-            raise SystemExit(str(e)) from None
-    zoo = shipped_entries() if args.zoo == "shipped" else load_zoo(args.zoo)
-    return [e for e in zoo if e.algorithm == args.algorithm]
 
 
 def _summary(per_episode: list[Handovers]) -> dict[str, float]:
@@ -126,20 +114,14 @@ def picture(policies: list[Policy], path: Path, max_steps: int) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--zoo", default="shipped", help="a zoo manifest, or `shipped` (default)")
-    ap.add_argument("--algorithm", default="cec", help="the zoo's entries of this algorithm play")
-    ap.add_argument("--runs", nargs="+", type=Path, default=[], help="run directories instead of a zoo")
-    ap.add_argument("--update", type=int, default=None, help="the runs' checkpoint (default: the latest)")
-    ap.add_argument("--with-cook", action="store_true", help="each seed also plays the scripted cook")
+    add_seed_arguments(ap)
     ap.add_argument(
         "--kinds", nargs="+", default=["hand-over needed", "one seat alone"], help="kitchen kinds to read"
     )
     ap.add_argument("--max-steps", type=int, default=400)
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.png")
     args = ap.parse_args(argv)
-    if args.update is not None and not args.runs:
-        ap.error("--update picks a checkpoint of --runs; give the run directories too")
-    entries = _entries(args) + ([ZooEntry(COOK, "", scripted="cook")] if args.with_cook else [])
+    entries = seed_entries(ap, args)
     policies, skipped = load_policies(entries)
     if skipped or len(policies) < 2:
         raise SystemExit(f"need two or more loadable policies; skipped: {skipped}")

@@ -15,6 +15,7 @@ under one name are one population: one recipe's seeds trained in separate proces
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -24,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from cec.agents.policy import load_policies
-from cec.agents.zoo import ZooEntry
+from cec.agents.zoo import ZooEntry, load_zoo, shipped_entries
 from cec.checkpoints import CheckpointStore, read_meta
 from cec.evaluation import analysis as an
 from cec.evaluation.crossplay import EvalConfig, crossplay
@@ -87,6 +88,35 @@ def run_entries(runs: Sequence[Path], update: int | None = None) -> list[ZooEntr
             for seed in read_meta(path)["metadata"]["seeds"]
         ]
     return out
+
+
+COOK = "cook"
+
+
+def add_seed_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of an analysis that plays a recipe's seeds: a zoo's entries of one algorithm, or run
+    directories at one checkpoint, and optionally the scripted cook beside them (`seed_entries`)."""
+    ap.add_argument("--zoo", default="shipped", help="a zoo manifest, or `shipped` (default)")
+    ap.add_argument("--algorithm", default="cec", help="the zoo's entries of this algorithm play")
+    ap.add_argument("--runs", nargs="+", type=Path, default=[], help="run directories instead of a zoo")
+    ap.add_argument("--update", type=int, default=None, help="the runs' checkpoint (default: the latest)")
+    ap.add_argument("--with-cook", action="store_true", help="each seed also plays the scripted cook")
+
+
+def seed_entries(ap: argparse.ArgumentParser, args: argparse.Namespace) -> list[ZooEntry]:
+    """The entries `add_seed_arguments` named (the cook last, as `COOK`); a bad choice exits through `ap`
+    with the reason."""
+    if args.update is not None and not args.runs:
+        ap.error("--update picks a checkpoint of --runs; give the run directories too")
+    if args.runs:
+        try:
+            entries = run_entries(args.runs, args.update)
+        except ValueError as e:
+            ap.error(str(e))
+    else:
+        zoo = shipped_entries() if args.zoo == "shipped" else load_zoo(args.zoo)
+        entries = [e for e in zoo if e.algorithm == args.algorithm]
+    return entries + ([ZooEntry(COOK, "", scripted="cook")] if args.with_cook else [])
 
 
 def play_milestone(name: str, checkpoints: Sequence[Path], levels: Any, config: EvalConfig) -> EpisodeTable:

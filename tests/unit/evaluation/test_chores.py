@@ -3,37 +3,29 @@ counter and taken back at once, and the scripted cook's episode, whose chain of 
 
 from __future__ import annotations
 
-import jax
 import numpy as np
 import pytest
 
 from cec.agents.policy import load_policies
 from cec.agents.zoo import ZooEntry
-from cec.envs.overcooked.dynamics import reset, step
-from cec.envs.overcooked.state import Action, EnvParams
+from cec.envs.overcooked.state import Action
 from cec.evaluation.chores import Chores, count_chores
 from cec.evaluation.crossplay import episode_states, eval_levels
 from cec.levels import Item, Tile
 from cec.levels.classic import classic_level
 from cec.levels.level import unstack_levels
 from tests.scripts import benchmark
+from tests.unit.evaluation.test_handovers import _episode as episode
 
 A = Action
 
 
+ONION = [(A.LEFT, A.STAY), (A.INTERACT, A.STAY)]  # face the pile, take an onion
+
+
 def _episode(actions: list[tuple[Action, Action]]) -> object:
     """Cramped Room: seat 0 starts at (1, 1) beside the onion pile on its left, the pot above-right."""
-    level = classic_level("cramped_room")
-    params = EnvParams(random_start_facing=False)
-    _, state = reset(jax.random.PRNGKey(0), level, params)
-    states = [state]
-    for a in actions:
-        state = step(jax.random.PRNGKey(1), state, np.asarray(a, np.int32), params).state
-        states.append(state)
-    return jax.tree.map(lambda *x: np.stack([np.asarray(v) for v in x]), *states)
-
-
-ONION = [(A.LEFT, A.STAY), (A.INTERACT, A.STAY)]  # face the pile, take an onion
+    return episode(actions, "cramped_room")
 
 
 def test_an_onion_from_the_pile_into_the_pot() -> None:

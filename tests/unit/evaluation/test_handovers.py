@@ -14,8 +14,9 @@ from cec.levels.classic import classic_level
 A = Action
 
 
-def _episode(actions: list[tuple[Action, Action]]) -> object:
-    level = classic_level("forced_coord")
+def _episode(actions: list[tuple[Action, Action]], kitchen: str = "forced_coord") -> object:
+    """The states of the classic `kitchen` played by `actions` (seat 0's, seat 1's), facing as it starts."""
+    level = classic_level(kitchen)
     params = EnvParams(random_start_facing=False)
     _, state = reset(jax.random.PRNGKey(0), level, params)
     states = [state]
