@@ -15,8 +15,9 @@ a kitchen's failure hangs on is measured, not guessed.
     python benchmarks/chores.py --runs runs/levers/teachcov-s400 runs/levers/teachcov-s402 --update 1280 \
         --parts counter_circuit loop --out ...     # checkpoints of runs, their seeds
 
-Writes OUT.json (per part and group: `sp`, `xp`, `cook` (a seed with the cook), `cook+cook`) and OUT.md
-(the table).
+Writes OUT.json (per part and group: `sp`, `xp`, `cook` (a seed with the cook), `cook+cook`), OUT.md
+(the table) and OUT.png (the frames of one episode in the first part's first kitchen: the first two seeds,
+seat order as listed, episode 0, every 25th step).
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ from typing import Any
 
 from cec.agents.policy import Policy, load_policies
 from cec.evaluation.chores import Chores, count_chores
-from cec.evaluation.crossplay import episode_states, eval_levels
+from cec.evaluation.crossplay import episode_sheet, episode_states, eval_levels
 from cec.evaluation.milestones import COOK, add_seed_arguments, seed_entries
 from cec.humans.data import KITCHENS
 from cec.levels.ascii import from_ascii
@@ -132,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--parts", nargs="+", default=["counter_circuit", "coord_ring", "loop"])
     ap.add_argument("--episodes", type=int, default=1, help="episodes per pairing, seat order and kitchen")
     ap.add_argument("--max-steps", type=int, default=400)
-    ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.md")
+    ap.add_argument("--out", type=Path, required=True, help="writes OUT.json, OUT.md and OUT.png")
     args = ap.parse_args(argv)
     parts = _parts(args.parts)
     entries = seed_entries(ap, args)
@@ -154,6 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(result, indent=1) + "\n")
     args.out.with_suffix(".md").write_text(table(chores))
+    # the picture: the first part's first kitchen, the first two seeds (seat order as listed), episode 0,
+    # every 25th step; chosen by that rule, not by what it shows
+    name, level = next(iter(next(iter(parts.values())).items()))
+    a, b = policies[0], policies[1 % len(policies)]
+    team_return = episode_sheet(a, b, level, name, args.out.with_suffix(".png"), max_steps=args.max_steps)
+    print(f"{name}: {a.name} + {b.name} returned {team_return:.0f}; frames in {args.out.with_suffix('.png')}")
     print(table(chores) + f"wrote {args.out.with_suffix('.json')} and .md")
     return 0
 

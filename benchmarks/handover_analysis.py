@@ -33,7 +33,7 @@ from pathlib import Path
 from typing import Any
 
 from cec.agents.policy import Policy, load_policies
-from cec.evaluation.crossplay import episode_states, eval_levels
+from cec.evaluation.crossplay import episode_sheet, episode_states, eval_levels
 from cec.evaluation.handovers import Handovers, count_handovers, pass_directions, summarise_directions
 from cec.evaluation.milestones import COOK, add_seed_arguments, seed_entries
 from cec.levels.kinds import subsets
@@ -100,16 +100,10 @@ def analyse(policies: list[Policy], kinds: list[str], max_steps: int) -> dict[st
 
 
 def picture(policies: list[Policy], path: Path, max_steps: int) -> None:
-    from cec.envs.overcooked.render import contact_sheet, rollout_frames, save_png
-
     levels = eval_levels("overcooked", SHOW_LEVEL)
-    states, team_return = episode_states(
-        policies[0], policies[1], unstack_levels(levels.levels)[0], SHOW_LEVEL, max_steps=max_steps
-    )
-    frames = rollout_frames(states, tile_size=24)[::SHOW_EVERY]
-    save_png(contact_sheet(frames, columns=8), path)
-    pair = f"{policies[0].name} + {policies[1].name}"
-    print(f"{SHOW_LEVEL}: {pair} returned {team_return:.0f}; frames in {path}")
+    level, (a, b) = unstack_levels(levels.levels)[0], policies[:2]
+    team_return = episode_sheet(a, b, level, SHOW_LEVEL, path, every=SHOW_EVERY, max_steps=max_steps)
+    print(f"{SHOW_LEVEL}: {a.name} + {b.name} returned {team_return:.0f}; frames in {path}")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -32,6 +32,7 @@ import time
 import zlib
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -364,6 +365,25 @@ def episode_states(
     n = int(np.shape(states.agent_pos)[0])
     levels = jax.tree.map(lambda x: np.broadcast_to(np.asarray(x), (n, *np.shape(x))), level)
     return states.replace(level=levels), float(team_return)
+
+
+def episode_sheet(
+    seat0: Policy,
+    seat1: Policy,
+    level: Any,
+    level_name: str,
+    path: Path,
+    *,
+    every: int = 25,
+    max_steps: int = 0,
+) -> float:
+    """Plays `episode_states` and saves every `every`-th frame of it as one picture at `path` (a PNG, eight
+    frames a row); returns the team return."""
+    from cec.envs.overcooked.render import contact_sheet, rollout_frames, save_png
+
+    states, team_return = episode_states(seat0, seat1, level, level_name, max_steps=max_steps)
+    save_png(contact_sheet(rollout_frames(states, tile_size=24)[::every], columns=8), path)
+    return team_return
 
 
 def _seat_params(policy: Policy, network: NetworkConfig, task: Task, kinds: tuple[str, ...]) -> Any:
