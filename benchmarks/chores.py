@@ -58,6 +58,7 @@ ROWS = (  # (label, key in a group's summary, item of `carrying` or None)
     ("plates from a pile", "plates_taken", None),
     ("soups plated", "soups_plated", None),
     ("soups delivered", "soups", None),
+    ("soups put on a counter", "soups_put_down", None),
     ("items put on a counter", "put_down", None),
     ("... taken back at once by the same seat", "taken_back_soon", None),
 )

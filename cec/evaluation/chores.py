@@ -13,6 +13,7 @@ evaluation.crossplay.episode_states`), host-side, per seat:
     soups_plated    finished soups put on a plate at the pot
     soups           soups delivered
     put_down        items put down on a bare counter
+    soups_put_down  such items that were plated soups (a soup parked on the way to the window)
     taken_back_soon such items picked up again by the same seat within `SOON` steps (put down and taken
                     at once: dithering, not leaving the item for later or for the partner)
 
@@ -57,6 +58,7 @@ class Chores:
     soups_plated: np.ndarray
     soups: np.ndarray
     put_down: np.ndarray
+    soups_put_down: np.ndarray
     taken_back_soon: np.ndarray
     soups_ready: int = 0
     ready_wait: int = 0
@@ -66,7 +68,7 @@ class Chores:
         def z() -> np.ndarray:
             return np.zeros(2, np.int64)
 
-        return Chores(np.zeros((2, len(Item)), np.int64), z(), z(), z(), z(), z(), z(), z(), z())
+        return Chores(np.zeros((2, len(Item)), np.int64), z(), z(), z(), z(), z(), z(), z(), z(), z())
 
     def __add__(self, other: Chores) -> Chores:
         return Chores(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -117,6 +119,7 @@ def count_chores(states: Any) -> Chores:
                 out.soups[seat] += 1
             elif tile == Tile.COUNTER and after == Item.NONE and items[t + 1, r, c] == before:
                 out.put_down[seat] += 1
+                out.soups_put_down[seat] += before == Item.DISH
                 put_at[(r, c)] = (seat, t)
             elif tile == Tile.COUNTER and before == Item.NONE and (r, c) in put_at:
                 who, when = put_at.pop((r, c))

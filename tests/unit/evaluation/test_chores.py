@@ -40,6 +40,7 @@ def test_an_item_put_on_a_counter_and_taken_again_at_once_is_dithering() -> None
     walk = [(A.DOWN, A.STAY), (A.LEFT, A.STAY)]  # to (2, 1), then face the bare counter at (2, 0)
     chores = count_chores(_episode([*ONION, *walk, (A.INTERACT, A.STAY), (A.INTERACT, A.STAY)]))
     assert chores.put_down.tolist() == [1, 0] and chores.taken_back_soon.tolist() == [1, 0]
+    assert chores.soups_put_down.tolist() == [0, 0]  # an onion, not a soup
     assert chores.onions_in.tolist() == [0, 0]
     assert chores.still[1] > 0  # the other seat stayed put throughout
 
