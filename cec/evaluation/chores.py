@@ -41,6 +41,7 @@ PER_SEAT = (
     "soups_plated",
     "soups",
     "put_down",
+    "soups_put_down",
     "taken_back_soon",
 )
 
