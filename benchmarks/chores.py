@@ -123,7 +123,7 @@ def table(result: dict[str, Any]) -> str:
             if item:
                 cells.append(" / ".join(f"{value[i]:.2f}" for i in item.split("/")))
             else:
-                cells.append(f"{value:.2f}" if key in ("still",) else f"{value:.1f}")
+                cells.append(f"{value:.2f}" if key == "still" else f"{value:.1f}")
         lines.append(f"| {label} | " + " | ".join(cells) + " |")
     return "\n".join(lines) + "\n"
 

@@ -31,8 +31,8 @@ from typing import Any
 import numpy as np
 
 from cec.envs.overcooked.state import POT_READY
-from cec.evaluation.handovers import SOON
-from cec.levels import DIR_VEC, Item, Tile
+from cec.evaluation.handovers import SOON, facing_steps
+from cec.levels import Item, Tile
 
 PER_SEAT = (
     "onions_taken",
@@ -66,10 +66,8 @@ class Chores:
 
     @staticmethod
     def zero() -> Chores:
-        def z() -> np.ndarray:
-            return np.zeros(2, np.int64)
-
-        return Chores(np.zeros((2, len(Item)), np.int64), z(), z(), z(), z(), z(), z(), z(), z(), z())
+        seats = {name: np.zeros(2, np.int64) for name in ("still", *PER_SEAT)}
+        return Chores(carrying=np.zeros((2, len(Item)), np.int64), **seats, soups_ready=0, ready_wait=0)
 
     def __add__(self, other: Chores) -> Chores:
         return Chores(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
@@ -89,40 +87,36 @@ class Chores:
 def count_chores(states: Any) -> Chores:
     """The chores of one episode from its states (leading axis T, host arrays, each with its level)."""
     grid = np.asarray(states.level.grid[0])
-    pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
-    inv, items, pot = np.asarray(states.agent_inv), np.asarray(states.items), np.asarray(states.pot)
+    pos, inv = np.asarray(states.agent_pos), np.asarray(states.agent_inv)
+    items, pot = np.asarray(states.items), np.asarray(states.pot)
     out = Chores.zero()
-    put_at: dict[tuple[int, int], tuple[int, int]] = {}  # counter cell -> (the seat that put an item, when)
-    pots = grid == Tile.POT
-    ready = (pot == POT_READY) & pots[None]
+    for seat in (0, 1):
+        out.carrying[seat] = np.bincount(inv[:-1, seat], minlength=len(Item))
+    kept = inv[1:] == inv[:-1]  # (T - 1, 2): held the same thing over the step
+    out.still[:] = (kept & (pos[1:] == pos[:-1]).all(-1)).sum(0)
+    ready = (pot == POT_READY) & (grid == Tile.POT)[None]
     out.soups_ready = int((ready[1:] & ~ready[:-1]).sum())
     out.ready_wait = int(ready[:-1].sum())
-    for t in range(len(inv) - 1):
-        for seat in (0, 1):
-            before, after = int(inv[t, seat]), int(inv[t + 1, seat])
-            out.carrying[seat, before] += 1
-            if before == after:
-                out.still[seat] += bool((pos[t, seat] == pos[t + 1, seat]).all())
-                continue
-            r, c = (int(v) for v in pos[t + 1, seat] + DIR_VEC[int(facing[t + 1, seat])])
-            if not (0 <= r < grid.shape[0] and 0 <= c < grid.shape[1]):
-                continue
-            tile = grid[r, c]
-            if tile == Tile.ONION_PILE and after == Item.ONION:
-                out.onions_taken[seat] += 1
-            elif tile == Tile.PLATE_PILE and after == Item.PLATE:
-                out.plates_taken[seat] += 1
-            elif tile == Tile.POT and before == Item.ONION:
-                out.onions_in[seat] += 1
-            elif tile == Tile.POT and before == Item.PLATE and after == Item.DISH:
-                out.soups_plated[seat] += 1
-            elif tile == Tile.GOAL and before == Item.DISH:
-                out.soups[seat] += 1
-            elif tile == Tile.COUNTER and after == Item.NONE and items[t + 1, r, c] == before:
-                out.put_down[seat] += 1
-                out.soups_put_down[seat] += before == Item.DISH
-                put_at[(r, c)] = (seat, t)
-            elif tile == Tile.COUNTER and before == Item.NONE and (r, c) in put_at:
-                who, when = put_at.pop((r, c))
-                out.taken_back_soon[seat] += who == seat and t - when <= SOON
+    put_at: dict[tuple[int, int], tuple[int, int]] = {}  # counter cell -> (the seat that put an item, when)
+    for t, seat, r, c, before, after in facing_steps(states):
+        if before == after:
+            continue
+        tile = grid[r, c]
+        if tile == Tile.ONION_PILE and after == Item.ONION:
+            out.onions_taken[seat] += 1
+        elif tile == Tile.PLATE_PILE and after == Item.PLATE:
+            out.plates_taken[seat] += 1
+        elif tile == Tile.POT and before == Item.ONION:
+            out.onions_in[seat] += 1
+        elif tile == Tile.POT and before == Item.PLATE and after == Item.DISH:
+            out.soups_plated[seat] += 1
+        elif tile == Tile.GOAL and before == Item.DISH:
+            out.soups[seat] += 1
+        elif tile == Tile.COUNTER and after == Item.NONE and items[t + 1, r, c] == before:
+            out.put_down[seat] += 1
+            out.soups_put_down[seat] += before == Item.DISH
+            put_at[(r, c)] = (seat, t)
+        elif tile == Tile.COUNTER and before == Item.NONE and (r, c) in put_at:
+            who, when = put_at.pop((r, c))
+            out.taken_back_soon[seat] += who == seat and t - when <= SOON
     return out

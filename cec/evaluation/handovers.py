@@ -26,6 +26,7 @@ stalls after the hand-over.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -34,7 +35,7 @@ import numpy as np
 
 from cec.envs.overcooked.dynamics import Sides, sides_of
 from cec.envs.overcooked.state import POT_EMPTY, POT_READY
-from cec.levels import DIR_VEC, Item, Tile
+from cec.levels import DIR_VEC, GRID_SIZE, Item, Tile
 
 SOON = 4  # steps: time to put an item down and take it again without leaving the counter (turns included)
 
@@ -72,45 +73,52 @@ def _shared(grid: np.ndarray, sides: Sides) -> np.ndarray:
     return (grid == Tile.COUNTER) & np.asarray(sides.counters).all(axis=0)
 
 
+def facing_steps(states: Any) -> Iterator[tuple[int, int, int, int, int, int]]:
+    """(t, seat, row, col, held before, held after) for every step t -> t + 1 of an episode's states and
+    each seat: the cell it faces after the step (what an interact touched) and what it held either side;
+    steps that face out of the frame are left out."""
+    pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
+    inv = np.asarray(states.agent_inv)
+    for t in range(len(inv) - 1):
+        for seat in (0, 1):
+            r, c = (int(v) for v in pos[t + 1, seat] + DIR_VEC[int(facing[t + 1, seat])])
+            if 0 <= r < GRID_SIZE and 0 <= c < GRID_SIZE:
+                yield t, seat, r, c, int(inv[t, seat]), int(inv[t + 1, seat])
+
+
 def count_handovers(states: Any) -> Handovers:
     """The hand-overs of one episode from its states (leading axis T, host arrays, each with its level)."""
     grid = np.asarray(states.level.grid[0])
     sides = sides_of(jnp.asarray(grid), jnp.asarray(states.level.agent_pos[0]))  # as the rewards read them
     shared, usable = _shared(grid, sides), np.asarray(sides.uses)
-    pos, facing = np.asarray(states.agent_pos), np.asarray(states.agent_dir)
-    inv, items, pot = np.asarray(states.agent_inv), np.asarray(states.items), np.asarray(states.pot)
+    items, pot = np.asarray(states.items), np.asarray(states.pot)
     out = Handovers.zero()
     owner: dict[tuple[int, int], tuple[int, bool, int]] = {}  # shared cell -> (whose item, a pass, when put)
     filled_by: dict[tuple[int, int], set[int]] = {}  # pot cell -> the seats that put onions in it
-    for t in range(len(inv) - 1):
-        for seat in (0, 1):
-            r, c = (int(v) for v in pos[t + 1, seat] + DIR_VEC[int(facing[t + 1, seat])])
-            if not (0 <= r < 9 and 0 <= c < 9):
-                continue
-            before, after = int(inv[t, seat]), int(inv[t + 1, seat])
-            cell = (r, c)
-            if shared[r, c] and before != Item.NONE and after == Item.NONE and items[t + 1, r, c] == before:
-                passed = not usable[seat, before] and usable[1 - seat, before]
-                out.puts[seat] += 1
-                out.passes[seat] += passed
-                owner[cell] = (seat, passed, t)
-            elif shared[r, c] and before == Item.NONE and after != Item.NONE and items[t, r, c] == after:
-                if cell in owner:
-                    who, passed, when = owner.pop(cell)
-                    (out.taken if who != seat else out.taken_back)[seat] += 1
-                    out.taken_back_soon[seat] += who == seat and t - when <= SOON
-                    if passed:
-                        (out.passes_taken if who != seat else out.passes_taken_back)[seat] += 1
-            elif grid[r, c] == Tile.POT:
-                if before == Item.ONION and after == Item.NONE and pot[t + 1, r, c] < pot[t, r, c]:
-                    filled_by.setdefault(cell, set()).add(seat)
-                elif before == Item.PLATE and after == Item.DISH and pot[t, r, c] == POT_READY:
-                    if filled_by.pop(cell, set()) - {seat}:
-                        out.pot_serves[seat] += 1
-                elif pot[t + 1, r, c] == POT_EMPTY:
-                    filled_by.pop(cell, None)
-            if before == Item.DISH and after == Item.NONE and grid[r, c] == Tile.GOAL:
-                out.soups += 1
+    for t, seat, r, c, before, after in facing_steps(states):
+        cell = (r, c)
+        if shared[r, c] and before != Item.NONE and after == Item.NONE and items[t + 1, r, c] == before:
+            passed = not usable[seat, before] and usable[1 - seat, before]
+            out.puts[seat] += 1
+            out.passes[seat] += passed
+            owner[cell] = (seat, passed, t)
+        elif shared[r, c] and before == Item.NONE and after != Item.NONE and items[t, r, c] == after:
+            if cell in owner:
+                who, passed, when = owner.pop(cell)
+                (out.taken if who != seat else out.taken_back)[seat] += 1
+                out.taken_back_soon[seat] += who == seat and t - when <= SOON
+                if passed:
+                    (out.passes_taken if who != seat else out.passes_taken_back)[seat] += 1
+        elif grid[r, c] == Tile.POT:
+            if before == Item.ONION and after == Item.NONE and pot[t + 1, r, c] < pot[t, r, c]:
+                filled_by.setdefault(cell, set()).add(seat)
+            elif before == Item.PLATE and after == Item.DISH and pot[t, r, c] == POT_READY:
+                if filled_by.pop(cell, set()) - {seat}:
+                    out.pot_serves[seat] += 1
+            elif pot[t + 1, r, c] == POT_EMPTY:
+                filled_by.pop(cell, None)
+        if before == Item.DISH and after == Item.NONE and grid[r, c] == Tile.GOAL:
+            out.soups += 1
     return out
 
 
