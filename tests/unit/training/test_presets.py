@@ -23,6 +23,10 @@ def _run_path(config: TrainConfig) -> str:
     return str(Path(config.run_dir) / config.run_name)
 
 
+#: The presets that fine-tune the shipped generalists, and the algorithm label of the group they start from.
+SHIPPED_FINETUNES = {"cec_finetune_shipped": "cec", "cec_finetune_teacher": "cec_teacher"}
+
+
 @pytest.mark.parametrize("path", PRESETS, ids=[p.stem for p in PRESETS])
 def test_preset_loads_and_is_consistent(path):
     config = load_config(TrainConfig, path)  # populations / init_from need not exist yet
@@ -33,14 +37,16 @@ def test_preset_loads_and_is_consistent(path):
         assert (ippo.algorithm, ippo.env, ippo.network_config) == ("ippo", config.env, config.network_config)
         assert [e.run for e in config.partner.population] == [_run_path(ippo)]
         assert all(e.checkpoints == ("first", "middle", "last") for e in config.partner.population)
-    if path.stem == "cec_finetune_shipped":  # seed i from the i-th shipped CEC seed, with their network
+    if path.stem in SHIPPED_FINETUNES:  # seed i from the i-th shipped seed of a group, with their network
         from cec.agents.policy import load_policy
         from cec.agents.zoo import SHIPPED, load_zoo
 
-        shipped = [e for e in load_zoo(SHIPPED) if e.algorithm == "cec"]
+        shipped = [e for e in load_zoo(SHIPPED) if e.algorithm == SHIPPED_FINETUNES[path.stem]]
         assert config.init_from_paths == tuple(f"cec/shipped/{e.name}" for e in shipped)
         assert config.num_seeds == len(shipped)
         assert all(load_policy(e).network == config.network_config for e in shipped)
+        # a teacher, if any, fades out over exactly the fine-tuning
+        assert config.ppo.teacher_coef == 0 or config.ppo.teacher_anneal_env_steps == config.total_env_steps
     elif config.algorithm == "cec_finetune":  # from the CEC preset's run, 1e8 steps at a tenth of its LR
         cec = _load("cec_overcooked")
         assert config.init_from == _run_path(cec) and config.network_config == cec.network_config

@@ -1,11 +1,18 @@
-"""CEC-Finetune from the shipped CEC seeds, per classic kitchen: its seeds with each other, with the seeds
+"""CEC-Finetune from shipped generalist seeds, per classic kitchen: its seeds with each other, with the seeds
 they started from, with the human proxy of the kitchen and with the scripted cook, beside the same for the
-shipped CEC seeds (the control: the partner a person has without fine-tuning) and a partner that stays put.
+seeds they started from (the control: the partner a person has without fine-tuning) and a partner that
+stays put. Two families (`--family`): `ft758m`, from the CEC seeds (758M env steps), and `ftteach`, from the
+kickstarted seeds (lever (u)'s release, 10.5M), each with its config:
 
-    # the runs (configs/train/cec_finetune_shipped.yaml; Forced Coordination, Counter Circuit twice as long):
+    # Forced Coordination and Counter Circuit twice as long (total_env_steps=1966080, and for ftteach
+    # ppo.teacher_anneal_env_steps=1966080):
     cec train --config configs/train/cec_finetune_shipped.yaml env.levels=KITCHEN run_dir=runs/ft758m \\
-        name=ft758m-KITCHEN [total_env_steps=1966080]
+        name=ft758m-KITCHEN
     .venv/bin/python benchmarks/results/overcooked/shipped/finetune/evaluate.py --runs runs/ft758m
+    cec train --config configs/train/cec_finetune_teacher.yaml env.levels=KITCHEN run_dir=runs/ftteach \\
+        name=ftteach-KITCHEN
+    .venv/bin/python benchmarks/results/overcooked/shipped/finetune/evaluate.py --family ftteach \\
+        --out benchmarks/results/overcooked/shipped/finetune/teacher
 
 Per kitchen one `cec eval` (400-step episodes, 4 per pairing and seat order, sampled actions, common random
 numbers) into `<kitchen>.csv.bz2`; then `summary.json` and `summary.md`.
@@ -41,7 +48,10 @@ from cec.humans.data import KITCHENS
 
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[4]
-FINETUNE, CEC, PROXY, BC = "cec_finetune", "cec", "human_proxy", "bc_proxy"
+FINETUNE, PROXY, BC = "cec_finetune", "human_proxy", "bc_proxy"
+#: Per fine-tuned family (the runs' and shipped agents' name prefix): the shipped generalists it started
+#: from, by algorithm label (the control), and how the tables name them.
+FAMILIES = {"ft758m": ("cec", "CEC seeds"), "ftteach": ("cec_teacher", "kickstarted seeds")}
 
 
 def run_seeds(run: Path) -> list[int]:
@@ -49,11 +59,11 @@ def run_seeds(run: Path) -> list[int]:
     return [config["seed"] + i for i in range(config["num_seeds"])]
 
 
-def zoo(kitchen: str, run: Path, seeds: list[int], proxies: Path) -> dict:
-    """The kitchen's zoo: the fine-tuned seeds (the run's last checkpoint), the shipped CEC seeds and the
-    kitchen's test human proxy (as shipped), its validation proxy (`bc_<kitchen>` of `proxies`, as
-    `bc_proxy`), the scripted cook and a partner that stays put."""
-    shipped = [e for e in load_zoo(SHIPPED_ZOO) if e.algorithm == CEC or e.name == f"hp_{kitchen}"]
+def zoo(kitchen: str, run: Path, seeds: list[int], proxies: Path, control: str) -> dict:
+    """The kitchen's zoo: the fine-tuned seeds (the run's last checkpoint), the shipped seeds they started
+    from (algorithm `control`) and the kitchen's test human proxy (as shipped), its validation proxy
+    (`bc_<kitchen>` of `proxies`, as `bc_proxy`), the scripted cook and a partner that stays put."""
+    shipped = [e for e in load_zoo(SHIPPED_ZOO) if e.algorithm == control or e.name == f"hp_{kitchen}"]
     (bc,) = [e for e in load_zoo(proxies) if e.name == f"bc_{kitchen}"]
     return {
         "policies": [
@@ -78,9 +88,11 @@ def mean_se(x: np.ndarray) -> dict:
     return {"mean": float(np.mean(x)), "se": se, "n": int(x.size), "per_seed": [float(v) for v in x]}
 
 
-def summarise(csv: Path, kitchen: str) -> dict:
+def summarise(csv: Path, kitchen: str, control: str) -> dict:
+    """The fine-tuned seeds beside the seeds they started from (`control`); under the keys `finetune` and
+    `cec` (the latter whichever generalists `control` names)."""
     m = seed_matrix(read_csv(csv))
-    ft, cec = m.indices(FINETUNE), m.indices(CEC)
+    ft, cec = m.indices(FINETUNE), m.indices(control)
     group = {a: m.indices(a) for a in (PROXY, BC, "cook", "noop")}
     fts, cecs = m.summary(ft), m.summary(cec)
     paired = compare_crossplay_paired(np.asarray(fts.matrix), np.asarray(cecs.matrix))
@@ -89,7 +101,7 @@ def summarise(csv: Path, kitchen: str) -> dict:
     out = {
         "kitchen": kitchen,
         "shipped_seed": fts.seeds[int(np.argmax(ft_bc))],  # validation: with the bc proxy
-        "best": FINETUNE if np.mean(ft_bc) > np.mean(cec_bc) else CEC,
+        "best": FINETUNE if np.mean(ft_bc) > np.mean(cec_bc) else control,
         "finetune_seeds": list(fts.seeds),
         "cec_seeds": list(cecs.seeds),
         "finetune": {
@@ -133,7 +145,8 @@ def _num(row: dict, control: str) -> str:
     return f"{row['controls'][control]:.1f}"
 
 
-def markdown(rows: list[dict]) -> str:
+def markdown(rows: list[dict], seeds: str) -> str:
+    """The table of `rows`; `seeds` names the generalists they started from (`FAMILIES`)."""
     head = (
         "| team return per 400 steps (20 per soup), 4 seeds | "
         + " | ".join(r["kitchen"] for r in rows)
@@ -143,23 +156,23 @@ def markdown(rows: list[dict]) -> str:
     lines = [
         ("CEC-Finetune cross-play (jackknife SE over seeds)", lambda r: fmt(r["finetune"]["cross_play"])),
         ("CEC-Finetune self-play", lambda r: fmt(r["finetune"]["self_play"])),
-        ("the shipped CEC seeds, cross-play (the control)", lambda r: fmt(r["cec"]["cross_play"])),
-        ("the shipped CEC seeds, self-play", lambda r: fmt(r["cec"]["self_play"])),
+        (f"the shipped {seeds}, cross-play (the control)", lambda r: fmt(r["cec"]["cross_play"])),
+        (f"the shipped {seeds}, self-play", lambda r: fmt(r["cec"]["self_play"])),
         (
-            "fine-tuned minus CEC cross-play, paired (95% t interval, p)",
+            f"fine-tuned minus the {seeds}' cross-play, paired (95% t interval, p)",
             lambda r: "{diff:+.1f} [{ci_low:+.1f}, {ci_high:+.1f}], p = {p:.2g}".format(
                 **r["finetune_vs_cec_cross_play_paired"]
             ),
         ),
-        ("CEC-Finetune with the CEC seeds", lambda r: fmt(r["finetune"]["with_cec_seeds"])),
+        (f"CEC-Finetune with the {seeds}", lambda r: fmt(r["finetune"]["with_cec_seeds"])),
         ("validation: CEC-Finetune with the bc proxy", lambda r: fmt(r["finetune"]["with_bc_proxy"])),
-        ("validation: the CEC seeds with the bc proxy", lambda r: fmt(r["cec"]["with_bc_proxy"])),
+        (f"validation: the {seeds} with the bc proxy", lambda r: fmt(r["cec"]["with_bc_proxy"])),
         ("**test: CEC-Finetune with the hp proxy**", lambda r: fmt(r["finetune"]["with_human_proxy"])),
-        ("**test: the CEC seeds with the hp proxy**", lambda r: fmt(r["cec"]["with_human_proxy"])),
-        ("test: fine-tuned minus CEC with the hp proxy, per seed pair", _paired_proxy),
+        (f"**test: the {seeds} with the hp proxy**", lambda r: fmt(r["cec"]["with_human_proxy"])),
+        (f"test: fine-tuned minus the {seeds} with the hp proxy, per seed pair", _paired_proxy),
         ("control: a partner that stays put, with the proxy", lambda r: _num(r, "noop_with_human_proxy")),
         ("CEC-Finetune with the scripted cook", lambda r: fmt(r["finetune"]["with_cook"])),
-        ("the CEC seeds with the scripted cook", lambda r: fmt(r["cec"]["with_cook"])),
+        (f"the {seeds} with the scripted cook", lambda r: fmt(r["cec"]["with_cook"])),
         ("control: a partner that stays put, with the cook", lambda r: _num(r, "noop_with_cook")),
     ]  # fmt: skip
     body = "\n".join(f"| {title} | " + " | ".join(f(r) for r in rows) + " |" for title, f in lines)
@@ -169,35 +182,46 @@ def markdown(rows: list[dict]) -> str:
 
     means = (
         f"\nMeans over the {len(rows)} kitchens: cross-play CEC-Finetune "
-        f"{over_kitchens('finetune', 'cross_play')}, the CEC seeds {over_kitchens('cec', 'cross_play')}; "
+        f"{over_kitchens('finetune', 'cross_play')}, the {seeds} {over_kitchens('cec', 'cross_play')}; "
         f"test, with the hp proxies: CEC-Finetune {over_kitchens('finetune', 'with_human_proxy')}, "
-        f"the CEC seeds {over_kitchens('cec', 'with_human_proxy')}.\n"
+        f"the {seeds} {over_kitchens('cec', 'with_human_proxy')}.\n"
     )
     return head + "\n" + body + "\n" + means
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--runs", default="runs/ft758m", help="folder of the runs ft758m-<kitchen>")
-    ap.add_argument("--work", default="/tmp/ft758m-eval", help="folder for the zoos and raw tables")
+    ap.add_argument(
+        "--family",
+        choices=FAMILIES,
+        default="ft758m",
+        help="which fine-tuned agents: their runs' "
+        "and shipped names' prefix (ft758m: from the CEC seeds; ftteach: from the kickstarted seeds)",
+    )
+    ap.add_argument("--runs", default="runs/<family>", help="folder of the runs <family>-<kitchen>")
+    ap.add_argument("--work", default="/tmp/<family>-eval", help="folder for the zoos and raw tables")
     ap.add_argument("--kitchens", default=",".join(KITCHENS))
     ap.add_argument("--episodes", type=int, default=4)
     ap.add_argument("--proxies", default="runs/humans/proxies/zoo.yaml", help="`cec humans bc`'s zoo")
     ap.add_argument("--out", default=str(HERE), help="folder for the tables and the summary (default: here)")
     ap.add_argument("--summarise-only", action="store_true", help="read the tables already in --out")
     args = ap.parse_args()
-    runs, work, out = Path(args.runs), Path(args.work), Path(args.out)
+    family, (control, seeds_label) = args.family, FAMILIES[args.family]
+    runs, work = (Path(p.replace("<family>", family)) for p in (args.runs, args.work))
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     rows, ship = [], []
     for kitchen in args.kitchens.split(","):
-        run = runs / f"ft758m-{kitchen}"
+        run = runs / f"{family}-{kitchen}"
         table = out / f"{kitchen}.csv.bz2"
         if not args.summarise_only:
             seeds = run_seeds(run)
             manifest = work / f"zoo_{kitchen}.yaml"
             manifest.write_text(
-                yaml.safe_dump(zoo(kitchen, run.resolve(), seeds, Path(args.proxies)), sort_keys=False)
+                yaml.safe_dump(
+                    zoo(kitchen, run.resolve(), seeds, Path(args.proxies), control), sort_keys=False
+                )
             )
             raw = work / f"{kitchen}.csv"
             cmd = [str(ROOT / ".venv/bin/cec"), "eval", "--zoo", str(manifest), "--levels", kitchen,
@@ -205,18 +229,18 @@ def main() -> int:
             print("$", " ".join(cmd), flush=True)
             subprocess.run(cmd, check=True, cwd=ROOT)
             table.write_bytes(bz2.compress(raw.read_bytes(), 9))
-        row = summarise(table, kitchen)
+        row = summarise(table, kitchen, control)
         rows.append(row)
-        name = f"ft758m-{kitchen}"
+        name = f"{family}-{kitchen}"
         ship.append({"name": name, "algorithm": FINETUNE, "seed": row["shipped_seed"],
                      "checkpoint": str(run.resolve()), "levels": [kitchen]})  # fmt: skip
-        print(markdown(rows[-1:]), flush=True)
+        print(markdown(rows[-1:], seeds_label), flush=True)
         print(f"{kitchen}: ships seed {row['shipped_seed']}")
     (work / "ship.yaml").write_text(yaml.safe_dump({"policies": ship}, sort_keys=False))
     print(f"to ship: cec zoo export {work}/ship.yaml --out cec/shipped; then ../best.py for `--partner best`")
     (out / "summary.json").write_text(json.dumps(rows, indent=1) + "\n")
-    (out / "summary.md").write_text(markdown(rows))
-    print(markdown(rows))
+    (out / "summary.md").write_text(markdown(rows, seeds_label))
+    print(markdown(rows, seeds_label))
     return 0
 
 
