@@ -114,15 +114,17 @@ def compare(
     steps: int,
     curve: Path | None = None,
     control: Path | None = None,
+    control_steps: int | None = None,
 ) -> dict[str, Any]:
     """Each lever's row at `steps` part by part against `base` (and the `curve` at equal steps), or with a
-    `control` output against its row at the lever's steps only."""
+    `control` output against its row at the lever's steps only (at `control_steps` if given: a longer run
+    against a shorter one, each at its own end)."""
     out: dict[str, Any] = {}
     for name, path in levers.items():
         row = lever_row(path, steps)
         mine = dict(base)
         if control is not None:
-            mine = control_parts(control, row["env_steps_per_seed"])
+            mine = control_parts(control, control_steps or row["env_steps_per_seed"])
         elif curve is not None and (point := curve_point(curve, row["env_steps_per_seed"])) is not None:
             mine = {EQUAL_STEPS: point, **base}
             row["parts"] = {EQUAL_STEPS: row["parts"]["generated"], **row["parts"]}
@@ -139,8 +141,9 @@ def compare(
         for part, p in zip(parts, holm([v["p"] for v in parts.values()]), strict=True):
             parts[part]["p_holm"] = float(p)
         seeds = next(iter(mine.values()))["seeds"]
+        at = f"at {control_steps / 1e6:.1f}M env steps per seed" if control_steps else "at the same steps"
         against = (
-            f"the recipe trained beside it ({control.name}, {seeds:.0f} seeds) at the same steps"
+            f"the recipe trained beside it ({control.name}, {seeds:.0f} seeds) {at}"
             if control is not None
             else "its time-to-skill curve at the same steps (seeds 300-307, generated kitchens only), then "
             "the CPU reproduction's CEC (seeds 200-203) at 10.5M"
@@ -201,8 +204,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument(
         "--control", type=Path, help="the recipe's own time-to-skill output, trained beside the levers"
     )
+    ap.add_argument(
+        "--control-steps", type=int, help="the control's row at these env steps per seed (default: --steps)"
+    )
     ap.add_argument("--out", type=Path, required=True, help="writes OUT.json and OUT.md")
     args = ap.parse_args(argv)
+    if args.control_steps is not None and args.control is None:
+        ap.error("--control-steps picks a row of --control: give --control too")
     levers = {}
     for spec in args.lever:
         name, sep, path = spec.partition("=")
@@ -210,7 +218,7 @@ def main(argv: list[str] | None = None) -> int:
             ap.error(f"--lever {spec!r}: write NAME=PATH of a time_to_skill output")
         levers[name] = Path(path)
     base = baseline(args.baseline_table, args.baseline_algorithm)
-    result = compare(levers, base, args.steps, args.baseline_curve, args.control)
+    result = compare(levers, base, args.steps, args.baseline_curve, args.control, args.control_steps)
     from apps.machine import machine_info
 
     args.out.parent.mkdir(parents=True, exist_ok=True)
