@@ -92,9 +92,9 @@ HEAVY = frozenset(
         f"{_PARITY}[asymm_advantages]",
         f"{_PARITY}[coord_ring]",
         f"{_PARITY}[counter_circuit]",
-        # the gate plays cec758m-s200, teach10m-s400, ft758m-asymm_advantages and ft758m-forced_coord
+        # the gate plays cec758m-s200, teach21m-s400, ft758m-asymm_advantages and ft758m-forced_coord
         *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[cec758m-s{s}]" for s in (201, 202, 203)),
-        *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[teach10m-s{s}]" for s in (401, 402, 403)),
+        *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[teach21m-s{s}]" for s in (401, 402, 403)),
         *(
             f"{_SHIPPED}_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen[ft758m-{k}]"
             for k in ("cramped_room", "coord_ring", "counter_circuit")

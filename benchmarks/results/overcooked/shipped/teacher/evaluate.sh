@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# The shipped kickstarted seeds (cec/shipped/teach10m-s400..403, algorithm `cec_teacher`) evaluated as the
+# The shipped kickstarted seeds (cec/shipped/teach21m-s400..403, algorithm `cec_teacher`) evaluated as the
 # shipped CEC seeds are (../evaluate.sh: 400-step episodes, sampled actions, the same evaluation seed, both
 # seat orders; 1 episode per pairing and kitchen on the 100 held-out kitchens and the test set, 4 on the 5
 # classic ones), with the scripted cook beside its two controls (an untrained network of the recipe, one
