@@ -6,7 +6,8 @@ the test figure beside each choice:
     .venv/bin/python benchmarks/results/overcooked/shipped/best.py
     cp /tmp/shipped-best/best.yaml cec/shipped/
 
-Per classic kitchen the candidates are the kitchen's fine-tuned agent (`ft758m-<kitchen>`) and each group of
+Per classic kitchen the candidates are the kitchen's fine-tuned agents (`ft758m-<kitchen>`, `cec_finetune`:
+from the CEC seeds; `ftteach-<kitchen>`, `cec_finetune_teacher`: from the kickstarted seeds) and each group of
 generalist seeds (the CEC seeds, `cec`; the kickstarted seeds, `cec_teacher`); the one that cooks most on
 average with the kitchen's validation proxy (`bc_<kitchen>`: cloned from the train games' people) is chosen,
 and its figure with the test proxy (`hp_<kitchen>`, the test games' people, shipped) reports. One `cec eval`
@@ -42,7 +43,9 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[3]
 #: The generalist groups, with the release table of each on the validation kitchens.
 GENERALISTS = {"cec": HERE / "heldout.csv", "cec_teacher": HERE / "teacher" / "heldout.csv.bz2"}
-FINETUNE, PROXY, BC = "cec_finetune", "human_proxy", "bc_proxy"
+PROXY, BC = "human_proxy", "bc_proxy"
+#: The fine-tuned agents by algorithm label, with the prefix of their shipped names (`<prefix>-<kitchen>`).
+FINETUNED = {"cec_finetune": "ft758m", "cec_finetune_teacher": "ftteach"}
 #: The comment of `cec/shipped/best.yaml`, so that the file written here is the one shipped, as it is.
 HEADER = """\
 # `cec play serve --partner best`: per classic kitchen, the shipped partner that cooked most with the
@@ -53,9 +56,9 @@ HEADER = """\
 
 
 def zoo(kitchen: str, proxies: Path) -> dict:
-    """The kitchen's candidates (the generalist groups' seeds, its fine-tuned agent) and both its proxies."""
-    shipped = [e for e in load_zoo(SHIPPED_ZOO)
-               if e.algorithm in GENERALISTS or e.name in (f"ft758m-{kitchen}", f"hp_{kitchen}")]  # fmt: skip
+    """The kitchen's candidates (the generalist groups' seeds, its fine-tuned agents) and both its proxies."""
+    wanted = {f"hp_{kitchen}", *(f"{prefix}-{kitchen}" for prefix in FINETUNED.values())}
+    shipped = [e for e in load_zoo(SHIPPED_ZOO) if e.algorithm in GENERALISTS or e.name in wanted]
     (bc,) = [e for e in load_zoo(proxies) if e.name == f"bc_{kitchen}"]
     entries = [{"name": e.name, "algorithm": e.algorithm, "seed": e.seed, "checkpoint": e.checkpoint,
                 **({"levels": list(e.levels)} if e.levels else {})} for e in shipped]  # fmt: skip
@@ -66,11 +69,12 @@ def zoo(kitchen: str, proxies: Path) -> dict:
 
 
 def with_proxy(table: Path, proxy_algorithm: str) -> dict[str, np.ndarray]:
-    """Per candidate (a generalist group, or the fine-tuned agent as `cec_finetune`), each of its seeds'
+    """Per candidate (a generalist group, or a fine-tuned agent by its algorithm label), each of its seeds'
     mean return with the proxy."""
     m = seed_matrix(read_csv(table))
     (proxy,) = m.indices(proxy_algorithm)
-    return {a: m.partner_means(m.indices(a), [proxy]) for a in (*GENERALISTS, FINETUNE)}
+    candidates = [a for a in (*GENERALISTS, *FINETUNED) if m.indices(a)]
+    return {a: m.partner_means(m.indices(a), [proxy]) for a in candidates}
 
 
 def validation_crossplay() -> dict[str, float]:
@@ -107,7 +111,7 @@ def main() -> int:
                 table.write_bytes(bz2.compress(raw.read_bytes(), 9))
             scores[proxy] = with_proxy(table, algorithm)
         chosen = max(scores["bc"], key=lambda a: float(np.mean(scores["bc"][a])))
-        best[kitchen] = f"ft758m-{kitchen}" if chosen == FINETUNE else chosen
+        best[kitchen] = f"{FINETUNED[chosen]}-{kitchen}" if chosen in FINETUNED else chosen
         rows.append((kitchen, best[kitchen], scores))
         print(f"{kitchen}: `--partner best` plays {best[kitchen]}", flush=True)
     xp = validation_crossplay()
@@ -122,8 +126,9 @@ def main() -> int:
 def markdown(rows: list, xp: dict[str, float], other: str) -> str:
     names = {
         "cec": "the CEC seeds (`cec`, 758M)",
-        "cec_teacher": "the kickstarted seeds (`cec_teacher`, 10.5M)",
-        FINETUNE: "the kitchen's fine-tuned agent (`ft758m-<kitchen>`)",
+        "cec_teacher": "the kickstarted seeds (`cec_teacher`, 21M)",
+        "cec_finetune": "the kitchen's agent fine-tuned from the CEC seeds (`ft758m-<kitchen>`)",
+        "cec_finetune_teacher": "... from the kickstarted seeds (`ftteach-<kitchen>`)",
     }
     out = [
         "# `cec play serve --partner best`: the partner of each kitchen",
@@ -139,6 +144,8 @@ def markdown(rows: list, xp: dict[str, float], other: str) -> str:
         "|---|" + "---|" * len(rows),
     ]
     for a, label in names.items():
+        if not all(a in s["bc"] for _, _, s in rows):
+            continue  # not shipped for every kitchen
         cells = []
         for _, _, s in rows:
             bc, hp = s["bc"][a], s["hp"][a]
@@ -150,7 +157,8 @@ def markdown(rows: list, xp: dict[str, float], other: str) -> str:
     def test_mean(pick: Callable[[str], str]) -> float:  # over the kitchens, the hp figure of the pick
         return float(np.mean([np.mean(s["hp"][pick(b)]) for _, b, s in rows]))
 
-    chosen = test_mean(lambda b: FINETUNE if b.startswith("ft758m-") else b)
+    prefixes = {prefix: algorithm for algorithm, prefix in FINETUNED.items()}
+    chosen = test_mean(lambda b: prefixes.get(b.split("-", 1)[0], b))
     alone = ", ".join(f"`{a}` alone {test_mean(lambda b, a=a: a):.1f}" for a in GENERALISTS)
     out += [
         "",

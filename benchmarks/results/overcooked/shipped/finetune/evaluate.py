@@ -35,6 +35,7 @@ import math
 import subprocess
 import sys
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import yaml
@@ -49,9 +50,20 @@ from cec.humans.data import KITCHENS
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parents[4]
 FINETUNE, PROXY, BC = "cec_finetune", "human_proxy", "bc_proxy"
-#: Per fine-tuned family (the runs' and shipped agents' name prefix): the shipped generalists it started
-#: from, by algorithm label (the control), and how the tables name them.
-FAMILIES = {"ft758m": ("cec", "CEC seeds"), "ftteach": ("cec_teacher", "kickstarted seeds")}
+
+
+class Family(NamedTuple):
+    """A family of fine-tuned agents (its runs' and shipped names' prefix is its key in `FAMILIES`)."""
+
+    control: str  # the algorithm label of the shipped generalists it started from
+    seeds: str  # how the tables name them
+    shipped_as: str  # the algorithm label its shipped agents carry (`cec play serve --partner LABEL`)
+
+
+FAMILIES = {
+    "ft758m": Family("cec", "CEC seeds", "cec_finetune"),
+    "ftteach": Family("cec_teacher", "kickstarted seeds", "cec_finetune_teacher"),
+}
 
 
 def run_seeds(run: Path) -> list[int]:
@@ -65,6 +77,8 @@ def zoo(kitchen: str, run: Path, seeds: list[int], proxies: Path, control: str) 
     (`bc_<kitchen>` of `proxies`, as `bc_proxy`), the scripted cook and a partner that stays put."""
     shipped = [e for e in load_zoo(SHIPPED_ZOO) if e.algorithm == control or e.name == f"hp_{kitchen}"]
     (bc,) = [e for e in load_zoo(proxies) if e.name == f"bc_{kitchen}"]
+    if not Path(bc.checkpoint).is_dir():  # it chooses the shipped seed: never go on without it
+        raise SystemExit(f"{proxies}: bc_{kitchen} has no checkpoint at {bc.checkpoint}; run `cec humans bc`")
     return {
         "policies": [
             *(
@@ -206,7 +220,7 @@ def main() -> int:
     ap.add_argument("--out", default=str(HERE), help="folder for the tables and the summary (default: here)")
     ap.add_argument("--summarise-only", action="store_true", help="read the tables already in --out")
     args = ap.parse_args()
-    family, (control, seeds_label) = args.family, FAMILIES[args.family]
+    family, (control, seeds_label, shipped_as) = args.family, FAMILIES[args.family]
     runs, work = (Path(p.replace("<family>", family)) for p in (args.runs, args.work))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -220,7 +234,7 @@ def main() -> int:
             manifest = work / f"zoo_{kitchen}.yaml"
             manifest.write_text(
                 yaml.safe_dump(
-                    zoo(kitchen, run.resolve(), seeds, Path(args.proxies), control), sort_keys=False
+                    zoo(kitchen, run.resolve(), seeds, Path(args.proxies).resolve(), control), sort_keys=False
                 )
             )
             raw = work / f"{kitchen}.csv"
@@ -232,7 +246,7 @@ def main() -> int:
         row = summarise(table, kitchen, control)
         rows.append(row)
         name = f"{family}-{kitchen}"
-        ship.append({"name": name, "algorithm": FINETUNE, "seed": row["shipped_seed"],
+        ship.append({"name": name, "algorithm": shipped_as, "seed": row["shipped_seed"],
                      "checkpoint": str(run.resolve()), "levels": [kitchen]})  # fmt: skip
         print(markdown(rows[-1:], seeds_label), flush=True)
         print(f"{kitchen}: ships seed {row['shipped_seed']}")
