@@ -92,12 +92,17 @@ HEAVY = frozenset(
         f"{_PARITY}[asymm_advantages]",
         f"{_PARITY}[coord_ring]",
         f"{_PARITY}[counter_circuit]",
-        # the gate plays cec758m-s200, teach21m-s400, ft758m-asymm_advantages and ft758m-forced_coord
+        # the gate plays cec758m-s200, teach21m-s400, ft758m-asymm_advantages, ft758m-forced_coord,
+        # ftteach-forced_coord and ftteach-counter_circuit
         *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[cec758m-s{s}]" for s in (201, 202, 203)),
         *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[teach21m-s{s}]" for s in (401, 402, 403)),
         *(
             f"{_SHIPPED}_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen[ft758m-{k}]"
             for k in ("cramped_room", "coord_ring", "counter_circuit")
+        ),
+        *(
+            f"{_SHIPPED}_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen[ftteach-{k}]"
+            for k in ("cramped_room", "asymm_advantages", "coord_ring")
         ),
         # the bomb of distinct algorithms, and test_a_bz2_bomb_of_valid_rows_is_refused_at_the_cap_...
         "tests/unit/test_hardening_round3.py::"

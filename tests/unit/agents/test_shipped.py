@@ -25,7 +25,9 @@ SHIPPED_NAMES = [e.name for e in load_zoo(SHIPPED)]
 CEC_GROUPS = ("cec", "cec_teacher")  # the generalists: the paper's recipe at 758M, kickstarted at 10.5M
 CEC_NAMES = [e.name for e in load_zoo(SHIPPED) if e.algorithm in CEC_GROUPS]
 PROXIES = [e for e in load_zoo(SHIPPED) if e.algorithm == "human_proxy"]
-FINETUNED = [e for e in load_zoo(SHIPPED) if e.algorithm == "cec_finetune"]
+#: The fine-tuned agents' algorithm labels and their names' prefix (from the CEC seeds, the kickstarted ones)
+FINETUNE_PREFIX = {"cec_finetune": "ft758m", "cec_finetune_teacher": "ftteach"}
+FINETUNED = [e for e in load_zoo(SHIPPED) if e.algorithm in FINETUNE_PREFIX]
 CLASSIC = ("cramped_room", "asymm_advantages", "coord_ring", "forced_coord", "counter_circuit")
 
 
@@ -37,9 +39,11 @@ def test_the_shipped_zoo_exists_and_names_cec_policies_and_a_human_proxy_per_cla
     # the evaluation proxies (`hp_`: cloned from the test games, players the `bc_` proxies never saw)
     assert sorted(level for e in PROXIES for level in e.levels) == sorted(CLASSIC)
     assert all(e.name == f"hp_{e.levels[0]}" for e in PROXIES)
-    # CEC-Finetune: one partner per classic kitchen, each played only there (`--partner best`)
-    assert sorted(level for e in FINETUNED for level in e.levels) == sorted(CLASSIC)
-    assert all(e.name == f"ft758m-{e.levels[0]}" for e in FINETUNED)
+    # CEC-Finetune: per starting group, one partner per classic kitchen, each played only there
+    for algorithm, prefix in FINETUNE_PREFIX.items():
+        group = [e for e in FINETUNED if e.algorithm == algorithm]
+        assert sorted(level for e in group for level in e.levels) == sorted(CLASSIC)
+        assert all(e.name == f"{prefix}-{e.levels[0]}" for e in group)
 
 
 @pytest.mark.parametrize("name", SHIPPED_NAMES)
@@ -143,21 +147,30 @@ def test_a_policy_with_non_finite_weights_is_refused_even_with_a_valid_checksum(
         load_policy(ZooEntry("diverged", str(copy)))
 
 
-# per kitchen, about 40% of what the shipped fine-tuned agent measured (400 steps; with itself, with the
-# cook): benchmarks/results/overcooked/shipped/finetune/summary.json
+# per family and kitchen, about 40% of what the shipped fine-tuned agent measured (400 steps; with itself,
+# with the cook): benchmarks/results/overcooked/shipped/finetune/summary.json and teacher/summary.json
 FINETUNED_AT_LEAST = {
-    "cramped_room": (80, 60),
-    "asymm_advantages": (80, 90),
-    "coord_ring": (100, 55),
-    "forced_coord": (40, 10),
-    "counter_circuit": (40, 15),
+    "ft758m": {
+        "cramped_room": (80, 60),
+        "asymm_advantages": (80, 90),
+        "coord_ring": (100, 55),
+        "forced_coord": (40, 10),
+        "counter_circuit": (40, 15),
+    },
+    "ftteach": {
+        "cramped_room": (90, 85),
+        "asymm_advantages": (140, 120),
+        "coord_ring": (100, 100),
+        "forced_coord": (110, 100),
+        "counter_circuit": (80, 75),
+    },
 }
 
 
 @pytest.mark.parametrize("entry", FINETUNED, ids=[e.name for e in FINETUNED])
 def test_each_shipped_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen(entry) -> None:
     """What a person who plays its kitchen depends on: there it delivers with a copy of itself and with the
-    scripted cook (the CEC seeds it started from score 0-81 with each other there)."""
+    scripted cook (the generalists it started from score less with each other there, 0-81 the CEC seeds)."""
     policy = load_policy(entry)
     (kitchen,) = entry.levels
     cook = scripted_policy("cook", "cook", env=policy.env, algorithm="cook")
@@ -166,7 +179,7 @@ def test_each_shipped_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its
     )
     alone = table.returns[(table.policy_a == entry.name) & (table.policy_b == entry.name)]
     with_cook = table.returns[table.policy_a != table.policy_b]
-    self_play, cooked = FINETUNED_AT_LEAST[kitchen]
+    self_play, cooked = FINETUNED_AT_LEAST[FINETUNE_PREFIX[entry.algorithm]][kitchen]
     assert np.mean(alone) >= self_play, f"{entry.name} with itself: {alone}"
     assert np.mean(with_cook) >= cooked, f"{entry.name} with the cook: {with_cook}"
 
