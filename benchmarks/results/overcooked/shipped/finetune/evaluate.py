@@ -2,7 +2,7 @@
 they started from, with the human proxy of the kitchen and with the scripted cook, beside the same for the
 seeds they started from (the control: the partner a person has without fine-tuning) and a partner that
 stays put. Two families (`--family`): `ft758m`, from the CEC seeds (758M env steps), and `ftteach`, from the
-kickstarted seeds (lever (u)'s release, 10.5M), each with its config:
+kickstarted seeds (lever (u)'s release, 21M), each with its config and its folder here:
 
     # Forced Coordination and Counter Circuit twice as long (total_env_steps=1966080, and for ftteach
     # ppo.teacher_anneal_env_steps=1966080):
@@ -11,8 +11,7 @@ kickstarted seeds (lever (u)'s release, 10.5M), each with its config:
     .venv/bin/python benchmarks/results/overcooked/shipped/finetune/evaluate.py --runs runs/ft758m
     cec train --config configs/train/cec_finetune_teacher.yaml env.levels=KITCHEN run_dir=runs/ftteach \\
         name=ftteach-KITCHEN
-    .venv/bin/python benchmarks/results/overcooked/shipped/finetune/evaluate.py --family ftteach \\
-        --out benchmarks/results/overcooked/shipped/finetune/teacher
+    .venv/bin/python benchmarks/results/overcooked/shipped/finetune/evaluate.py --family ftteach   # teacher/
 
 Per kitchen one `cec eval` (400-step episodes, 4 per pairing and seat order, sampled actions, common random
 numbers) into `<kitchen>.csv.bz2`; then `summary.json` and `summary.md`.
@@ -58,11 +57,12 @@ class Family(NamedTuple):
     control: str  # the algorithm label of the shipped generalists it started from
     seeds: str  # how the tables name them
     shipped_as: str  # the algorithm label its shipped agents carry (`cec play serve --partner LABEL`)
+    folder: Path  # its tables and summary
 
 
 FAMILIES = {
-    "ft758m": Family("cec", "CEC seeds", "cec_finetune"),
-    "ftteach": Family("cec_teacher", "kickstarted seeds", "cec_finetune_teacher"),
+    "ft758m": Family("cec", "CEC seeds", "cec_finetune", HERE),
+    "ftteach": Family("cec_teacher", "kickstarted seeds", "cec_finetune_teacher", HERE / "teacher"),
 }
 
 
@@ -217,12 +217,12 @@ def main() -> int:
     ap.add_argument("--kitchens", default=",".join(KITCHENS))
     ap.add_argument("--episodes", type=int, default=4)
     ap.add_argument("--proxies", default="runs/humans/proxies/zoo.yaml", help="`cec humans bc`'s zoo")
-    ap.add_argument("--out", default=str(HERE), help="folder for the tables and the summary (default: here)")
+    ap.add_argument("--out", help="folder for the tables and the summary (default: the family's, here)")
     ap.add_argument("--summarise-only", action="store_true", help="read the tables already in --out")
     args = ap.parse_args()
-    family, (control, seeds_label, shipped_as) = args.family, FAMILIES[args.family]
+    family, (control, seeds_label, shipped_as, folder) = args.family, FAMILIES[args.family]
     runs, work = (Path(p.replace("<family>", family)) for p in (args.runs, args.work))
-    out = Path(args.out)
+    out = Path(args.out) if args.out else folder
     out.mkdir(parents=True, exist_ok=True)
     work.mkdir(parents=True, exist_ok=True)
     rows, ship = [], []
