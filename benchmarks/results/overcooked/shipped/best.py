@@ -112,7 +112,7 @@ def main() -> int:
             scores[proxy] = with_proxy(table, algorithm)
         chosen = max(scores["bc"], key=lambda a: float(np.mean(scores["bc"][a])))
         best[kitchen] = f"{FINETUNED[chosen]}-{kitchen}" if chosen in FINETUNED else chosen
-        rows.append((kitchen, best[kitchen], scores))
+        rows.append((kitchen, best[kitchen], chosen, scores))
         print(f"{kitchen}: `--partner best` plays {best[kitchen]}", flush=True)
     xp = validation_crossplay()
     best[OTHER_KITCHENS] = max(xp, key=xp.__getitem__)
@@ -140,25 +140,24 @@ def markdown(rows: list, xp: dict[str, float], other: str) -> str:
         "machine plays differently (the fine-tuned agents' bc figures here are not those of",
         "finetune/README.md), so every candidate is played with the same clone in one run.",
         "",
-        "| candidate | " + " | ".join(f"{k}: bc (validation) / hp (test)" for k, _, _ in rows) + " |",
+        "| candidate | " + " | ".join(f"{k}: bc (validation) / hp (test)" for k, _, _, _ in rows) + " |",
         "|---|" + "---|" * len(rows),
     ]
     for a, label in names.items():
-        if not all(a in s["bc"] for _, _, s in rows):
+        if not all(a in s["bc"] for _, _, _, s in rows):
             continue  # not shipped for every kitchen
         cells = []
-        for _, _, s in rows:
+        for _, _, _, s in rows:
             bc, hp = s["bc"][a], s["hp"][a]
             cells.append(f"{pm(float(np.mean(bc)), float(sem(bc)) if bc.size > 1 else None)} / "
                          f"{pm(float(np.mean(hp)), float(sem(hp)) if hp.size > 1 else None)}")  # fmt: skip
         out.append(f"| {label} | " + " | ".join(cells) + " |")
-    out.append("| **chosen** | " + " | ".join(f"**{b}**" for _, b, _ in rows) + " |")
+    out.append("| **chosen** | " + " | ".join(f"**{b}**" for _, b, _, _ in rows) + " |")
 
     def test_mean(pick: Callable[[str], str]) -> float:  # over the kitchens, the hp figure of the pick
-        return float(np.mean([np.mean(s["hp"][pick(b)]) for _, b, s in rows]))
+        return float(np.mean([np.mean(s["hp"][pick(c)]) for _, _, c, s in rows]))
 
-    prefixes = {prefix: algorithm for algorithm, prefix in FINETUNED.items()}
-    chosen = test_mean(lambda b: prefixes.get(b.split("-", 1)[0], b))
+    chosen = test_mean(lambda c: c)
     alone = ", ".join(f"`{a}` alone {test_mean(lambda b, a=a: a):.1f}" for a in GENERALISTS)
     out += [
         "",
