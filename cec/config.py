@@ -6,6 +6,11 @@ field, and so is exponent notation without a dot (`lr: 3e-4`, which YAML 1.1 rea
 else converts.
 
     params = load_config(EnvParams, "configs/env/cec_train.yaml", overrides=["max_steps=256"])
+
+A config file may be an overlay: `base: <file>` names the file it builds on (relative to the overlay's folder,
+else to the repository; chains allowed), and the overlay gives only what differs. Mappings merge key by key,
+anything else (a number, a string, a list) replaces the base's value; the merged mapping is then checked as
+one file is, so an unknown key in any file of the chain is refused.
 """
 
 from __future__ import annotations
@@ -243,20 +248,94 @@ def read_user_yaml(
         raise error(f"{kind} {str(path)!r} nests too deeply to be read") from None
 
 
+#: The most files in one `base:` chain (an overlay of an overlay of a preset is two; more is a mistake).
+BASE_CHAIN_MAX = 16
+
+#: The repository's root: a `base:` path that is not in the overlay's folder is looked up from here.
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def _read_config_mapping(p: Path) -> dict[str, Any]:
+    """The top-level mapping of one config file (its `base:` key included), strictly read."""
+    text = read_user_file(p, "config file", CONFIG_MAX_BYTES, "cec.config.CONFIG_MAX_BYTES")
+    try:
+        data = yaml.load(text, Loader=_UniqueKeyLoader) or {}  # noqa: S506 (a safe loader)
+    except yaml.YAMLError as err:
+        raise ConfigError(f"config file {str(p)!r} is not valid YAML: {err}") from err
+    except ConfigError as err:
+        raise ConfigError(f"config file {str(p)!r}: {err}") from err
+    except RecursionError as err:
+        raise ConfigError(f"config file {str(p)!r} nests too deeply to be a config") from err
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"config file {str(p)!r} must hold a mapping of fields at the top level")
+    return dict(data)
+
+
+def _base_path(base: Any, overlay: Path) -> Path:
+    """The file an overlay's `base:` names: absolute, else in the overlay's folder, else in the repository."""
+    if not isinstance(base, str) or not base.strip():
+        raise ConfigError(
+            f"config file {str(overlay)!r}: base must be the path of the config file it overlays, "
+            f"got {base!r}"
+        )
+    given = Path(base.strip()).expanduser()
+    candidates = [given] if given.is_absolute() else [overlay.parent / given, REPO_ROOT / given]
+    for candidate in candidates:
+        if candidate.is_file():
+            return candidate
+    looked = " and ".join(str(c) for c in candidates)
+    raise ConfigError(
+        f"config file {str(overlay)!r}: its base {base!r} does not exist (looked at {looked}); give the "
+        "base's path relative to this file's folder or to the repository"
+    )
+
+
+def _merge(base: Mapping[str, Any], overlay: Mapping[str, Any]) -> dict[str, Any]:
+    """`base` with `overlay` on top: mappings merge key by key, any other value replaces the base's."""
+    out = dict(base)
+    for key, value in overlay.items():
+        below = out.get(key)
+        out[key] = (
+            _merge(below, value) if isinstance(value, Mapping) and isinstance(below, Mapping) else value
+        )
+    return out
+
+
+def read_config(path: str | Path) -> dict[str, Any]:
+    """The mapping of a config file with its `base:` chain merged under it (the base first, each overlay on
+    top); `ConfigError` naming the file for a missing base, a chain that loops or runs past `BASE_CHAIN_MAX`
+    files, or any file that is not a config."""
+    chain: list[Path] = []
+    layers: list[dict[str, Any]] = []
+    p = Path(path)
+    while True:
+        here = p.resolve()
+        if here in chain:
+            loop = " -> ".join(str(c) for c in [*chain[chain.index(here) :], here])
+            raise ConfigError(
+                f"config file {str(p)!r}: its base chain loops ({loop}); remove the `base:` that closes it"
+            )
+        if len(chain) == BASE_CHAIN_MAX:
+            raise ConfigError(
+                f"config file {str(path)!r}: its base chain is longer than {BASE_CHAIN_MAX} files "
+                "(cec.config.BASE_CHAIN_MAX); base the overlay on a file nearer the root"
+            )
+        chain.append(here)
+        data = _read_config_mapping(p)
+        has_base = "base" in data
+        base = data.pop("base", None)
+        layers.append(data)
+        if not has_base:
+            break
+        p = _base_path(base, p)
+    merged: dict[str, Any] = {}
+    for layer in reversed(layers):
+        merged = _merge(merged, layer)
+    return merged
+
+
 def load_config(cls: type[T], path: str | Path | None = None, overrides: Sequence[str] = ()) -> T:
-    """Loads `cls` from a YAML file (or its defaults when `path` is None), then applies overrides."""
-    data: Any = {}
-    if path is not None:
-        p = Path(path)
-        text = read_user_file(p, "config file", CONFIG_MAX_BYTES, "cec.config.CONFIG_MAX_BYTES")
-        try:
-            data = yaml.load(text, Loader=_UniqueKeyLoader) or {}  # noqa: S506 (a safe loader)
-        except yaml.YAMLError as err:
-            raise ConfigError(f"config file {str(p)!r} is not valid YAML: {err}") from err
-        except ConfigError as err:
-            raise ConfigError(f"config file {str(p)!r}: {err}") from err
-        except RecursionError as err:
-            raise ConfigError(f"config file {str(p)!r} nests too deeply to be a config") from err
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"config file {str(p)!r} must hold a mapping of fields at the top level")
+    """Loads `cls` from a YAML file and its `base:` chain (or `cls`'s defaults when `path` is None), then
+    applies overrides."""
+    data = read_config(path) if path is not None else {}
     return from_dict(cls, apply_overrides(data, overrides))
