@@ -30,7 +30,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from cec.agents.zoo import OTHER_KITCHENS, SHIPPED_ZOO, load_zoo
+from cec.agents.zoo import OTHER_KITCHENS, SHIPPED_ZOO, SkippedEntry, load_zoo
+from cec.evaluation.choice import ChoiceError, choose
 from cec.evaluation.markdown import pm
 from cec.evaluation.parts import part_scores
 from cec.evaluation.results import read_csv
@@ -68,13 +69,17 @@ def zoo(kitchen: str, proxies: Path) -> dict:
     return {"policies": entries}
 
 
-def with_proxy(table: Path, proxy_algorithm: str) -> dict[str, np.ndarray]:
+def with_proxy(table: Path, proxy_algorithm: str) -> tuple[dict[str, np.ndarray], list[SkippedEntry]]:
     """Per candidate (a generalist group, or a fine-tuned agent by its algorithm label), each of its seeds'
-    mean return with the proxy."""
-    m = seed_matrix(read_csv(table))
-    (proxy,) = m.indices(proxy_algorithm)
+    mean return with the proxy (NaN where the proxy is missing: `choose` refuses it); and the entries of
+    the candidates or the proxy that the evaluation skipped."""
+    results = read_csv(table)
+    m = seed_matrix(results)
+    proxy = m.indices(proxy_algorithm)
     candidates = [a for a in (*GENERALISTS, *FINETUNED) if m.indices(a)]
-    return {a: m.partner_means(m.indices(a), [proxy]) for a in candidates}
+    used = {*GENERALISTS, *FINETUNED, proxy_algorithm}
+    skipped = [s for s in results.skipped if s.algorithm in used]
+    return {a: m.partner_means(m.indices(a), proxy) for a in candidates}, skipped
 
 
 def validation_crossplay() -> dict[str, float]:
@@ -84,19 +89,29 @@ def validation_crossplay() -> dict[str, float]:
 
 
 def main() -> int:
+    try:
+        return choose_best()
+    except ChoiceError as err:  # a choice made without its validation figures: refused, nothing written
+        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
+        return 2
+
+
+def choose_best() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--proxies", default="runs/humans/proxies/zoo.yaml", help="`cec humans bc`'s zoo")
     ap.add_argument("--work", default="/tmp/shipped-best", help="zoos, raw tables, best.yaml")
     ap.add_argument("--episodes", type=int, default=4)
-    ap.add_argument("--summarise-only", action="store_true", help="read the tables already in best/")
+    ap.add_argument("--summarise-only", action="store_true", help="read the tables already in --tables")
+    ap.add_argument("--tables", default=str(HERE / "best"), help="the tables' folder (default: best/ here)")
+    ap.add_argument("--markdown", default=str(HERE / "best.md"), help="where best.md goes (default: here)")
     args = ap.parse_args()
-    work, tables, proxies = Path(args.work), HERE / "best", Path(args.proxies).resolve()
+    work, tables, proxies = Path(args.work), Path(args.tables), Path(args.proxies).resolve()
     work.mkdir(parents=True, exist_ok=True)
     tables.mkdir(exist_ok=True)
     best: dict[str, str] = {}
     rows = []
     for kitchen in KITCHENS:
-        scores, manifest = {}, work / f"zoo_{kitchen}.yaml"
+        scores, skipped, manifest = {}, {}, work / f"zoo_{kitchen}.yaml"
         if not args.summarise_only:
             manifest.write_text(yaml.safe_dump(zoo(kitchen, proxies), sort_keys=False))
         for proxy, algorithm in (("bc", BC), ("hp", PROXY)):
@@ -109,16 +124,20 @@ def main() -> int:
                 print("$", " ".join(cmd), flush=True)
                 subprocess.run(cmd, check=True, cwd=ROOT)
                 table.write_bytes(bz2.compress(raw.read_bytes(), 9))
-            scores[proxy] = with_proxy(table, algorithm)
-        chosen = max(scores["bc"], key=lambda a: float(np.mean(scores["bc"][a])))
+            scores[proxy], skipped[proxy] = with_proxy(table, algorithm)
+        chosen = choose(  # on validation: with the bc proxy (the hp figures report)
+            scores["bc"], what=f"{kitchen}: the partner of `--partner best`", skipped=skipped["bc"]
+        )
         best[kitchen] = f"{FINETUNED[chosen]}-{kitchen}" if chosen in FINETUNED else chosen
         rows.append((kitchen, best[kitchen], chosen, scores))
         print(f"{kitchen}: `--partner best` plays {best[kitchen]}", flush=True)
     xp = validation_crossplay()
-    best[OTHER_KITCHENS] = max(xp, key=xp.__getitem__)
+    best[OTHER_KITCHENS] = choose(
+        {a: [v] for a, v in xp.items()}, what="every other kitchen: the generalists of `--partner best`"
+    )
     (work / "best.yaml").write_text(HEADER + yaml.safe_dump(best, sort_keys=False))
-    (HERE / "best.md").write_text(markdown(rows, xp, best[OTHER_KITCHENS]))
-    print((HERE / "best.md").read_text())
+    Path(args.markdown).write_text(markdown(rows, xp, best[OTHER_KITCHENS]))
+    print(Path(args.markdown).read_text())
     print(f"to ship: cp {work}/best.yaml cec/shipped/")
     return 0
 

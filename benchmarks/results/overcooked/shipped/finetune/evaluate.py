@@ -40,6 +40,7 @@ import numpy as np
 import yaml
 
 from cec.agents.zoo import SHIPPED_ZOO, load_zoo
+from cec.evaluation.choice import ChoiceError, choose
 from cec.evaluation.markdown import pm
 from cec.evaluation.results import read_csv
 from cec.evaluation.seeds import seed_matrix
@@ -104,18 +105,34 @@ def mean_se(x: np.ndarray) -> dict:
 
 def summarise(csv: Path, kitchen: str, control: str) -> dict:
     """The fine-tuned seeds beside the seeds they started from (`control`); under the keys `finetune` and
-    `cec` (the latter whichever generalists `control` names)."""
-    m = seed_matrix(read_csv(csv))
+    `cec` (the latter whichever generalists `control` names). The choices (the seed shipped, `best`) are
+    refused (`ChoiceError`) when the bc proxy or a seed is missing from the table or was skipped."""
+    table = read_csv(csv)
+    m = seed_matrix(table)
     ft, cec = m.indices(FINETUNE), m.indices(control)
     group = {a: m.indices(a) for a in (PROXY, BC, "cook", "noop")}
     fts, cecs = m.summary(ft), m.summary(cec)
+    ft_bc, cec_bc = m.partner_means(ft, group[BC]), m.partner_means(cec, group[BC])
+    used = [s for s in table.skipped if s.algorithm in (FINETUNE, control, BC)]
+    by_seed = {f"{FINETUNE} seed {s}": s for s in fts.seeds}
+    seed = by_seed[
+        choose(
+            {label: [v] for label, v in zip(by_seed, ft_bc, strict=True)},
+            what=f"{csv}: the {FINETUNE} seed shipped for {kitchen} (with the bc proxy)",
+            skipped=used,
+        )
+    ]
+    best = choose(  # the control first: it stays the choice on a tie
+        {control: cec_bc, FINETUNE: ft_bc},
+        what=f"{csv}: the better of {control} and {FINETUNE} in {kitchen} (with the bc proxy)",
+        skipped=used,
+    )
     paired = compare_crossplay_paired(np.asarray(fts.matrix), np.asarray(cecs.matrix))
     ft_hp, cec_hp = m.partner_means(ft, group[PROXY]), m.partner_means(cec, group[PROXY])
-    ft_bc, cec_bc = m.partner_means(ft, group[BC]), m.partner_means(cec, group[BC])
     out = {
         "kitchen": kitchen,
-        "shipped_seed": fts.seeds[int(np.argmax(ft_bc))],  # validation: with the bc proxy
-        "best": FINETUNE if np.mean(ft_bc) > np.mean(cec_bc) else control,
+        "shipped_seed": seed,  # validation: with the bc proxy
+        "best": best,
         "finetune_seeds": list(fts.seeds),
         "cec_seeds": list(cecs.seeds),
         "finetune": {
@@ -204,6 +221,14 @@ def markdown(rows: list[dict], seeds: str) -> str:
 
 
 def main() -> int:
+    try:
+        return evaluate()
+    except ChoiceError as err:  # a choice made without its validation figures: refused, nothing written
+        print(f"{Path(__file__).name}: error: {err}", file=sys.stderr)
+        return 2
+
+
+def evaluate() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument(
         "--family",
