@@ -127,8 +127,19 @@ _BOUND_FIELDS = ("onion_piles", "plate_piles", "pots", "goals")
 
 
 def config_to_proto(config: GeneratorConfig) -> pb.GeneratorConfig:
+    """The whole config as a request's `GeneratorConfig` (every field set, so the server's defaults never
+    stand in for a setting the client made). Raises `ConfigError` for a setting no level server honours."""
+    if not config.exclude_heldout:
+        raise ConfigError(
+            "exclude_heldout=false cannot be honoured by a level server: it never streams the validation or "
+            "test kitchens; draw such kitchens locally (cec.levels.generator) instead"
+        )
     msg = pb.GeneratorConfig(
-        structures=list(config.structures), count_decay=config.count_decay, allow_decoys=config.allow_decoys
+        structures=list(config.structures),
+        count_decay=config.count_decay,
+        allow_decoys=config.allow_decoys,
+        handover_share=config.handover_share,
+        structure_weights=list(config.structure_weights),
     )
     for name in _BOUND_FIELDS:
         lo, hi = getattr(config, name)
@@ -139,7 +150,8 @@ def config_to_proto(config: GeneratorConfig) -> pb.GeneratorConfig:
 def config_from_proto(msg: pb.GeneratorConfig, defaults: GeneratorConfig) -> GeneratorConfig:
     """Fields set in `msg` override `defaults`; raises `ConfigError` (naming the field) for bad values.
 
-    The held-out exclusion is not a wire option: a server never streams the evaluation set.
+    The held-out exclusion is not a wire option: a server never streams the evaluation set. Weights given
+    without structures apply to the defaults' structures (and must match their number).
     """
     changes: dict[str, object] = {}
     if msg.structures:
@@ -154,4 +166,8 @@ def config_from_proto(msg: pb.GeneratorConfig, defaults: GeneratorConfig) -> Gen
         changes["count_decay"] = float(msg.count_decay)
     if msg.HasField("allow_decoys"):
         changes["allow_decoys"] = bool(msg.allow_decoys)
+    if msg.HasField("handover_share"):
+        changes["handover_share"] = float(msg.handover_share)
+    if msg.structure_weights or "structures" in changes:  # new structures never keep the old weights
+        changes["structure_weights"] = tuple(float(w) for w in msg.structure_weights)
     return defaults.replace(**changes) if changes else defaults

@@ -172,6 +172,11 @@ class LevelServerConfig:
                 f"({self.max_concurrent_streams}), or open streams would leave no room for other calls; "
                 "raise max_concurrent_rpcs or lower max_concurrent_streams"
             )
+        if not self.generator.exclude_heldout:
+            raise ConfigError(
+                "generator.exclude_heldout=false cannot be honoured: a level server never streams the "
+                "validation or test kitchens (they are the held-out evaluation sets); remove the setting"
+            )
         check_token(self.auth_token, "auth_token")
         check_token(os.environ.get(TOKEN_ENV, ""), f"the {TOKEN_ENV} environment variable")
         if bool(self.tls_cert) != bool(self.tls_key):

@@ -105,6 +105,23 @@ def test_request_config_is_applied(client):
     assert sizes <= {(4, 5), (5, 4), (5, 5)}  # cramped room 4x5 (or rotated), coord ring 5x5
 
 
+def test_coverage_and_structure_weights_reach_the_stream(client):
+    """The generator settings that the wire used to drop: a stream asked for kitchens that need a hand-over
+    gets only those, and structure weights choose the structures, as the library's generator would."""
+    from cec.levels.generator import generate_batch
+    from cec.levels.kinds import Kind, classify
+
+    covered = GeneratorConfig(handover_share=1.0)
+    (_, levels), *_ = client.stream(seed=3, batch_size=48, count=48, config=covered)
+    kinds = np.asarray(jax.vmap(classify)(levels).kind)
+    assert (kinds == Kind.HANDOVER).all(), kinds
+    local = jax.device_get(generate_batch(jax.random.PRNGKey(3), 48, covered))
+    assert (np.asarray(jax.vmap(classify)(local).kind) == Kind.HANDOVER).all()  # the same rule as local draws
+    weighted = GeneratorConfig(structures=("cramped_room", "coord_ring"), structure_weights=(1.0, 1e5))
+    sizes = {tuple(s) for s in np.asarray(client.get_levels(64, seed=0, config=weighted).size).tolist()}
+    assert sizes == {(5, 5)}, sizes  # coord ring only (cramped room is 4x5)
+
+
 def test_heldout_set_matches_the_library(client):
     names, levels = client.heldout()
     expected = heldout_levels()

@@ -24,7 +24,7 @@ _sym_db = _symbol_database.Default()
 
 
 
-DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n!cec/levels/v1/level_service.proto\x12\rcec.levels.v1\"\x81\x01\n\nLevelBatch\x12\r\n\x05\x63ount\x18\x01 \x01(\r\x12\x0c\n\x04grid\x18\x02 \x01(\x0c\x12\x11\n\tagent_pos\x18\x03 \x01(\x0c\x12\x11\n\tagent_dir\x18\x04 \x01(\x0c\x12\x0c\n\x04size\x18\x05 \x01(\x0c\x12\x13\n\x0b\x66irst_index\x18\x06 \x01(\x04\x12\r\n\x05names\x18\x07 \x03(\t\"\xe5\x02\n\x0fGeneratorConfig\x12\x12\n\nstructures\x18\x01 \x03(\t\x12/\n\x0bonion_piles\x18\x02 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x00\x88\x01\x01\x12/\n\x0bplate_piles\x18\x03 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x01\x88\x01\x01\x12(\n\x04pots\x18\x04 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x02\x88\x01\x01\x12)\n\x05goals\x18\x05 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x03\x88\x01\x01\x12\x18\n\x0b\x63ount_decay\x18\x06 \x01(\x01H\x04\x88\x01\x01\x12\x19\n\x0c\x61llow_decoys\x18\x07 \x01(\x08H\x05\x88\x01\x01\x42\x0e\n\x0c_onion_pilesB\x0e\n\x0c_plate_pilesB\x07\n\x05_potsB\x08\n\x06_goalsB\x0e\n\x0c_count_decayB\x0f\n\r_allow_decoys\"\"\n\x06\x42ounds\x12\x0b\n\x03min\x18\x01 \x01(\x03\x12\x0b\n\x03max\x18\x02 \x01(\x03\"\x8b\x01\n\x13StreamLevelsRequest\x12\x0c\n\x04seed\x18\x01 \x01(\x03\x12\x12\n\nbatch_size\x18\x02 \x01(\x03\x12\r\n\x05\x63ount\x18\x03 \x01(\x03\x12\x13\n\x0bstart_index\x18\x04 \x01(\x03\x12.\n\x06\x63onfig\x18\x05 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfig\"~\n\x10GetLevelsRequest\x12\t\n\x01n\x18\x01 \x01(\x03\x12\x11\n\x04seed\x18\x02 \x01(\x03H\x00\x88\x01\x01\x12\x13\n\x0bstart_index\x18\x03 \x01(\x03\x12.\n\x06\x63onfig\x18\x04 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfigB\x07\n\x05_seed\"\x13\n\x11GetHeldoutRequest\"\x8d\x01\n\x14ValidateLevelRequest\x12+\n\x06packed\x18\x01 \x01(\x0b\x32\x19.cec.levels.v1.LevelBatchH\x00\x12\x0f\n\x05\x61scii\x18\x02 \x01(\tH\x00\x12.\n\x06\x63onfig\x18\x03 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfigB\x07\n\x05level\"\xbd\x01\n\x15ValidateLevelResponse\x12\x10\n\x08solvable\x18\x01 \x01(\x08\x12\x0f\n\x07reasons\x18\x02 \x03(\t\x12\x0f\n\x07heldout\x18\x03 \x01(\x08\x12\x14\n\x0cheldout_name\x18\x04 \x01(\t\x12\x1a\n\x12in_generator_space\x18\x05 \x01(\x08\x12\x14\n\x0c\x63ontent_hash\x18\x06 \x01(\t\x12(\n\x05level\x18\x07 \x01(\x0b\x32\x19.cec.levels.v1.LevelBatch\"P\n\x13ReportScoresRequest\x12)\n\x06levels\x18\x01 \x01(\x0b\x32\x19.cec.levels.v1.LevelBatch\x12\x0e\n\x06scores\x18\x02 \x03(\x02\"Y\n\x14ReportScoresResponse\x12\x10\n\x08\x61\x63\x63\x65pted\x18\x01 \x01(\r\x12\x13\n\x0b\x62uffer_size\x18\x02 \x01(\r\x12\x1a\n\x12\x63urriculum_enabled\x18\x03 \x01(\x08\"\x16\n\x14GetServerInfoRequest\"\xf1\x01\n\nServerInfo\x12\x0f\n\x07version\x18\x01 \x01(\t\x12\x13\n\x0b\x61pi_version\x18\x02 \x01(\t\x12\x31\n\tgenerator\x18\x03 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfig\x12\x19\n\x11layout_space_size\x18\x04 \x01(\t\x12\x15\n\rheldout_count\x18\x05 \x01(\r\x12%\n\x06limits\x18\x06 \x01(\x0b\x32\x15.cec.levels.v1.Limits\x12\x1a\n\x12\x63urriculum_enabled\x18\x07 \x01(\x08\x12\x15\n\rauth_required\x18\x08 \x01(\x08\"~\n\x06Limits\x12\x16\n\x0emax_batch_size\x18\x01 \x01(\r\x12\x1e\n\x16max_levels_per_request\x18\x02 \x01(\r\x12\x1e\n\x16max_concurrent_streams\x18\x03 \x01(\r\x12\x1c\n\x14max_distinct_configs\x18\x04 \x01(\r2\xf9\x03\n\x0cLevelService\x12O\n\x0cStreamLevels\x12\".cec.levels.v1.StreamLevelsRequest\x1a\x19.cec.levels.v1.LevelBatch0\x01\x12G\n\tGetLevels\x12\x1f.cec.levels.v1.GetLevelsRequest\x1a\x19.cec.levels.v1.LevelBatch\x12I\n\nGetHeldout\x12 .cec.levels.v1.GetHeldoutRequest\x1a\x19.cec.levels.v1.LevelBatch\x12Z\n\rValidateLevel\x12#.cec.levels.v1.ValidateLevelRequest\x1a$.cec.levels.v1.ValidateLevelResponse\x12W\n\x0cReportScores\x12\".cec.levels.v1.ReportScoresRequest\x1a#.cec.levels.v1.ReportScoresResponse\x12O\n\rGetServerInfo\x12#.cec.levels.v1.GetServerInfoRequest\x1a\x19.cec.levels.v1.ServerInfob\x06proto3')
+DESCRIPTOR = _descriptor_pool.Default().AddSerializedFile(b'\n!cec/levels/v1/level_service.proto\x12\rcec.levels.v1\"\x81\x01\n\nLevelBatch\x12\r\n\x05\x63ount\x18\x01 \x01(\r\x12\x0c\n\x04grid\x18\x02 \x01(\x0c\x12\x11\n\tagent_pos\x18\x03 \x01(\x0c\x12\x11\n\tagent_dir\x18\x04 \x01(\x0c\x12\x0c\n\x04size\x18\x05 \x01(\x0c\x12\x13\n\x0b\x66irst_index\x18\x06 \x01(\x04\x12\r\n\x05names\x18\x07 \x03(\t\"\xb0\x03\n\x0fGeneratorConfig\x12\x12\n\nstructures\x18\x01 \x03(\t\x12/\n\x0bonion_piles\x18\x02 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x00\x88\x01\x01\x12/\n\x0bplate_piles\x18\x03 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x01\x88\x01\x01\x12(\n\x04pots\x18\x04 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x02\x88\x01\x01\x12)\n\x05goals\x18\x05 \x01(\x0b\x32\x15.cec.levels.v1.BoundsH\x03\x88\x01\x01\x12\x18\n\x0b\x63ount_decay\x18\x06 \x01(\x01H\x04\x88\x01\x01\x12\x19\n\x0c\x61llow_decoys\x18\x07 \x01(\x08H\x05\x88\x01\x01\x12\x1b\n\x0ehandover_share\x18\x08 \x01(\x01H\x06\x88\x01\x01\x12\x19\n\x11structure_weights\x18\t \x03(\x01\x42\x0e\n\x0c_onion_pilesB\x0e\n\x0c_plate_pilesB\x07\n\x05_potsB\x08\n\x06_goalsB\x0e\n\x0c_count_decayB\x0f\n\r_allow_decoysB\x11\n\x0f_handover_share\"\"\n\x06\x42ounds\x12\x0b\n\x03min\x18\x01 \x01(\x03\x12\x0b\n\x03max\x18\x02 \x01(\x03\"\x8b\x01\n\x13StreamLevelsRequest\x12\x0c\n\x04seed\x18\x01 \x01(\x03\x12\x12\n\nbatch_size\x18\x02 \x01(\x03\x12\r\n\x05\x63ount\x18\x03 \x01(\x03\x12\x13\n\x0bstart_index\x18\x04 \x01(\x03\x12.\n\x06\x63onfig\x18\x05 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfig\"~\n\x10GetLevelsRequest\x12\t\n\x01n\x18\x01 \x01(\x03\x12\x11\n\x04seed\x18\x02 \x01(\x03H\x00\x88\x01\x01\x12\x13\n\x0bstart_index\x18\x03 \x01(\x03\x12.\n\x06\x63onfig\x18\x04 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfigB\x07\n\x05_seed\"\x13\n\x11GetHeldoutRequest\"\x8d\x01\n\x14ValidateLevelRequest\x12+\n\x06packed\x18\x01 \x01(\x0b\x32\x19.cec.levels.v1.LevelBatchH\x00\x12\x0f\n\x05\x61scii\x18\x02 \x01(\tH\x00\x12.\n\x06\x63onfig\x18\x03 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfigB\x07\n\x05level\"\xbd\x01\n\x15ValidateLevelResponse\x12\x10\n\x08solvable\x18\x01 \x01(\x08\x12\x0f\n\x07reasons\x18\x02 \x03(\t\x12\x0f\n\x07heldout\x18\x03 \x01(\x08\x12\x14\n\x0cheldout_name\x18\x04 \x01(\t\x12\x1a\n\x12in_generator_space\x18\x05 \x01(\x08\x12\x14\n\x0c\x63ontent_hash\x18\x06 \x01(\t\x12(\n\x05level\x18\x07 \x01(\x0b\x32\x19.cec.levels.v1.LevelBatch\"P\n\x13ReportScoresRequest\x12)\n\x06levels\x18\x01 \x01(\x0b\x32\x19.cec.levels.v1.LevelBatch\x12\x0e\n\x06scores\x18\x02 \x03(\x02\"Y\n\x14ReportScoresResponse\x12\x10\n\x08\x61\x63\x63\x65pted\x18\x01 \x01(\r\x12\x13\n\x0b\x62uffer_size\x18\x02 \x01(\r\x12\x1a\n\x12\x63urriculum_enabled\x18\x03 \x01(\x08\"\x16\n\x14GetServerInfoRequest\"\xf1\x01\n\nServerInfo\x12\x0f\n\x07version\x18\x01 \x01(\t\x12\x13\n\x0b\x61pi_version\x18\x02 \x01(\t\x12\x31\n\tgenerator\x18\x03 \x01(\x0b\x32\x1e.cec.levels.v1.GeneratorConfig\x12\x19\n\x11layout_space_size\x18\x04 \x01(\t\x12\x15\n\rheldout_count\x18\x05 \x01(\r\x12%\n\x06limits\x18\x06 \x01(\x0b\x32\x15.cec.levels.v1.Limits\x12\x1a\n\x12\x63urriculum_enabled\x18\x07 \x01(\x08\x12\x15\n\rauth_required\x18\x08 \x01(\x08\"~\n\x06Limits\x12\x16\n\x0emax_batch_size\x18\x01 \x01(\r\x12\x1e\n\x16max_levels_per_request\x18\x02 \x01(\r\x12\x1e\n\x16max_concurrent_streams\x18\x03 \x01(\r\x12\x1c\n\x14max_distinct_configs\x18\x04 \x01(\r2\xf9\x03\n\x0cLevelService\x12O\n\x0cStreamLevels\x12\".cec.levels.v1.StreamLevelsRequest\x1a\x19.cec.levels.v1.LevelBatch0\x01\x12G\n\tGetLevels\x12\x1f.cec.levels.v1.GetLevelsRequest\x1a\x19.cec.levels.v1.LevelBatch\x12I\n\nGetHeldout\x12 .cec.levels.v1.GetHeldoutRequest\x1a\x19.cec.levels.v1.LevelBatch\x12Z\n\rValidateLevel\x12#.cec.levels.v1.ValidateLevelRequest\x1a$.cec.levels.v1.ValidateLevelResponse\x12W\n\x0cReportScores\x12\".cec.levels.v1.ReportScoresRequest\x1a#.cec.levels.v1.ReportScoresResponse\x12O\n\rGetServerInfo\x12#.cec.levels.v1.GetServerInfoRequest\x1a\x19.cec.levels.v1.ServerInfob\x06proto3')
 
 _globals = globals()
 _builder.BuildMessageAndEnumDescriptors(DESCRIPTOR, _globals)
@@ -34,29 +34,29 @@ if not _descriptor._USE_C_DESCRIPTORS:
   _globals['_LEVELBATCH']._serialized_start=53
   _globals['_LEVELBATCH']._serialized_end=182
   _globals['_GENERATORCONFIG']._serialized_start=185
-  _globals['_GENERATORCONFIG']._serialized_end=542
-  _globals['_BOUNDS']._serialized_start=544
-  _globals['_BOUNDS']._serialized_end=578
-  _globals['_STREAMLEVELSREQUEST']._serialized_start=581
-  _globals['_STREAMLEVELSREQUEST']._serialized_end=720
-  _globals['_GETLEVELSREQUEST']._serialized_start=722
-  _globals['_GETLEVELSREQUEST']._serialized_end=848
-  _globals['_GETHELDOUTREQUEST']._serialized_start=850
-  _globals['_GETHELDOUTREQUEST']._serialized_end=869
-  _globals['_VALIDATELEVELREQUEST']._serialized_start=872
-  _globals['_VALIDATELEVELREQUEST']._serialized_end=1013
-  _globals['_VALIDATELEVELRESPONSE']._serialized_start=1016
-  _globals['_VALIDATELEVELRESPONSE']._serialized_end=1205
-  _globals['_REPORTSCORESREQUEST']._serialized_start=1207
-  _globals['_REPORTSCORESREQUEST']._serialized_end=1287
-  _globals['_REPORTSCORESRESPONSE']._serialized_start=1289
-  _globals['_REPORTSCORESRESPONSE']._serialized_end=1378
-  _globals['_GETSERVERINFOREQUEST']._serialized_start=1380
-  _globals['_GETSERVERINFOREQUEST']._serialized_end=1402
-  _globals['_SERVERINFO']._serialized_start=1405
-  _globals['_SERVERINFO']._serialized_end=1646
-  _globals['_LIMITS']._serialized_start=1648
-  _globals['_LIMITS']._serialized_end=1774
-  _globals['_LEVELSERVICE']._serialized_start=1777
-  _globals['_LEVELSERVICE']._serialized_end=2282
+  _globals['_GENERATORCONFIG']._serialized_end=617
+  _globals['_BOUNDS']._serialized_start=619
+  _globals['_BOUNDS']._serialized_end=653
+  _globals['_STREAMLEVELSREQUEST']._serialized_start=656
+  _globals['_STREAMLEVELSREQUEST']._serialized_end=795
+  _globals['_GETLEVELSREQUEST']._serialized_start=797
+  _globals['_GETLEVELSREQUEST']._serialized_end=923
+  _globals['_GETHELDOUTREQUEST']._serialized_start=925
+  _globals['_GETHELDOUTREQUEST']._serialized_end=944
+  _globals['_VALIDATELEVELREQUEST']._serialized_start=947
+  _globals['_VALIDATELEVELREQUEST']._serialized_end=1088
+  _globals['_VALIDATELEVELRESPONSE']._serialized_start=1091
+  _globals['_VALIDATELEVELRESPONSE']._serialized_end=1280
+  _globals['_REPORTSCORESREQUEST']._serialized_start=1282
+  _globals['_REPORTSCORESREQUEST']._serialized_end=1362
+  _globals['_REPORTSCORESRESPONSE']._serialized_start=1364
+  _globals['_REPORTSCORESRESPONSE']._serialized_end=1453
+  _globals['_GETSERVERINFOREQUEST']._serialized_start=1455
+  _globals['_GETSERVERINFOREQUEST']._serialized_end=1477
+  _globals['_SERVERINFO']._serialized_start=1480
+  _globals['_SERVERINFO']._serialized_end=1721
+  _globals['_LIMITS']._serialized_start=1723
+  _globals['_LIMITS']._serialized_end=1849
+  _globals['_LEVELSERVICE']._serialized_start=1852
+  _globals['_LEVELSERVICE']._serialized_end=2357
 # @@protoc_insertion_point(module_scope)

@@ -25,7 +25,7 @@ class LevelBatch(_message.Message):
     def __init__(self, count: _Optional[int] = ..., grid: _Optional[bytes] = ..., agent_pos: _Optional[bytes] = ..., agent_dir: _Optional[bytes] = ..., size: _Optional[bytes] = ..., first_index: _Optional[int] = ..., names: _Optional[_Iterable[str]] = ...) -> None: ...
 
 class GeneratorConfig(_message.Message):
-    __slots__ = ("structures", "onion_piles", "plate_piles", "pots", "goals", "count_decay", "allow_decoys")
+    __slots__ = ("structures", "onion_piles", "plate_piles", "pots", "goals", "count_decay", "allow_decoys", "handover_share", "structure_weights")
     STRUCTURES_FIELD_NUMBER: _ClassVar[int]
     ONION_PILES_FIELD_NUMBER: _ClassVar[int]
     PLATE_PILES_FIELD_NUMBER: _ClassVar[int]
@@ -33,6 +33,8 @@ class GeneratorConfig(_message.Message):
     GOALS_FIELD_NUMBER: _ClassVar[int]
     COUNT_DECAY_FIELD_NUMBER: _ClassVar[int]
     ALLOW_DECOYS_FIELD_NUMBER: _ClassVar[int]
+    HANDOVER_SHARE_FIELD_NUMBER: _ClassVar[int]
+    STRUCTURE_WEIGHTS_FIELD_NUMBER: _ClassVar[int]
     structures: _containers.RepeatedScalarFieldContainer[str]
     onion_piles: Bounds
     plate_piles: Bounds
@@ -40,7 +42,9 @@ class GeneratorConfig(_message.Message):
     goals: Bounds
     count_decay: float
     allow_decoys: bool
-    def __init__(self, structures: _Optional[_Iterable[str]] = ..., onion_piles: _Optional[_Union[Bounds, _Mapping]] = ..., plate_piles: _Optional[_Union[Bounds, _Mapping]] = ..., pots: _Optional[_Union[Bounds, _Mapping]] = ..., goals: _Optional[_Union[Bounds, _Mapping]] = ..., count_decay: _Optional[float] = ..., allow_decoys: _Optional[bool] = ...) -> None: ...
+    handover_share: float
+    structure_weights: _containers.RepeatedScalarFieldContainer[float]
+    def __init__(self, structures: _Optional[_Iterable[str]] = ..., onion_piles: _Optional[_Union[Bounds, _Mapping]] = ..., plate_piles: _Optional[_Union[Bounds, _Mapping]] = ..., pots: _Optional[_Union[Bounds, _Mapping]] = ..., goals: _Optional[_Union[Bounds, _Mapping]] = ..., count_decay: _Optional[float] = ..., allow_decoys: _Optional[bool] = ..., handover_share: _Optional[float] = ..., structure_weights: _Optional[_Iterable[float]] = ...) -> None: ...
 
 class Bounds(_message.Message):
     __slots__ = ("min", "max")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -82,6 +83,46 @@ def test_truncated_fields_are_wire_errors():
         decode(msg)
 
 
+#: A value other than the default for every `GeneratorConfig` field, as a client would send it. A field added
+#: to the config later has no entry here, and the test below fails until the wire carries it (or refuses it).
+NON_DEFAULT = {
+    "structures": ("coord_ring", "forced_coord", "counter_circuit"),
+    "onion_piles": (2, 3),
+    "plate_piles": (1, 2),
+    "pots": (2, 4),
+    "goals": (1, 3),
+    "count_decay": 0.9,
+    "allow_decoys": True,
+    "exclude_heldout": False,
+    "handover_share": 0.35,
+    "structure_weights": (1.0, 2.0, 3.0),
+}
+#: Fields a level server cannot honour, and so refuses by name: it never streams the evaluation set.
+REFUSED = {"exclude_heldout"}
+
+
+def test_every_generator_field_crosses_the_wire_or_is_refused_by_name():
+    fields = {f.name for f in dataclasses.fields(GeneratorConfig)}
+    assert fields == set(NON_DEFAULT), (
+        f"GeneratorConfig fields without a wire test: {sorted(fields - set(NON_DEFAULT))}; carry each in "
+        "proto/cec/levels/v1/level_service.proto and cec.levels.wire, then give it a non-default value here"
+    )
+    defaults = GeneratorConfig()
+    carried = {k: v for k, v in NON_DEFAULT.items() if k not in REFUSED}
+    custom = defaults.replace(**carried)
+    for name, value in carried.items():
+        assert getattr(defaults, name) != value, f"{name}: the test's value must differ from the default"
+    # every carried field survives the trip through serialised bytes, each on its own and all together
+    for changes in [{k: v} for k, v in carried.items() if k != "structure_weights"] + [carried]:
+        want = defaults.replace(**changes)
+        wire = pb.GeneratorConfig.FromString(config_to_proto(want).SerializeToString())
+        assert config_from_proto(wire, defaults) == want, changes
+    assert config_from_proto(config_to_proto(custom), defaults) == custom
+    for name in REFUSED:
+        with pytest.raises(ConfigError, match=name):
+            config_to_proto(defaults.replace(**{name: NON_DEFAULT[name]}))
+
+
 def test_config_round_trip_and_defaults():
     defaults = GeneratorConfig()
     custom = GeneratorConfig(structures=("coord_ring",), pots=(2, 3), count_decay=0.9, allow_decoys=True)
@@ -142,6 +183,7 @@ def test_staleness_revisits_levels_not_sampled_for_long():
         (["curriculum.replay_prob=1.5"], "replay_prob"),
         (["generator.pots=[0, 2]"], "pots"),
         (["max_batch_sise=5"], "max_batch_size"),
+        (["generator.exclude_heldout=false"], "exclude_heldout"),
     ],
 )
 def test_bad_server_configs_name_the_fix(overrides, words):
