@@ -117,7 +117,7 @@ def test_bc_clones_with_a_presets_network_and_refuses_one_with_memory(capsys):
     from cec.humans.bc import PROXY_NETWORK
 
     assert humans._preset_network("configs/train/quick_cpu.yaml")["network"] != PROXY_NETWORK
-    e3t = humans._preset_network("configs/train/e3t_cramped_room.yaml")["network"]
+    e3t = humans._preset_network("configs/train/e3t.yaml")["network"]
     assert e3t.partner_history == 0  # the proxy without E3T's partner model: cross-play embeds one
     assert (
         main(["humans", "bc", "--preset", "configs/train/cec_overcooked.yaml", "--data", "/nonexistent"]) == 2
