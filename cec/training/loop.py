@@ -7,8 +7,9 @@ only where the updates come from; the loop does the rest the same way for both:
 
 Per step it runs the source's next updates, writes their metrics rows (`metrics.jsonl`, `metrics.csv`,
 the tracker's events), shows a progress line (updates, env steps, steps/s, mean return, ETA to the run's
-end), and saves a checkpoint when one is due: every `checkpoint.every_updates`, at a milestone, at the
-last update of this process, and when it stops early. A stop asked for before a step runs none; one asked
+end at the pace since this process's first step, which compiles: that step's line has no ETA), and saves a
+checkpoint when one is due: every `checkpoint.every_updates`, at a milestone, at the last update of this
+process, and when it stops early. A stop asked for before a step runs none; one asked
 for during a step ends the loop after it. Either way the last update is in a checkpoint.
 """
 
@@ -97,6 +98,7 @@ def run_updates(
     if done == 0 and 0 in files.milestones:
         _save(source, files, 0, milestone=True)
     saved, stopped = done, False
+    paced: tuple[int, float] | None = None  # (update, time) of the first step's line: the ETA's start
     while done < stop_at:
         if stop():  # asked before this step (the learner's driver may ask before the first)
             stopped = True
@@ -113,7 +115,10 @@ def run_updates(
         files.writer.write(rows)
         tracker.log_rows(rows, source.sections())
         if meter is not None:
-            meter.show(done, sps, _mean_return(rows, config.num_seeds), (total - done) * dt / (done - prev))
+            now = time.perf_counter()
+            eta = None if paced is None else (total - done) * (now - paced[1]) / (done - paced[0])
+            meter.show(done, sps, _mean_return(rows, config.num_seeds), eta)
+            paced = paced or (done, now)
         due, crossed = files.due(prev, done)
         stopped = stop()
         if due or done == stop_at or stopped:
@@ -181,19 +186,22 @@ def _num(x: Any) -> float | None:
 
 
 class Progress:
-    """One status line per call: updates, env steps, steps/s, mean return, ETA (to stderr)."""
+    """One status line per call: updates, env steps, steps/s, mean return, ETA (to stderr; `eta_s` None: not
+    yet known, the line of a process's first step, which compiled: its time says nothing of the pace)."""
 
     def __init__(self, total_updates: int, steps_per_update: int, stream: TextIO = sys.stderr) -> None:
         self.total = total_updates
         self.spu = steps_per_update
         self.stream = stream
 
-    def show(self, done: int, sps: float, mean_return: float | None, eta_s: float) -> None:
+    def show(self, done: int, sps: float, mean_return: float | None, eta_s: float | None) -> None:
         ret = "n/a" if mean_return is None else f"{mean_return:.2f}"
+        unknown = eta_s is None and done < self.total
+        eta = "? (timed from the next update)" if unknown else _duration(eta_s or 0)
         line = (
             f"update {done}/{self.total} ({100 * done / self.total:5.1f}%) | "
             f"{_si(done * self.spu)}/{_si(self.total * self.spu)} steps | {_si(sps)} steps/s | "
-            f"return {ret} | ETA {_duration(eta_s)}"
+            f"return {ret} | ETA {eta}"
         )
         print(line, file=self.stream, flush=True)
 

@@ -7,11 +7,13 @@ from __future__ import annotations
 import io
 import json
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
 
 from cec.config import load_config
+from cec.training import loop
 from cec.training.config import TrainConfig
 from cec.training.loop import UpdateSource, run_updates
 from cec.training.ppo import LossInfo
@@ -141,3 +143,20 @@ def test_a_stop_before_a_step_runs_none_and_one_between_steps_saves_the_last(tmp
     outcome = run_updates(source, files, Tracker(), 0, stop=lambda: next(answers), progress=False)
     assert outcome == (1, UPDATES, True) and source.steps == [(0, 1)]
     assert files.saved == [(1, False)], "the update done before the stop is in a checkpoint"
+
+
+def test_the_eta_is_timed_from_the_first_compiled_step(tmp_path: Path, monkeypatch) -> None:
+    """The first step compiles (300 s here, on a clock the steps advance), the others take 2 s: the first line
+    has no ETA, and every later one is the pace since it, (updates left) x 2 s, never the compile's."""
+    clock = [0.0]
+    monkeypatch.setattr(loop, "time", SimpleNamespace(perf_counter=lambda: clock[0]))
+
+    class Timed(Source):
+        def step(self, done: int, n: int) -> UpdateMetrics:
+            clock[0] += 300.0 if not self.steps else 2.0 * n
+            return super().step(done, n)
+
+    log = io.StringIO()
+    run_updates(Timed(per_step=1), Files(_config(tmp_path)), Tracker(), 0, log=log)
+    etas = [line.rsplit("| ETA ", 1)[1] for line in log.getvalue().splitlines()]
+    assert etas == ["? (timed from the next update)", "0m08s", "0m06s", "0m04s", "0m02s", "0m00s"], etas

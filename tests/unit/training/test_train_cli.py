@@ -1,6 +1,7 @@
 """`cec train` in a subprocess: config errors, SIGINT/SIGTERM save a checkpoint, --resume finishes."""
 
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -62,10 +63,13 @@ def test_a_signal_saves_a_checkpoint_and_resume_finishes(tmp_path, sig):
     )
     proc = _cec("train", "--config", str(cfg))
     assert proc.stderr is not None
-    for line in proc.stderr:  # wait until training is under way
-        if line.startswith("update "):
-            break
+    lines = (line for line in proc.stderr if line.startswith("update "))  # training under way
+    first, second = next(lines), next(lines)
     proc.send_signal(sig)
+    # the first update compiled: its line gives no ETA (it was hours, the compile's time x the updates left);
+    # the next one times the pace since
+    assert first.rstrip().endswith("| ETA ? (timed from the next update)"), first
+    assert re.search(r"\| ETA \d+h\d\dm$|\| ETA \d+m\d\ds$", second.rstrip()), second
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
     assert "checkpoint saved" in err and "interrupted after" in out
