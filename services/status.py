@@ -67,15 +67,16 @@ def write_stack_file(run_dir: Path, urls: dict[str, str], redis_needs_password: 
     return path
 
 
-def find_run(root: Path) -> Path:
-    """The newest run directory under `root` (the one whose metrics or stack file changed last)."""
+def find_run(root: Path) -> Path | None:
+    """The newest run directory under `root` (the one whose metrics or stack file changed last); None when
+    there is none."""
     marks = [
         p
         for pattern in ("*/metrics.jsonl", "*/*/metrics.jsonl", f"*/{STACK_FILE}")
         for p in root.glob(pattern)
     ]
     if not marks:
-        raise ConfigError(f"no run under {str(root)!r}; give the run directory: cec status runs/<run name>")
+        return None
     newest = max(marks, key=lambda p: p.stat().st_mtime)
     return newest.parent.parent if newest.parent.name == "logs" else newest.parent
 
@@ -469,20 +470,37 @@ def _finite(value: Any) -> Any:
 # ---- command line -----------------------------------------------------------------------------------------
 
 
+def no_run(runs: str) -> str:
+    """What `cec status` says when there is no run to show, and how to start one."""
+    return (
+        f"no run under {runs}/ yet. Start one: `make up` or `cec up` (the whole service, training the "
+        "default preset), or `cec train --config configs/train/cramped_room_ci.yaml` (one process); a run "
+        "elsewhere: cec status RUN_DIR"
+    )
+
+
 def _cmd_status(args: argparse.Namespace) -> int:
     run_dir = Path(args.run_dir) if args.run_dir else find_run(Path(args.runs))
-    while True:
+    if args.watch is None:
+        if run_dir is None:
+            print(f"cec status: {no_run(args.runs.rstrip('/'))}", file=sys.stderr)
+            return 1
         status = collect(run_dir, args.redis)
-        text = to_json(status) if args.json else render(status)
-        if args.watch is None:
-            print(text, flush=True)
-            return 0
-        sys.stdout.write("\x1b[H\x1b[2J" + text + f"\n\n(every {args.watch:g} s; Ctrl-C stops)\n")
-        sys.stdout.flush()
-        try:
+        print(to_json(status) if args.json else render(status), flush=True)
+        return 0
+    try:  # Ctrl-C stops it, whether it sleeps or reads the run
+        while True:
+            run_dir = run_dir or find_run(Path(args.runs))  # a run is shown once one starts
+            if run_dir is None:
+                text = no_run(args.runs.rstrip("/"))
+            else:
+                status = collect(run_dir, args.redis)
+                text = to_json(status) if args.json else render(status)
+            sys.stdout.write("\x1b[H\x1b[2J" + text + f"\n\n(every {args.watch:g} s; Ctrl-C stops)\n")
+            sys.stdout.flush()
             time.sleep(args.watch)
-        except KeyboardInterrupt:
-            return 0
+    except KeyboardInterrupt:
+        return 0
 
 
 def add_subcommands(sub: Any) -> None:

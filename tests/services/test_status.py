@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -98,3 +99,30 @@ def test_a_masked_redis_url_asks_for_the_password(tmp_path: Path, masked: str) -
     run = _run(tmp_path)
     write_stack_file(run, {"redis": masked}, redis_needs_password=True)
     assert "--redis" in collect(run)["control_plane"]["error"]
+
+
+def test_status_without_a_run_says_there_is_none_and_how_to_start_one(tmp_path: Path) -> None:
+    """`cec status` in a fresh clone (no runs/): not an error of any config, but "no run yet" and the commands
+    that start one; `--watch` waits for the run and shows it once it writes its first row."""
+    cmd = [sys.executable, "-m", "apps.cli", "status"]
+    proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 1 and proc.stdout == "", proc.stderr
+    assert proc.stderr.startswith("cec status: no run under runs/ yet. Start one: `make up` or `cec up`"), (
+        proc.stderr
+    )
+    assert "cec train --config configs/train/cramped_room_ci.yaml" in proc.stderr
+    assert "config error" not in proc.stderr and "Traceback" not in proc.stderr
+    watch = subprocess.Popen(
+        [*cmd, "--watch", "0.2"], cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True
+    )
+    try:
+        assert watch.stdout is not None
+        screens = (line for line in watch.stdout)
+        assert any("no run under runs/ yet" in line for line in screens)
+        _run(tmp_path / "runs", "late")  # a run starts while it watches
+        assert any("late  cec on overcooked/generator" in line for line in screens)
+        watch.send_signal(signal.SIGINT)
+        assert watch.wait(30) == 0
+    finally:
+        watch.kill()
+        watch.wait()
