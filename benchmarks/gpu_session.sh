@@ -157,7 +157,7 @@ yaml.safe_load(open('cec/shipped/zoo.yaml'))['policies'] if e['algorithm'] == 'c
         elif [ -n "${WINDOW_LR:-}" ]; then train+=(ppo.lr="$WINDOW_LR"); fi
         # A teacher's weight (where the recipe has one) falls to 0 over a third of the steps: at this batch
         # (8x the CPU recipe's samples per Adam step) about the Adam steps of the CPU recipe's whole 1,280
-        # updates, over which lever (s) (docs/reproduce_overcooked.md) scored above a teacher gone at 960.
+        # updates, over which lever (s) (research/diary/reproduce_overcooked.md) scored above a teacher gone at 960.
         train+=(ppo.teacher_anneal_env_steps="${WINDOW_TEACHER_ANNEAL:-$((STEPS / 3))}")
         echo "== 2. four seeds of $RECIPE ${INIT:+continued from $INIT }(one process, SIGTERM after ${T_TRAIN}s)"
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config "$RECIPE" "${train[@]}" "${BATCH[@]}" \

@@ -9,7 +9,8 @@ update's env steps over its env-steps/s) divided by its seeds, i.e. core-hours p
 one core. Cross-play is the mean over every pair of two different seeds with its jackknife standard error
 over seeds (`cec.evaluation.stats.crossplay_estimate`; none with 2 seeds).
 
-Train the runs first, one core each, the same budget, e.g. (the two probes of docs/reproduce_overcooked.md):
+Train the runs first, one core each, the same budget, e.g. (the two probes of
+research/diary/reproduce_overcooked.md):
 
     M='checkpoint.milestones=[0.25,0.5,0.75,1.0]'
     taskset -c 0 cec train --config configs/train/cec_overcooked_cpu.yaml seed=300 num_seeds=2 \\
@@ -18,7 +19,7 @@ Train the runs first, one core each, the same budget, e.g. (the two probes of do
         num_envs=1024 ppo.num_minibatches=8 total_env_steps=5242880 updates_per_call=1 \\
         checkpoint.every_updates=5 "$M" run_dir=runs/probes name=tts-e1024
     python benchmarks/time_to_skill.py runs/probes/tts-e128 runs/probes/tts-e1024 \\
-        --out docs/reproduce_overcooked/tts
+        --out research/diary/reproduce_overcooked/tts
 
 Seeds of one recipe trained in separate processes (one per core, e.g. seeds 300-301 and 302-303) are one
 population with `--join NAME RUN RUN`: at each update both saved, all their seeds play each other.

@@ -1,4 +1,5 @@
-"""Scripts under `benchmarks/` imported as modules, so that tests can call their functions."""
+"""Scripts under `benchmarks/` and `research/analyses/` imported as modules, so that tests can call their
+functions."""
 
 from __future__ import annotations
 
@@ -9,10 +10,19 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def benchmark(name: str) -> Any:
-    """`benchmarks/<name>.py` as a fresh module."""
-    spec = importlib.util.spec_from_file_location(name, ROOT / "benchmarks" / f"{name}.py")
+def _script(path: Path) -> Any:
+    spec = importlib.util.spec_from_file_location(path.stem, path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+def benchmark(name: str) -> Any:
+    """`benchmarks/<name>.py` as a fresh module."""
+    return _script(ROOT / "benchmarks" / f"{name}.py")
+
+
+def research(name: str) -> Any:
+    """`research/analyses/<name>.py` as a fresh module."""
+    return _script(ROOT / "research" / "analyses" / f"{name}.py")

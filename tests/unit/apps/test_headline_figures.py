@@ -15,9 +15,11 @@ DECIMAL = re.compile(r"(?<![\d.])\d+\.\d+(?![\d.])")
 
 def _reports(text: str, page: Path) -> list[Path]:
     """The committed reports `text` links (Markdown files under benchmarks/results/, or the lever comparisons
-    `benchmarks/levers.py` writes under docs/reproduce_overcooked/levers/), relative to `page`."""
+    `research/analyses/levers.py` writes under research/diary/reproduce_overcooked/levers/), relative to
+    `page`."""
     out = []
-    written = (ROOT / "benchmarks" / "results", ROOT / "docs" / "reproduce_overcooked" / "levers")
+    levers = ROOT / "research" / "diary" / "reproduce_overcooked" / "levers"
+    written = (ROOT / "benchmarks" / "results", levers)
     for target in LINK.findall(text):
         path = (page.parent / target.split("#")[0]).resolve()
         if any(path.is_relative_to(folder) for folder in written) and path.suffix == ".md":

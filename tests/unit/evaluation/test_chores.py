@@ -14,7 +14,7 @@ from cec.evaluation.crossplay import episode_states, eval_levels
 from cec.levels import Item, Tile
 from cec.levels.classic import classic_level
 from cec.levels.level import unstack_levels
-from tests.scripts import benchmark
+from tests.scripts import research
 from tests.unit.evaluation.test_handovers import _episode as episode
 
 A = Action
@@ -65,9 +65,10 @@ def test_the_cooks_chain_of_chores_adds_up() -> None:
 
 
 def test_counter_circuits_variants_keep_its_floor_and_its_objects() -> None:
-    """`benchmarks/chores.py`'s variants move one thing each: the floor (turned 180 degrees for the control)
+    """`research/analyses/chores.py`'s variants move one thing each: the floor (turned 180 degrees for the
+    control)
     and the number of each object stay Counter Circuit's; an unknown part is refused with the choices."""
-    chores = benchmark("chores")
+    chores = research("chores")
     base = np.asarray(classic_level("counter_circuit").grid)
     parts = chores._parts(list(chores.VARIANTS))
     for name, levels in parts.items():
@@ -91,7 +92,7 @@ def test_counter_circuits_variants_keep_its_floor_and_its_objects() -> None:
 
 
 def test_the_table_has_a_column_per_part_and_group() -> None:
-    chores = benchmark("chores")
+    chores = research("chores")
     per = Chores.zero().per_episode(1)
     result = {"counter_circuit": {"levels": 1, "xp": {"episodes": 2, "return": 15.0, **per}}}
     text = chores.table(result)

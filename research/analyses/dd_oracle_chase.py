@@ -2,8 +2,8 @@
 that start from different plans chase each other instead of meeting (docs/dual_destination.md, "Known
 limitation").
 
-    python benchmarks/dd_oracle_chase.py              # 512 generated multi-task tasks, ~30 s on a CPU core
-    python benchmarks/dd_oracle_chase.py --tasks 2048
+    python research/analyses/dd_oracle_chase.py       # 512 generated multi-task tasks, ~30 s on a CPU core
+    python research/analyses/dd_oracle_chase.py --tasks 2048
 
 Both seats play `oracle_partner_step`; seat 1 reads the pink goals as green (goal channels swapped), so its
 joint plan starts from the other pair whenever both pairs are as quick. Printed per task set: the mean

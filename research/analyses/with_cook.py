@@ -1,6 +1,6 @@
 """Seeds with the scripted cook in the validation kitchens that need a hand-over, beside the same seeds with
 each other: is the exchange learned with a partner that does its half, and does it carry over to a copy?
-(docs/reproduce_overcooked.md, levers (m) and (n)).
+(research/diary/reproduce_overcooked.md, levers (m) and (n)).
 
 Every pair of the line-up, the seeds of the runs at one checkpoint plus `cook` (Overcooked's scripted cook)
 and `noop` (a partner that stands still), plays every seat order once, one 400-step episode with sampled
@@ -10,12 +10,13 @@ seeds; the controls: the cook with the still partner (it cannot deliver alone th
 cook, the learner's episodes are split by its side of the kitchen: whether the floor region it starts in
 reaches the onion pile (it holds the first half of the exchange, passing onions) or not (it takes them).
 
-    python benchmarks/with_cook.py --runs runs/levers/cookanneal-s400 runs/levers/cookanneal-s402 \\
-        --out docs/reproduce_overcooked/levers/cookanneal_with_cook_u1280    # the latest checkpoints
-    python benchmarks/with_cook.py --runs ... --update 640 --out ...         # a milestone
+    L=research/diary/reproduce_overcooked/levers
+    python research/analyses/with_cook.py --runs runs/levers/cookanneal-s400 runs/levers/cookanneal-s402 \\
+        --out $L/cookanneal_with_cook_u1280    # the latest checkpoints
+    python research/analyses/with_cook.py --runs ... --update 640 --out ...         # a milestone
 
-    L=docs/reproduce_overcooked/levers/cookho_with_cook_u1280    # re-read a committed table:
-    python benchmarks/with_cook.py --from-csv $L.csv.bz2 --out $L
+    L=research/diary/reproduce_overcooked/levers/cookho_with_cook_u1280    # re-read a committed table:
+    python research/analyses/with_cook.py --from-csv $L.csv.bz2 --out $L
 
 Writes OUT.csv.bz2 (every episode, when it plays), OUT.json and OUT.md (the summary).
 """
@@ -195,7 +196,7 @@ def save_episodes(table: EpisodeTable, out: Path) -> None:
 
 
 def run_meta(script: str, argv: list[str] | None, **extra: Any) -> dict[str, Any]:
-    """The date, the machine and the command of a run of `benchmarks/<script>`, then `extra`."""
+    """The date, the machine and the command of a run of `research/analyses/<script>`, then `extra`."""
     from apps.machine import machine_info
 
     info = machine_info()
@@ -203,7 +204,7 @@ def run_meta(script: str, argv: list[str] | None, **extra: Any) -> dict[str, Any
     return {
         "date": datetime.date.today().isoformat(),
         "machine": f"{info['cpu']}, {info['cpu_count']} cores",
-        "command": f"python benchmarks/{script} " + " ".join(args),
+        "command": f"python research/analyses/{script} " + " ".join(args),
         **extra,
     }
 

@@ -1,15 +1,16 @@
-"""`benchmarks/with_strangers.py`: a recipe's seeds with partners from outside it, read per group of seeds."""
+"""`research/analyses/with_strangers.py`: a recipe's seeds with partners from outside it, read per group of
+seeds."""
 
 from __future__ import annotations
 
 import pytest
 
-from tests.scripts import benchmark
-from tests.unit.evaluation.test_with_cook import _table
+from tests.scripts import research
+from tests.unit.research.test_with_cook import _table
 
 
 def test_each_group_is_the_mean_over_its_seeds_with_the_error_over_them_and_strangers_pairs_only() -> None:
-    ws = benchmark("with_strangers")
+    ws = research("with_strangers")
     table = _table([
         ("A1", "hp_forced_coord", "forced_coord", 0, 20.0),
         ("hp_forced_coord", "A1", "forced_coord", 0, 40.0),

@@ -1,4 +1,4 @@
-"""`benchmarks/levers.py`: a lever's row is compared with the recipe part by part at equal steps."""
+"""`research/analyses/levers.py`: a lever's row is compared with the recipe part by part at equal steps."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from typing import Any
 
 import pytest
 
-from tests.scripts import benchmark
+from tests.scripts import research
 
 
 def _module() -> Any:
-    return benchmark("levers")
+    return research("levers")
 
 
 def _part(xp: float, se: float) -> dict[str, float]:

@@ -1,11 +1,12 @@
-"""`benchmarks/with_cook.py`: seeds with the scripted cook, read per seed and by the learner's side."""
+"""`research/analyses/with_cook.py`: seeds with the scripted cook, read per seed and by the learner's
+side."""
 
 from __future__ import annotations
 
 import pytest
 
 from cec.evaluation.results import ARRAY_FIELDS, make_table
-from tests.scripts import benchmark
+from tests.scripts import research
 
 
 def _table(rows: list[tuple[str, str, str, int, float]]):
@@ -21,7 +22,7 @@ def _table(rows: list[tuple[str, str, str, int, float]]):
 
 
 def test_each_seed_is_read_with_the_cook_by_its_side_beside_self_play_and_cross_play() -> None:
-    wc = benchmark("with_cook")
+    wc = research("with_cook")
     sides = {"k1": (True, False), "k2": (False, True)}  # the onion pile: seat 0's side in k1, seat 1's in k2
     table = _table([
         # the cook as policy_a in seat 0 of k1: the learner A sits in seat 1, off the onion side

@@ -1,7 +1,7 @@
 """FCP vs IPPO in cross-play with unseen partners on Dual Destination (fixed task, `small` network, CPU).
 
-    python benchmarks/fcp_dual_destination.py                # ~10 minutes on one CPU core
-    python benchmarks/fcp_dual_destination.py --partial-obs  # the 3x3-view variant (paper appendix)
+    python research/analyses/fcp_dual_destination.py                # ~10 minutes on one CPU core
+    python research/analyses/fcp_dual_destination.py --partial-obs  # the 3x3-view variant (paper appendix)
 
 The paper's ordering to check: a Fictitious Co-Play agent, trained against a frozen population of IPPO
 self-play seeds (each at its first, middle and last milestone), cooperates better with IPPO seeds it never
@@ -29,25 +29,21 @@ import time
 from pathlib import Path
 
 import numpy as np
-import yaml
 
+from apps.machine import machine_info
 from cec.agents.policy import load_policy
 from cec.agents.zoo import ZooEntry
-from cec.config import from_dict
+from cec.checkpoints import code_version
+from cec.config import from_dict, read_config
 from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from cec.training.config import TrainConfig
 from cec.training.run import train
 
-try:  # run as a script (benchmarks/ on sys.path) or as a module
-    from env_throughput import git_rev, machine  # type: ignore[import-not-found]
-except ImportError:  # pragma: no cover
-    from benchmarks.env_throughput import git_rev, machine
-
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def preset(file: str, partial_obs: bool, **changes: object) -> TrainConfig:
-    data = yaml.safe_load((ROOT / "configs/train" / file).read_text())
+    data = read_config(ROOT / "configs/train" / file)  # the preset with its `base:` chain
     data.update(changes)
     data["env"] = {**data["env"], "dual_destination": {"partial_obs": partial_obs}}
     return from_dict(TrainConfig, data)
@@ -63,14 +59,14 @@ def main() -> int:
     parser.add_argument("--partial-obs", action="store_true", help="3x3 view (the paper's POMDP variant)")
     parser.add_argument("--work", help="directory for the runs (default: a temporary one)")
     parser.add_argument(
-        "--out", help="result JSON (default: benchmarks/results/fcp_dual_destination_<obs>_cpu.json)"
+        "--out", help="result JSON (default: research/results/fcp_dual_destination_<obs>_cpu.json)"
     )
     args = parser.parse_args()
     work = Path(args.work or tempfile.mkdtemp(prefix="fcp_dd_"))
     obs = "partial_obs" if args.partial_obs else "full_obs"
-    out = Path(args.out or ROOT / f"benchmarks/results/fcp_dual_destination_{obs}_cpu.json")
-    result: dict = {"date": datetime.date.today().isoformat(), "machine": machine(), "git": git_rev(),
-                    "args": vars(args)}  # fmt: skip
+    out = Path(args.out or ROOT / f"research/results/fcp_dual_destination_{obs}_cpu.json")
+    result: dict = {"date": datetime.date.today().isoformat(), "machine": machine_info(),
+                    "git": code_version(short=True), "args": vars(args)}  # fmt: skip
 
     n_ippo = args.pop_seeds + args.eval_seeds
     t0 = time.perf_counter()

@@ -15,10 +15,10 @@ levers (the same machine and seeds): every part against its row at exactly the l
 and its control may also be result tables of `cec eval` (CSV, one recipe's seeds each, `--steps` saying
 where their checkpoints are): how the test set, played once after the choice, reports a chosen lever.
 
-    python benchmarks/levers.py --lever coverage=docs/reproduce_overcooked/levers/cov35.json \\
-        --out docs/reproduce_overcooked/levers/summary
-    python benchmarks/levers.py --lever ent02=docs/reproduce_overcooked/levers/ent02_4seeds.json \\
-        --control docs/reproduce_overcooked/levers/control_4seeds.json --steps 2621440 --out ...
+    L=research/diary/reproduce_overcooked/levers
+    python research/analyses/levers.py --lever coverage=$L/cov35.json --out $L/summary
+    python research/analyses/levers.py --lever ent02=$L/ent02_4seeds.json \\
+        --control $L/control_4seeds.json --steps 2621440 --out ...
 
 prints a Markdown table and writes OUT.json.
 """

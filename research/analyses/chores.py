@@ -1,5 +1,6 @@
 """Where the time goes in a kitchen: what the seats carry, which chores of a soup they do and how long the
-finished soups wait (`cec.evaluation.chores`; docs/reproduce_overcooked.md, "Why Counter Circuit fails").
+finished soups wait (`cec.evaluation.chores`; research/diary/reproduce_overcooked.md, "Why Counter Circuit
+fails").
 
 Every seed plays every seed, itself included (self-play beside cross-play), in both seat orders,
 `--episodes` 400-step episodes with sampled actions per pairing and kitchen (the evaluation's keys:
@@ -10,10 +11,11 @@ stands beside the generated kitchens like it, and Counter Circuit with one thing
 `counter_circuit/window_top`: its delivery window from the end of the middle row to the top row), so what
 a kitchen's failure hangs on is measured, not guessed.
 
-    python benchmarks/chores.py --algorithm cec_teacher --with-cook --episodes 4 --parts counter_circuit \
-        counter_circuit/window_on_island --out docs/reproduce_overcooked/chores_teachcov   # shipped seeds
-    python benchmarks/chores.py --runs runs/levers/teachcov-s400 runs/levers/teachcov-s402 --update 1280 \
-        --parts counter_circuit loop --out ...     # checkpoints of runs, their seeds
+    python research/analyses/chores.py --algorithm cec_teacher --with-cook --episodes 4 \
+        --parts counter_circuit counter_circuit/window_on_island \
+        --out research/diary/reproduce_overcooked/chores_teachcov   # shipped seeds
+    python research/analyses/chores.py --runs runs/levers/teachcov-s400 runs/levers/teachcov-s402 \
+        --update 1280 --parts counter_circuit loop --out ...     # checkpoints of runs, their seeds
 
 Writes OUT.json (per part and group: `sp`, `xp`, `cook` (a seed with the cook), `cook+cook`), OUT.md
 (the table) and OUT.png (the frames of one episode in the first part's first kitchen: the first two seeds,

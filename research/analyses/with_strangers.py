@@ -1,8 +1,8 @@
 """Seeds with partners that never trained beside them or their teacher: human proxies and the shipped seeds.
 
 Cross-play between the seeds of one recipe tests partners they never met, but not conventions they never
-learned: seeds that share a teacher (lever (q) of docs/reproduce_overcooked.md, kickstarting from the
-scripted cook) may meet each other half-way because each learned the teacher's ways. This plays each group
+learned: seeds that share a teacher (lever (q) of research/diary/reproduce_overcooked.md, kickstarting from
+the scripted cook) may meet each other half-way because each learned the teacher's ways. This plays each group
 of runs' seeds at one checkpoint with partners from outside:
 
 - the human proxies (`cec/shipped/hp_<kitchen>`, behaviour-cloned from people's games), each in its own
@@ -13,7 +13,8 @@ of runs' seeds at one checkpoint with partners from outside:
 400-step episodes, sampled actions, the evaluation's keys. Give the recipe under test and a control of the
 same budget as groups, e.g. (update 320: 2.6M env steps per seed):
 
-    python benchmarks/with_strangers.py --update 320 --out docs/reproduce_overcooked/levers/strangers_u320 \
+    python research/analyses/with_strangers.py --update 320 \
+        --out research/diary/reproduce_overcooked/levers/strangers_u320 \
         --group teacher runs/levers/teacher-s400 runs/levers/teacher-s402 \
         --group cooktaken runs/levers/cooktaken-s400 runs/levers/cooktaken-s402
 
@@ -36,12 +37,12 @@ from cec.evaluation.milestones import run_entries
 from cec.evaluation.results import EpisodeTable
 from cec.levels.classic import CLASSIC_NAMES
 
-try:  # run as a script (benchmarks/ on sys.path) or as a module
+try:  # run as a script (research/analyses/ on sys.path) or as a module
     from with_cook import run_meta, save_episodes, save_summary  # type: ignore[import-not-found]
 except ImportError:
-    from benchmarks.with_cook import run_meta, save_episodes, save_summary
+    from research.analyses.with_cook import run_meta, save_episodes, save_summary
 
-SHIPPED = Path(__file__).resolve().parents[1] / "cec" / "shipped"
+SHIPPED = Path(__file__).resolve().parents[2] / "cec" / "shipped"
 SHIPPED_SEEDS = [f"cec758m-s{s}" for s in (200, 201, 202, 203)]
 GENERATED = "generated"
 

@@ -8,9 +8,9 @@ it carry the envs into mid-episode as training does), then prints for each kind 
 batch, the mean and deviation of its advantages, and its mean value and return target. Advantages that
 spread much wider in one kind carry most of the gradient once the loss normalises them together.
 
-    python benchmarks/advantage_split.py runs/levers/scripted-both-s400 --update 320
+    python research/analyses/advantage_split.py runs/levers/scripted-both-s400 --update 320
 
-(lever c2 of docs/reproduce_overcooked.md, "Levers for every kitchen").
+(lever c2 of research/diary/reproduce_overcooked.md, "Levers for every kitchen").
 """
 
 from __future__ import annotations

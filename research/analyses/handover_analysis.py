@@ -1,6 +1,6 @@
 """Where the agents stall in kitchens that need a hand-over: do they put items on a shared counter, does the
-partner take them, do soups follow? (`cec.evaluation.handovers`; docs/reproduce_overcooked.md, "Why the
-hard kitchens fail").
+partner take them, do soups follow? (`cec.evaluation.handovers`; research/diary/reproduce_overcooked.md,
+"Why the hard kitchens fail").
 
 Every seed plays every seed, itself included (self-play beside cross-play), in both seat orders, one
 400-step episode with sampled actions per pairing and kitchen (the evaluation's keys: `episode_states`), on
@@ -8,11 +8,12 @@ the validation kitchens of the kinds asked (`cec.levels.kinds`). Per kind and fo
 separately: the share of episodes that put anything on a shared counter, in which the partner took an item,
 in which a seat served a pot the partner had filled, and that delivered; and the mean counts per episode.
 
-    python benchmarks/handover_analysis.py --out docs/reproduce_overcooked/handovers_shipped   # shipped seeds
-    python benchmarks/handover_analysis.py --runs runs/levers/cov35-s400 runs/levers/cov35-s402 \\
-        --out docs/reproduce_overcooked/handovers_cov35      # the latest checkpoints of runs, their seeds
-    python benchmarks/handover_analysis.py --runs ... --update 1280 --with-cook --kinds "hand-over needed" \\
-        --out ...    # one milestone, and each seed with Overcooked's scripted cook too
+    D=research/diary/reproduce_overcooked
+    python research/analyses/handover_analysis.py --out $D/handovers_shipped   # shipped seeds
+    python research/analyses/handover_analysis.py --runs runs/levers/cov35-s400 runs/levers/cov35-s402 \\
+        --out $D/handovers_cov35      # the latest checkpoints of runs, their seeds
+    python research/analyses/handover_analysis.py --runs ... --update 1280 --with-cook \\
+        --kinds "hand-over needed" --out ...    # one milestone, and each seed with the scripted cook too
 
 Passes (an item put on a shared counter that only the partner can use: `cec.evaluation.handovers`) are also
 read per direction, giver -> receiver: per giver seat and episode, and the shares the receiver took and the
