@@ -82,7 +82,9 @@ class RolloutActor:
         self.carry: RolloutCarry | None = None
         self.version = -1
         self.params: Any = None
-        self._params_template = jax.eval_shape(lambda: self._init_state().params)
+        self.seeds = config.num_seeds  # every leaf below has this leading axis: the seeds, vmapped
+        params_of = jax.vmap(lambda k: self.trainer.init_one(k).params)
+        self._params_template = jax.eval_shape(params_of, self._keys())
         self._collect = jax.jit(self._collect_fn)
         self._init_carry = jax.jit(self._init_carry_fn)
         self.levels_reused = 0
@@ -91,7 +93,7 @@ class RolloutActor:
         if level_server and self.trainer.task.levels == "generator":
             from services.level_server.client import LevelStreamBuffer
 
-            per_rollout = (env_stop - env_start) * self.config.levels_per_env
+            per_rollout = (env_stop - env_start) * self.config.levels_per_env * config.num_seeds
             self.stream = LevelStreamBuffer(
                 level_server,
                 seed=level_seed,
@@ -104,13 +106,18 @@ class RolloutActor:
 
     # ---- jitted pieces -------------------------------------------------------------------------------
 
-    def _init_state(self) -> Any:
-        return self.trainer.init_one(jax.random.PRNGKey(0))
+    def _keys(self, key: jax.Array | None = None) -> jax.Array:
+        """One key per seed from `key` (shapes only when None)."""
+        return jax.random.split(jax.random.PRNGKey(0) if key is None else key, self.seeds)
 
-    def _init_carry_fn(self, key: jax.Array, levels: Any) -> RolloutCarry:
-        return init_carry(
-            self.trainer.task, self.trainer.network, self.trainer.env_params, levels, key, self.env_ids
-        )
+    def _init_carry_fn(self, keys: jax.Array, levels: Any) -> RolloutCarry:
+        """Fresh episodes of every seed's envs (keys [S], levels [S, E, K])."""
+
+        def one(key: jax.Array, levels: Any) -> RolloutCarry:
+            task, network, params = self.trainer.task, self.trainer.network, self.trainer.env_params
+            return init_carry(task, network, params, levels, key, self.env_ids)
+
+        return jax.vmap(one)(keys, levels)
 
     def _collect_fn(
         self,
@@ -121,33 +128,47 @@ class RolloutActor:
         levels: Any,
         version: jax.Array,
     ) -> tuple[RolloutCarry, CompactRollout]:
+        """Every seed's rollout (leading seed axis on all but `version`), as `cec train` vmaps its seeds."""
         if levels is None:
-            levels = self.trainer.task.sample_levels(k_levels, carry.env_id, self.config.levels_per_env)
-        start_level = carry.env_state.level
-        # the weights' version is the learner's update count: the update index of this rollout
-        carry, traj = self.trainer.collect(
-            params,
-            carry,
-            k_levels,
-            k_roll,
-            self.trainer.population,
-            record="state",
-            levels=levels,
-            update_index=version,
-        )
-        return carry, CompactRollout(traj, start_level, levels)
+            levels = self._local_levels(k_levels)
+
+        def one(
+            params: Any, carry: RolloutCarry, k_levels: jax.Array, k_roll: jax.Array, levels: Any
+        ) -> tuple[RolloutCarry, CompactRollout]:
+            start_level = carry.env_state.level
+            # the weights' version is the learner's update count: the update index of this rollout
+            carry, traj = self.trainer.collect(
+                params,
+                carry,
+                k_levels,
+                k_roll,
+                self.trainer.population,
+                record="state",
+                levels=levels,
+                update_index=version,
+            )
+            return carry, CompactRollout(traj, start_level, levels)
+
+        return jax.vmap(one)(params, carry, k_levels, k_roll, levels)
+
+    def _local_levels(self, keys: jax.Array) -> Any:
+        """[S, E, K] level buffers drawn here from each seed's key, as the single-process trainer draws."""
+        k = self.config.levels_per_env
+        return jax.vmap(lambda key: self.trainer.task.sample_levels(key, self.env_ids, k))(keys)
 
     # ---- the learner's calls ---------------------------------------------------------------------------
 
     def reset(self, incarnation: int, carry: bytes | None = None, key: Any = None) -> int:
         """Takes up `incarnation`: continues from `carry` (bytes of this slice's `RolloutCarry`) or, when
-        None, starts new episodes from `key` (uint32[2]). Returns the process id (for fault tests)."""
+        None, starts new episodes from `key` (uint32[2]; split over the seeds). Returns the process id (for
+        fault tests)."""
         if carry is not None:
-            template = jax.eval_shape(self._init_carry_fn, jax.random.PRNGKey(0), self._levels(None, True))
+            template = jax.eval_shape(self._init_carry_fn, self._keys(), self._levels(None, True))
             self.carry = jax.tree.map(jnp.asarray, from_bytes(template, carry))
         else:
             k = jnp.asarray(key, jnp.uint32) if key is not None else jax.random.PRNGKey(0)
-            self.carry = self._init_carry(k, self._levels(jax.random.fold_in(k, 1), False))
+            levels = self._levels(self._keys(jax.random.fold_in(k, 1)), False)
+            self.carry = self._init_carry(self._keys(k), levels)
         self.incarnation = incarnation
         return os.getpid()
 
@@ -187,21 +208,22 @@ class RolloutActor:
 
     # ---- levels ------------------------------------------------------------------------------------------
 
-    def _levels(self, key: Any, shape_only: bool) -> Any:
-        """[E, K] level buffers: streamed kitchens when there is a level server, else local draws."""
-        n, k = self.env_stop - self.env_start, self.config.levels_per_env
+    def _levels(self, keys: Any, shape_only: bool) -> Any:
+        """[S, E, K] level buffers: streamed kitchens when there is a level server (the seeds share the
+        stream, each taking its own kitchens), else local draws from each seed's key (`keys`: [S])."""
+        s, n, k = self.seeds, self.env_stop - self.env_start, self.config.levels_per_env
         if self.stream is None or shape_only:
-            key = jax.random.PRNGKey(0) if key is None else key
-            return self.trainer.task.sample_levels(key, self.env_ids, k)
+            return self._local_levels(self._keys() if keys is None else keys)
+        want = s * n * k
         try:  # the first kitchens are worth waiting for; later ones only briefly
-            flat = self.stream.take(n * k, timeout=None if self._pool is None else 1.0)
+            flat = self.stream.take(want, timeout=None if self._pool is None else 1.0)
             self._pool = flat
         except TimeoutError:  # outage: replay received kitchens in a fresh random order
-            self.levels_reused += n * k
+            self.levels_reused += want
             size = int(self._pool.grid.shape[0])
-            idx = np.asarray(jax.random.randint(jax.random.fold_in(key, 7), (n * k,), 0, size))
+            idx = np.asarray(jax.random.randint(jax.random.fold_in(keys[0], 7), (want,), 0, size))
             flat = jax.tree.map(lambda x: x[idx], self._pool)
-        return jax.tree.map(lambda x: jnp.asarray(x).reshape((n, k, *x.shape[1:])), flat)
+        return jax.tree.map(lambda x: jnp.asarray(x).reshape((s, n, k, *x.shape[1:])), flat)
 
     def _stats(self, rollout_s: float, encode_s: float) -> ActorStats:
         s = self.stream

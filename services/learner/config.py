@@ -110,10 +110,11 @@ class DistributedConfig:
 
     def check(self, train: TrainConfig) -> None:
         """Checks this distribution against the run (before any process starts)."""
-        if train.num_seeds != 1:
+        if train.num_seeds > 1 and train.devices != 1:
             raise ConfigError(
-                f"distributed training runs one seed per run (num_seeds=1), got num_seeds={train.num_seeds}; "
-                "start one run per seed (seed=0, seed=1, ...)"
+                f"num_seeds={train.num_seeds} with devices={train.devices}: the distributed learner vmaps "
+                "its seeds on one device or splits one seed over several, not both; set devices=1 or "
+                "num_seeds=1"
             )
         if train.level_repeats != 1:
             raise ConfigError(

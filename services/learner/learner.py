@@ -166,11 +166,22 @@ class Learner(UpdateSource):
     def _learn_fn(
         self, params: Any, opt_state: Any, update: jax.Array, rollout: CompactRollout, key: jax.Array
     ) -> tuple[Any, Any, Any]:
-        traj = expand(self.trainer.task, self.trainer.env_params, rollout)
-        return self.trainer.learn(params, opt_state, update, traj, key)
+        """Every seed's update (leading seed axis on all but `update`), as `cec train` vmaps its seeds."""
+
+        def one(params: Any, opt_state: Any, rollout: CompactRollout, key: jax.Array) -> tuple[Any, Any, Any]:
+            traj = expand(self.trainer.task, self.trainer.env_params, rollout)
+            return self.trainer.learn(params, opt_state, update, traj, key)
+
+        if self.config.num_seeds == 1:  # no vmap: one seed may be split over `devices` (the trainer's mesh)
+            out = one(*jax.tree.map(lambda x: x[0], (params, opt_state, rollout, key)))
+            return jax.tree.map(lambda x: x[None], out)
+        return jax.vmap(one)(params, opt_state, rollout, key)
+
+    def _seed_keys(self) -> jax.Array:
+        return jax.random.split(jax.random.PRNGKey(0), self.config.num_seeds)
 
     def _slice_template(self) -> CompactRollout:
-        """Shapes of one actor's `CompactRollout` (to decode its bytes)."""
+        """Shapes of one actor's `CompactRollout`, every seed's (to decode its bytes)."""
         n = self.config.num_envs // self.dist.num_actors
 
         def shaped(k: jax.Array) -> CompactRollout:
@@ -182,13 +193,14 @@ class Learner(UpdateSource):
             )
             return CompactRollout(traj, carry.env_state.level, levels)
 
-        return jax.eval_shape(shaped, jax.random.PRNGKey(0))
+        return jax.eval_shape(jax.vmap(shaped), self._seed_keys())
 
     def _carry_template(self) -> RolloutCarry:
-        """Shapes of one actor's carry."""
+        """Shapes of one actor's carry, every seed's."""
         n = self.config.num_envs // self.dist.num_actors
         return jax.eval_shape(
-            lambda k: jax.tree.map(lambda x: x[:n], self.trainer.init_one(k).carry), jax.random.PRNGKey(0)
+            jax.vmap(lambda k: jax.tree.map(lambda x: x[:n], self.trainer.init_one(k).carry)),
+            self._seed_keys(),
         )
 
     # ---- control ------------------------------------------------------------------------------------------
@@ -210,13 +222,12 @@ class Learner(UpdateSource):
         self.config.tracking.check()
         with self.files.opened(self.trainer.state_template(), resume, sys.stderr) as (loaded, done, tracker):
             M.LEARNER_RESTARTS.set(restarts)
-            state = self.trainer.init() if loaded is None else loaded
-            one = jax.tree.map(lambda x: x[0], state)  # the run's one seed
+            state = self.trainer.init() if loaded is None else loaded  # leading seed axis
             self._connect_store(resume=loaded is not None)
-            self._start_actors(one.carry)
+            self._start_actors(state.carry)
             status = "failed"
             try:
-                self._begin(one, done)
+                self._begin(state, done)
                 # no resume hint: the driver gives it (`cec up` and `cec train --distributed` differ)
                 outcome = run_updates(
                     self, self.files, tracker, done, max_updates=max_updates, stop=self._stop.is_set
@@ -232,12 +243,12 @@ class Learner(UpdateSource):
 
     # ---- the update source of `run_updates`: one update per step from the actors' batches --------------
 
-    def _begin(self, one: TrainState, done: int) -> None:
-        """The update loop's state at update `done` (attributes of a run, made here): `one`'s weights on the
-        learner's devices and published to the actors, its optimiser state and key."""
+    def _begin(self, state: TrainState, done: int) -> None:
+        """The update loop's state at update `done` (attributes of a run, made here): the seeds' weights on
+        the learner's devices and published to the actors, their optimiser states and keys."""
         self._template = self._slice_template()
-        self._params, self._opt_state = self.trainer.replicate((one.params, one.opt_state))  # `devices` > 1
-        self._key = one.key
+        self._params, self._opt_state = self.trainer.replicate((state.params, state.opt_state))  # `devices`
+        self._key = state.key
         self._version = done
         self._weights = self._publish(self._params, self._version)
         self._pending: dict[Any, int] = {}  # async: in-flight rollout -> slot index
@@ -245,7 +256,7 @@ class Learner(UpdateSource):
     def step(self, done: int, n: int) -> UpdateMetrics:
         """Update `done + 1` (`n` is 1): the actors' batches for the published weights, the PPO update on
         them, the new weights published."""
-        self._key, k_levels, k_roll, k_update = self.trainer.update_keys(self._key)
+        self._key, k_levels, k_roll, k_update = jax.vmap(self.trainer.update_keys)(self._key)
         if self.dist.mode == "sync":
             parts = self._sync_batches(self._weights, self._version, k_levels, k_roll, self._template)
         else:
@@ -261,13 +272,13 @@ class Learner(UpdateSource):
         M.LEARNER_STAGE_SECONDS.labels("update").inc(time.perf_counter() - t_update)
         self._version = done + 1
         self._weights = self._publish(self._params, self._version)
-        return jax.tree.map(lambda x: x[None, None], metrics)  # [seeds, updates] of the loop's rows
+        return jax.tree.map(lambda x: x[:, None], metrics)  # [seeds, updates] of the loop's rows
 
     def state(self) -> TrainState:
-        """The run's state with every actor's carry (gathered from them), with its one seed's axis."""
-        carry = self._gather_carry(self._key)
-        one = TrainState(self._params, self._opt_state, carry, self._key, jnp.int32(self._version))
-        return jax.tree.map(lambda x: jnp.asarray(x)[None], one)
+        """The run's state with every actor's carry (gathered from them), with its leading seed axis."""
+        carry = self._gather_carry(self._key[0])
+        update = jnp.full((self.config.num_seeds,), self._version, jnp.int32)
+        return TrainState(self._params, self._opt_state, carry, self._key, update)
 
     def extra_columns(self) -> dict[str, Any]:
         return self.feed.columns()
@@ -276,7 +287,7 @@ class Learner(UpdateSource):
         return {c: "distributed" for c in DISTRIBUTED_COLUMNS}
 
     def after_update(self, done: int, metrics: UpdateMetrics, sps: float) -> None:
-        self._record(jax.tree.map(lambda x: x[0, -1], metrics), sps)
+        self._record(jax.tree.map(lambda x: x[:, -1], metrics), sps)
         self._heartbeat()
 
     def on_save(self, path: Path, seconds: float) -> None:
@@ -302,7 +313,7 @@ class Learner(UpdateSource):
         ]  # fmt: skip
         self.pool.start(specs)
         self.slots = [_Slot(s.env_start, s.env_stop) for s in specs]
-        calls = [self.pool.call(i, "reset", 0, to_bytes(_rows(carry, s.start, s.stop))) for i, s in
+        calls = [self.pool.call(i, "reset", 0, to_bytes(_envs(carry, s.start, s.stop))) for i, s in
                  enumerate(self.slots)]  # fmt: skip
         for call in calls:
             self.pool.result(call)
@@ -345,7 +356,8 @@ class Learner(UpdateSource):
         _catch_up(M.ACTOR_LEVEL_RECONNECTS.labels(str(i)), stats.reconnects)
         _catch_up(M.ACTOR_LEVELS_REUSED.labels(str(i)), stats.levels_reused)
         M.LEARNER_BYTES_RECEIVED.inc(len(data))
-        M.LEARNER_AGENT_STEPS_RECEIVED.inc(2 * (header.env_stop - header.env_start) * self.config.num_steps)
+        envs = (header.env_stop - header.env_start) * self.config.num_seeds
+        M.LEARNER_AGENT_STEPS_RECEIVED.inc(2 * envs * self.config.num_steps)
         return header, payload
 
     def _accept(self, i: int, header: Any, version: int) -> bool:
@@ -377,7 +389,7 @@ class Learner(UpdateSource):
                     parts.append(from_bytes(template, got[1]))
                     break
                 if got is None:
-                    self._revive(i, k_roll)
+                    self._revive(i, k_roll[0])
                 ref = self._submit(i, weights, version, k_levels, k_roll)
         return parts
 
@@ -385,8 +397,8 @@ class Learner(UpdateSource):
         slot = self.slots[i]
         slot.submitted += 1
         k = jax.random.fold_in(jax.random.fold_in(key, i), slot.submitted)
-        k_levels, k_roll = jax.random.split(k)
-        return k_levels, k_roll
+        keys = jax.random.split(k, 2 * self.config.num_seeds).reshape(2, self.config.num_seeds, -1)
+        return keys[0], keys[1]  # levels and rollout keys of every seed
 
     def _async_batches(self, weights: Any, version: int, key: Any, pending: dict, template: Any) -> list:
         """One batch from every actor (its whole slice, so an update sees every env), taken as they land;
@@ -423,7 +435,7 @@ class Learner(UpdateSource):
         return [parts[i] for i in sorted(parts)]
 
     def _gather_carry(self, key: Any) -> RolloutCarry:
-        """Every actor's carry, concatenated in env order (for the checkpoint)."""
+        """Every actor's carry, concatenated in env order (axis 1, after the seeds; for the checkpoint)."""
         template = self._carry_template()
         parts = []
         for i in range(len(self.slots)):
@@ -433,7 +445,7 @@ class Learner(UpdateSource):
                     break
                 except ActorLostError:
                     self._revive(i, key)
-        return jax.tree.map(lambda *xs: jnp.concatenate([jnp.asarray(x) for x in xs]), *parts)
+        return jax.tree.map(lambda *xs: jnp.concatenate([jnp.asarray(x) for x in xs], axis=1), *parts)
 
     def _close_actors(self) -> None:
         self.pool.close()
@@ -506,10 +518,10 @@ class Learner(UpdateSource):
             log.warning("could not record run status %s: %s", status, err)
 
     def _record(self, metrics: UpdateMetrics, sps: float) -> None:
-        """An update's metrics (no leading axes) on the learner's Prometheus endpoint."""
-        host = jax.device_get(metrics)
+        """An update's metrics (leading seed axis) on the learner's Prometheus endpoint: the seeds' mean."""
+        host = jax.tree.map(lambda x: np.mean(np.asarray(x), axis=0), jax.device_get(metrics))
         M.LEARNER_UPDATES.inc()
-        M.LEARNER_ENV_STEPS.inc(self.config.steps_per_update)
+        M.LEARNER_ENV_STEPS.inc(self.config.steps_per_update * self.config.num_seeds)
         M.LEARNER_STEPS_PER_SECOND.set(sps)
         if np.isfinite(host.mean_return):
             M.LEARNER_EPISODE_RETURN.set(float(host.mean_return))
@@ -523,13 +535,14 @@ def _catch_up(counter: Any, total: int) -> None:
     counter.inc(max(0, total - counter._value.get()))
 
 
-def _rows(tree: Any, start: int, stop: int) -> Any:
-    return jax.tree.map(lambda x: x[start:stop], tree)
+def _envs(tree: Any, start: int, stop: int) -> Any:
+    """Envs `start:stop` of every seed (leaves [S, E, ...])."""
+    return jax.tree.map(lambda x: x[:, start:stop], tree)
 
 
 def _concat_slices(parts: list[CompactRollout]) -> CompactRollout:
-    """The actors' rollouts (in env order) as one rollout of all the envs."""
-    traj_axis = {name: (0 if name in ("init_lstm", "last_value") else 1) for name in parts[0].traj._fields}
+    """The actors' rollouts (in env order; every leaf after its seed axis) as one rollout of all the envs."""
+    traj_axis = {name: (1 if name in ("init_lstm", "last_value") else 2) for name in parts[0].traj._fields}
     cat = lambda axis, *xs: np.concatenate([np.asarray(x) for x in xs], axis=axis)  # noqa: E731
     traj = parts[0].traj._replace(
         **{
@@ -540,6 +553,6 @@ def _concat_slices(parts: list[CompactRollout]) -> CompactRollout:
             if getattr(parts[0].traj, name) is not None
         }
     )
-    start = jax.tree.map(lambda *xs: cat(0, *xs), *[p.start_level for p in parts])
-    levels = jax.tree.map(lambda *xs: cat(0, *xs), *[p.levels for p in parts])
+    start = jax.tree.map(lambda *xs: cat(1, *xs), *[p.start_level for p in parts])
+    levels = jax.tree.map(lambda *xs: cat(1, *xs), *[p.levels for p in parts])
     return CompactRollout(traj, start, levels)

@@ -44,10 +44,10 @@ CHILD = textwrap.dedent(
             "lstm_features: 8, actor_features: [16], critic_features: [16]}"])
         return Learner(cfg, DistributedConfig(num_actors=1, metrics_port=-1))
     one, two = learner(1), learner(2)
-    state = one.trainer.init_one(jax.random.PRNGKey(0))
+    state = jax.tree.map(lambda x: x[None], one.trainer.init_one(jax.random.PRNGKey(0)))  # [seeds]
     actor = RolloutActor(dataclasses.replace(one.config, devices=1), 0, 0, 8)
     actor.reset(0, to_bytes(state.carry))
-    _, k_levels, k_roll, k_update = one.trainer.update_keys(state.key)
+    _, k_levels, k_roll, k_update = jax.vmap(one.trainer.update_keys)(state.key)
     _, _, raw = decode_batch(actor.rollout(to_bytes(state.params), 0, k_levels, k_roll))
     rollout = from_bytes(one._slice_template(), raw)
     results = {}
@@ -59,7 +59,7 @@ CHILD = textwrap.dedent(
                          results["one"][0], results["two"][0])
     on = len(jax.tree.leaves(results["two"][0])[0].sharding.device_set)
     print(json.dumps({"devices": len(jax.local_devices()), "params": max(jax.tree.leaves(diffs)), "on": on,
-                      "loss": [float(results[n][2].loss.total_loss) for n in ("one", "two")]}))
+                      "loss": [float(results[n][2].loss.total_loss[0]) for n in ("one", "two")]}))
     """
 )
 
