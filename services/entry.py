@@ -9,7 +9,9 @@ its `python -m` entry. `run` raises rather than prints:
   level or record) or a `CheckpointError`: one line `cec <command>: config error: ...` (`error:` for the
   others) on stderr, exit status 2;
 - one of the service's `failures` (by default `OSError`: a port taken; the evaluator adds `StoreError`:
-  Redis unreachable): one line `cec <command>: error: ...`, exit status 1.
+  Redis unreachable): one line `cec <command>: error: ...`, exit status 1;
+- `AlreadyDone` (what was asked is done already: a finished run started or resumed again): its message as
+  one line `cec <command>: ...`, exit status 0.
 
 Anything else is a bug and keeps its traceback.
 """
@@ -52,6 +54,11 @@ def load_service_config(cls: type, args: argparse.Namespace) -> Any:
     return load_config(cls, args.config, args.overrides)
 
 
+class AlreadyDone(ConfigError):  # noqa: N818 - not an error: exit status 0
+    """What a command was asked to do is done already (a finished run): said as such, not as an error, and
+    exit status 0 (`run_reporting`); a `ConfigError` to callers that only refuse what they cannot do."""
+
+
 #: What bad input raises anywhere (a `LevelError` is a `ValueError`): exit status 2.
 INPUT_ERRORS: tuple[type[BaseException], ...] = (ValueError, CheckpointError)
 
@@ -66,9 +73,13 @@ def run_reporting(
     command: str, fn: Callable[[], int], failures: tuple[type[BaseException], ...] = (OSError,)
 ) -> int:
     """`fn()`'s exit status, or its error as one line (`report_error`) and 2 for bad input, 1 for one of
-    `failures` (the work could not be done here: a port taken, Redis unreachable)."""
+    `failures` (the work could not be done here: a port taken, Redis unreachable); 0 with its message for
+    `AlreadyDone`."""
     try:
         return fn()
+    except AlreadyDone as done:
+        print(f"cec {command}: {done}", file=sys.stderr)
+        return 0
     except INPUT_ERRORS as err:
         report_error(command, err)
         return 2

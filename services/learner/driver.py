@@ -25,6 +25,7 @@ from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
 from cec.training.run import RunFiles, record_resume_command, resume_command, trains_as
 from cec.training.tracking import describe
+from services.entry import AlreadyDone
 from services.learner.config import DistributedConfig, xla_flags
 from services.store import StoreConfig
 
@@ -58,10 +59,20 @@ def check_start(
 def check_run(train: TrainConfig, resume: bool, resume_hint: str = "") -> None:
     """The run directory: a run with checkpoints continues only with `resume`, and then only with the
     config its latest checkpoint was written with; the run's tracking: W&B installed when asked for
-    (`ConfigError` naming the fix: `resume_hint`, this command continuing the run, when given)."""
+    (`ConfigError` naming the fix: `resume_hint`, this command continuing the run, when given). A run
+    whose latest checkpoint is its last update is finished, started or resumed (`AlreadyDone`): said
+    before anything starts, where resuming it started the whole stack to find nothing left to train."""
     train.tracking.check()
     files = RunFiles(train)
     latest = files.store.latest()
+    if latest is not None and latest.update >= train.num_updates:
+        with contextlib.suppress(checkpoints.CheckpointError):  # unreadable: refused below as it is
+            if trains_as(checkpoints.read_meta(latest.path).get("config") or {}, train):
+                raise AlreadyDone(
+                    f"{files.run_dir} is finished: all {train.num_updates} updates trained, the last in "
+                    f"{latest.path}. `cec status {files.run_dir}` shows it; to train again, give the new run "
+                    "another name: name=NEW (under `cec up`: train.name=NEW)"
+                )
     if files.store.directories() and not resume:
         hint = resume_hint or resume_command(files.run_dir)
         raise ConfigError(

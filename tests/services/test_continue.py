@@ -7,15 +7,18 @@ from __future__ import annotations
 
 import argparse
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
+from cec.checkpoints import CheckpointStore
 from cec.config import load_config
 from cec.training.config import TrainConfig
-from cec.training.run import RESUME_FILE, record_resume_command, resume_command
+from cec.training.run import RESUME_FILE, config_dict, record_resume_command, resume_command
 from services.stack import DEFAULT_CONFIG, UpConfig, preset_path, resume_hint
 
 REPO = Path(__file__).resolve().parents[2]
@@ -85,3 +88,34 @@ def test_cec_train_meets_a_distributed_run_and_names_its_own_command(tmp_path: P
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "continue it with `make up ARGS=--resume`" in proc.stderr
     assert "cec train --resume" not in proc.stderr
+
+
+def test_a_finished_run_is_said_finished_before_anything_starts(tmp_path: Path) -> None:
+    """`make up` again after its run finished, or the `--resume` it then suggested: one line saying the run
+    is finished and how to train another, status 0, before anything starts (resuming used to start Redis,
+    Ray and the evaluator to find nothing left to train). A run stopped one update short still resumes."""
+    train = load_config(UpConfig, preset_path(DEFAULT_CONFIG)).train_config((f"run_dir={tmp_path}",))
+    store = CheckpointStore(tmp_path / train.run_name, keep_last=10)
+
+    def checkpoint(update: int) -> None:
+        config, steps = config_dict(train), update * train.steps_per_update
+        store.save(
+            {"x": np.zeros(1)}, update=update, env_steps=steps, config=config, metadata={}, milestone=False
+        )
+
+    checkpoint(train.num_updates)
+    run = tmp_path / train.run_name
+    for resume in ([], ["--resume"]):
+        proc = _cec("up", *resume, f"train.run_dir={tmp_path}", "evaluator=false")
+        assert proc.returncode == 0, proc.stderr[-2000:]
+        assert proc.stderr == (
+            f"cec up: {run} is finished: all {train.num_updates} updates trained, the last in "
+            f"{store.path(train.num_updates)}. `cec status {run}` shows it; to train again, give the new run "
+            "another name: name=NEW (under `cec up`: train.name=NEW)\n"
+        ), proc.stderr
+    shutil.rmtree(store.path(train.num_updates))
+    checkpoint(train.num_updates - 1)  # one update short: not finished, refused as before without --resume
+    proc = _cec("up", f"train.run_dir={tmp_path}", "evaluator=false")
+    assert (
+        proc.returncode == 2 and "already has checkpoints; continue it with `cec up --resume" in proc.stderr
+    )
