@@ -96,6 +96,7 @@ def collect(run_dir: Path, redis_url: str = "", now: float | None = None) -> dic
     urls = stack.get("urls", {})
     masked = stack.get("redis_password") and not redis_url  # the recorded URL has its password masked
     out["control_plane"] = _control_plane(run_dir.name, redis_url or urls.get("redis", ""), bool(masked), now)
+    out["record"] = _record(run_dir)
     out["level_server"] = _scrape(
         urls.get("level server metrics", ""),
         {
@@ -400,13 +401,58 @@ def _stopped(s: dict[str, Any], finished: bool) -> str:
     return f"interrupted at update {int(update)}; continue with: {s['trainer']['continue_with']}"
 
 
+def _record(run_dir: Path) -> dict[str, Any]:
+    """The evaluator's training record of the run (`<run>/eval/record.csv`, on disk, so it outlives the
+    stack): the newest scored checkpoint's rows, and per partner group and level set the first score."""
+    from cec.evaluation.checkpoint_results import RECORD, parse_record
+
+    path = run_dir / "eval" / RECORD
+    if not _small_regular(path):
+        return {}
+    try:
+        with open_user_file(path, "training record") as f:
+            rows = parse_record(f.read(RUN_FILE_MAX_BYTES).decode("utf-8", errors="replace"))
+    except (ConfigError, OSError):
+        return {}
+    if not rows:
+        return {}
+    last = max(r["update"] for r in rows)
+    first: dict[str, Any] = {}
+    for r in rows:  # in update order
+        if r["return_mean"] is not None:
+            first.setdefault(f"{r['partner_group']}|{r['level_set']}", [r["update"], r["return_mean"]])
+    return {
+        "checkpoints": len({r["update"] for r in rows}),
+        "latest_update": last,
+        "latest": [r for r in rows if r["update"] == last],
+        "first": first,
+    }
+
+
 def _evaluator_lines(s: dict[str, Any]) -> Lines:
-    plane = s["control_plane"]
+    plane, record = s["control_plane"], s.get("record") or {}
+    if record:  # the scores as the evaluator recorded them in the run, also after the stack stopped
+        out: Lines = [
+            ("evaluator", f"{record['checkpoints']} checkpoint(s) scored; update {record['latest_update']}:")
+        ]
+        for r in sorted(record["latest"], key=lambda r: (r["partner_group"], r["level_set"])):
+            score = f"return {_num(r['return_mean'])}"
+            if r["return_sem"] is not None:
+                score += f" ± {_num(r['return_sem'])}"
+            score += f" ({r['episodes']} episodes)"
+            then = record["first"].get(f"{r['partner_group']}|{r['level_set']}")
+            if then and then[0] != record["latest_update"]:
+                score += f"; {_num(then[1])} at update {then[0]}"
+            out.append(("", f"  {r['partner_group']:<20} {r['level_set']:<12} {score}"))
+        if plane.get("run_status"):
+            beat = _age(plane["heartbeat_age_s"])
+            out.append(("registry", f"{plane['run_status']}, heartbeat {beat} ago ({plane['redis']})"))
+        return out
     if not plane:
         return []
     if "error" in plane:
         return [("evaluator", plane["error"])]
-    out: Lines = []
+    out = []
     if plane.get("scores"):
         out.append(("evaluator", f"{plane['scored']} checkpoint(s) scored; latest {plane['latest_scored']}:"))
         for r in sorted(plane["scores"], key=lambda r: (r["partner_group"], r["level_set"])):

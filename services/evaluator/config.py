@@ -18,6 +18,8 @@ from services.store import StoreConfig
 
 #: The partner group of self-play results (each seed of the checkpoint with itself).
 SELF_PLAY = "self_play"
+#: The partner group of cross-play within a checkpoint (each of its seeds with each of its other seeds).
+CROSS_PLAY = "cross_play"
 GROUP_BY = ("algorithm", "partner", "zoo")
 GAMES = ("overcooked", "dual_destination")
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.:@+-]{0,99}$")
@@ -75,8 +77,8 @@ class PartnerGroupConfig:
 
     def __post_init__(self) -> None:
         _check_label(self.name, "partner group name")
-        if self.name == SELF_PLAY:
-            raise ConfigError(f"partner group name {SELF_PLAY!r} is reserved for self-play results")
+        if self.name in (SELF_PLAY, CROSS_PLAY):
+            raise ConfigError(f"partner group name {self.name!r} is reserved for the checkpoint's own seeds")
         if not self.partners:
             raise ConfigError(f"partner group {self.name!r} lists no partners")
 
@@ -105,6 +107,11 @@ class EvaluatorConfig:
             label), `partner` (each entry its own group) or `zoo` (one group named `zoo`).
         groups: explicit partner groups (entry names); they take precedence over `group_by`.
         self_play: score each seed of the checkpoint with itself (partner group `self_play`).
+        cross_play: score each seed of a checkpoint of several seeds with each of its other seeds (partner
+            group `cross_play`; both seat orders): seeds of one run never trained together, so this is
+            cross-play with partners never met, the README's headline protocol.
+        zoo_algorithms: play only the zoo entries of these algorithm labels (e.g. `[cec, cec_teacher,
+            human_proxy]` of the shipped zoo); empty: every entry.
         level_sets: the named level sets; a checkpoint plays those of its own game.
         play: how each game is played, as `cec eval` plays it (`cec.evaluation.crossplay.EvalConfig`):
             `episodes` per pairing, seat order and level; `max_steps` (0: the checkpoint's training
@@ -132,6 +139,8 @@ class EvaluatorConfig:
     group_by: str = "algorithm"
     groups: tuple[PartnerGroupConfig, ...] = ()
     self_play: bool = True
+    cross_play: bool = True
+    zoo_algorithms: tuple[str, ...] = ()
     level_sets: tuple[LevelSetConfig, ...] = field(default_factory=_default_level_sets)
     play: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=2, games_per_call=1))
     results_dir: str = "runs"

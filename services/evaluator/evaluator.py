@@ -56,7 +56,7 @@ from cec.evaluation.results import (
     empty_table,
 )
 from cec.training.tracking import Tracker, TrackingConfig
-from services.evaluator.config import SELF_PLAY, EvaluatorConfig, LevelSetConfig
+from services.evaluator.config import CROSS_PLAY, SELF_PLAY, EvaluatorConfig, LevelSetConfig
 from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in
 from services.metrics import (
     EVALUATOR_CHECKPOINTS_SCORED,
@@ -286,7 +286,9 @@ class Evaluator:
                 t0,
             )
         zoo = self.zoo.snapshot().for_game(env)
-        groups = ([SELF_PLAY] if self.config.self_play else []) + zoo.groups()
+        own = [SELF_PLAY] if self.config.self_play else []
+        own += [CROSS_PLAY] if self.config.cross_play and len(seeds) > 1 else []
+        groups = own + zoo.groups()
         files = (
             ResultFiles(self.config.results_dir, event.run_id, event.update)
             if self.config.results_dir
@@ -313,8 +315,9 @@ class Evaluator:
             if not todo:
                 continue
             partners = [p.policy for p in zoo.partners if p.group in todo]
-            if partners or SELF_PLAY in todo:
-                table = self._play(seeds, partners, spec, stop, keepalive)
+            within = "all" if CROSS_PLAY in todo else "self" if SELF_PLAY in todo else ""
+            if partners or within:
+                table = self._play(seeds, partners, spec, within, stop, keepalive)
             else:  # only groups none of whose partners can play
                 table = empty_table()
             for group in todo:
@@ -330,7 +333,8 @@ class Evaluator:
                         spec.name,
                     )
                     continue
-                metrics = summarize(part, _label(event), self_play=group == SELF_PLAY)
+                kind = group if group in (SELF_PLAY, CROSS_PLAY) else "partners"
+                metrics = summarize(part, _label(event), kind=kind)
                 metrics.update(_event_info(event, self.config))
                 self.plane.put_result(cid, group, spec.name, metrics)
                 computed.append(f"{group}|{spec.name}")
@@ -346,6 +350,11 @@ class Evaluator:
             path = files.finish()
             log.info("%s: result table %s", cid, path)
         results = self.plane.get_results(cid)
+        if files is not None:
+            rows = [
+                (r.partner_group, r.level_set, r.metrics) for r in results if r.partner_group != FAILED_GROUP
+            ]
+            files.record(event.update, event.env_steps, rows)
         self.plane.mark_scored(cid)
         seconds = time.perf_counter() - t0
         EVALUATOR_CHECKPOINTS_SCORED.inc()
@@ -390,10 +399,13 @@ class Evaluator:
         seeds: Sequence[Policy],
         partners: Sequence[Policy],
         spec: LevelSetConfig,
+        within: str,
         stop: threading.Event | None,
         keepalive: Callable[[], None] | None,
     ) -> EpisodeTable:
-        """Each seed with itself and with every partner (both seats) on the level set: one table."""
+        """The checkpoint's seeds with each other (`within`: `all`, each with itself and every other seed;
+        `self`, each with itself; '': neither) and each seed with every partner (both seats) on the level
+        set: one table."""
         cfg = self.config
 
         def progress(message: str) -> None:
@@ -404,11 +416,14 @@ class Evaluator:
                 keepalive()
 
         tables = []
-        for policy in seeds:
+        if within:
+            eval_config = dataclasses.replace(cfg.play, levels=spec.levels, pairs=within)
+            tables.append(crossplay(list(seeds), self.levels[spec.name], eval_config, progress=progress))
+        for policy in seeds if partners else ():
             eval_config = dataclasses.replace(cfg.play, levels=spec.levels, pairs=f"with:{policy.name}")
             table = crossplay([policy, *partners], self.levels[spec.name], eval_config, progress=progress)
-            EVALUATOR_EPISODES.inc(len(table))
-            tables.append(table)
+            tables.append(table.select(table.policy_a != table.policy_b))  # with itself: played above
+        EVALUATOR_EPISODES.inc(sum(len(t) for t in tables))
         return EpisodeTable.concat(tables)
 
     @staticmethod
@@ -417,6 +432,10 @@ class Evaluator:
         if group == SELF_PLAY:
             return table.select(table.policy_a == table.policy_b)
         names = names_in(zoo.partners, group)
+        if group == CROSS_PLAY:  # the checkpoint's seeds with each other: neither side a zoo partner
+            zoo_names = {p.policy.name for p in zoo.partners}
+            own = ~np.isin(table.policy_a, list(zoo_names)) & ~np.isin(table.policy_b, list(zoo_names))
+            return table.select(own & (table.policy_a != table.policy_b))
         rows = table.select(np.isin(table.policy_b, names))
         skipped: list[SkippedEntry] = [s for s in table.skipped if s.name in names]  # could not join
         skipped += [s.entry for s in zoo.skipped if s.group == group]  # could not be loaded

@@ -117,7 +117,7 @@ class PartnerZoo:
                 self._warn_once(
                     f"manifest:{err}", f"zoo manifest unreadable, keeping the last good one: {err}"
                 )
-        entries = list(self._manifest)
+        entries = [e for e in self._manifest if self._wanted(e.algorithm)]
         if self.config.redis_zoo and self.plane is not None:
             names = {e.name for e in entries}
             for record in self.plane.list_partners():
@@ -128,8 +128,14 @@ class PartnerZoo:
                         "using the manifest's entry",
                     )
                     continue
-                entries.append(entry_of_record(record))
+                if self._wanted(record.algorithm or None):
+                    entries.append(entry_of_record(record))
         return entries
+
+    def _wanted(self, algorithm: str | None) -> bool:
+        """Whether an entry of this algorithm label plays (`zoo_algorithms`; an unlabelled entry is judged
+        by its checkpoint's label once loaded)."""
+        return not self.config.zoo_algorithms or algorithm is None or algorithm in self.config.zoo_algorithms
 
     def snapshot(self) -> ZooSnapshot:
         """Every entry loaded (from the cache when its checkpoint is unchanged) or skipped with the reason."""
@@ -148,6 +154,8 @@ class PartnerZoo:
                 skipped.append(
                     SkippedPartner(SkippedEntry(entry.name, entry.algorithm or "", seed, reason), group)
                 )
+                continue
+            if not self._wanted(policy.algorithm):
                 continue
             clash = next(
                 (

@@ -48,7 +48,7 @@ ROOT = Path(__file__).resolve().parents[2]
 STEPS = 16
 CLASSIC = LevelSetConfig("classic", levels="cramped_room")
 HELDOUT = LevelSetConfig("heldout", levels="generated", max_levels=1)
-GROUPS = ("self_play", "ippo", "fcp")
+GROUPS = ("self_play", "cross_play", "ippo", "fcp")
 
 
 # --- checkpoints -------------------------------------------------------------------------------------------
@@ -135,8 +135,9 @@ def _episode_keys(table) -> list[tuple]:
 
 
 def _expected_rows(seeds: int, partners: int, levels: int, episodes: int = 1) -> int:
-    """Episodes in one checkpoint's table on one level set: self-play, then both seats with each partner."""
-    return seeds * (1 + 2 * partners) * levels * episodes
+    """Episodes in one checkpoint's table on one level set: self-play, both seats with each other seed
+    (cross-play within the checkpoint), then both seats with each partner."""
+    return seeds * (1 + (seeds - 1) + 2 * partners) * levels * episodes
 
 
 # --- configuration and pure logic --------------------------------------------------------------------------
@@ -182,20 +183,44 @@ def test_summary_aggregates_pairs_like_the_report():
                          deliveries=ret / 20, collisions=1.0, shaped_return=3.0, env="overcooked",
                          episode_steps=STEPS, actions="sampled"))  # fmt: skip
     table = make_table({k: [r[k] for r in rows] for k in rows[0]})
-    out = summarize(table, "r@1", self_play=False)
+    out = summarize(table, "r@1")
     # seed 0: level a (2+4)/2 = 3, level b 10 -> 6.5; seed 1: level a 0, level b 6 -> 3.
     assert out["per_seed"] == {"0": 6.5, "1": 3.0} and out["return_mean"] == 4.75
     assert out["pairs"] == 2 and out["return_sem"] == pytest.approx(1.75)
     assert out["per_partner"] == {"ippo/s5": 4.75} and out["partners"] == ["p"]
     # a second partner: the standard error is over the seeds (the units), not over their shared pairs
     more = [dict(r, policy_b="q", seed_b=6, returns=r["returns"] + 1.0) for r in rows]
-    two = summarize(make_table({k: [r[k] for r in rows + more] for k in rows[0]}), "r@1", self_play=False)
+    two = summarize(make_table({k: [r[k] for r in rows + more] for k in rows[0]}), "r@1")
     assert two["pairs"] == 4 and two["per_seed"] == {"0": 7.0, "1": 3.5}
     assert two["return_sem"] == pytest.approx(1.75)  # sem of (7.0, 3.5); over the 4 pairs it would be ~1.0
     assert out["episodes"] == 8 and out["levels"] == ["a", "b"] and out["collisions_mean"] == 1.0
     assert out["deliveries_mean"] == pytest.approx(4.75 / 20) and out["episode_steps"] == STEPS
-    empty = summarize(table.select(np.zeros(len(table), bool)), "r@1", self_play=False)
+    empty = summarize(table.select(np.zeros(len(table), bool)), "r@1")
     assert empty["episodes"] == 0 and empty["return_mean"] is None and empty["pairs"] == 0
+
+
+def test_cross_play_within_a_checkpoint_is_the_mean_over_pairs_of_different_seeds_with_the_jackknife():
+    """Three seeds of one checkpoint, each pair on one level, both seats: pair (0, 1) scores 10, (0, 2) 4,
+    (1, 2) 7; self-play rows, if present, are not cross-play."""
+    pair = {(0, 1): 10.0, (0, 2): 4.0, (1, 2): 7.0}
+    rows = []
+    for (i, j), ret in pair.items():
+        for seat in (0, 1):
+            rows.append(dict(policy_a=f"r/s{i}", algorithm_a="r@1", seed_a=i, policy_b=f"r/s{j}",
+                             algorithm_b="r@1", seed_b=j, level="a", seat=seat, episode=0, returns=ret,
+                             deliveries=ret / 20, collisions=0.0, shaped_return=0.0, env="overcooked",
+                             episode_steps=STEPS, actions="sampled"))  # fmt: skip
+    table = make_table({k: [r[k] for r in rows] for k in rows[0]})
+    out = summarize(table, "r@1", kind="cross_play")
+    assert out["return_mean"] == pytest.approx(7.0) and out["pairs"] == 6  # each ordered pair of seeds
+    assert out["per_seed"] == {"0": 7.0, "1": 8.5, "2": 5.5} and out["per_partner"] == {}
+    # leaving one seed out leaves one pair: 7, 4, 10 -> jackknife SE sqrt(2/3 * 18) = sqrt(12)
+    assert out["return_sem"] == pytest.approx(12**0.5)
+    two = summarize(table.select(np.isin(table.seed_a, [0, 1]) & np.isin(table.seed_b, [0, 1])), "r@1",
+                    kind="cross_play")  # fmt: skip
+    assert two["return_mean"] == 10.0 and two["return_sem"] is None  # the jackknife needs three seeds
+    with pytest.raises(ValueError, match="kind"):
+        summarize(table, "r@1", kind="everyone")
 
 
 # --- the Evaluator object ----------------------------------------------------------------------------------
@@ -303,7 +328,8 @@ def test_bad_checkpoints_are_recorded_and_do_not_stop_the_stream(plane, ckpts, z
         assert (result.partner_group, result.metrics["error"]) == (FAILED_GROUP, reason)
         assert not plane.is_scored(event.checkpoint_id)
     assert plane.is_scored(events[3].checkpoint_id)
-    assert len(plane.get_results(events[3].checkpoint_id)) == len(GROUPS)
+    groups = {r.partner_group for r in plane.get_results(events[3].checkpoint_id)}
+    assert groups == set(GROUPS) - {"cross_play"}  # one seed: no other seed of its own to play with
 
 
 def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckpts, zoo, tmp_path):
@@ -354,6 +380,14 @@ def test_partner_groups_redis_zoo_skipped_partners_and_the_run_filter(plane, ckp
     # Both seats, 1 episode: classic (cramped_room) with 4 partners, the held-out kitchen with 2.
     assert len(table) == 2 * 4 + 2 * 2
 
+    # zoo_algorithms: only the named labels play (the shipped zoo's CEC seeds and proxies, say)
+    event = _publish(plane, ckpts.write("cec-groups", 2, [3]), "cec-groups")
+    config = dataclasses.replace(config, groups=(), zoo_algorithms=("human_proxy", "fcp"))
+    with Evaluator(config, plane) as ev:
+        [outcome] = ev.poll_once(block_s=0.5)
+    assert outcome.status == "scored"
+    assert {r.partner_group for r in plane.get_results(event.checkpoint_id)} == {"human_proxy", "fcp"}
+
 
 def test_scores_go_into_the_runs_tensorboard_events_at_the_checkpoints_env_steps(plane, ckpts, zoo, tmp_path):
     from tests.unit.training.test_tracking import read_scalars
@@ -376,6 +410,9 @@ def test_scores_go_into_the_runs_tensorboard_events_at_the_checkpoints_env_steps
     for event in events[:2]:
         for result in plane.get_results(event.checkpoint_id):
             for key, name in TRACKED_METRICS.items():
+                if result.metrics[key] is None:  # the jackknife of two seeds' cross-play: no value, no point
+                    assert f"eval/{result.partner_group}/{result.level_set}/{name}" not in got
+                    continue
                 points = dict(got[f"eval/{result.partner_group}/{result.level_set}/{name}"])
                 assert points[event.env_steps] == pytest.approx(result.metrics[key], rel=1e-6), (key, event)
     assert [step for step, _ in got["eval/fcp/classic/return"]] == [32, 80]
@@ -537,7 +574,7 @@ def test_service_scores_each_checkpoint_exactly_once_across_a_sigkill(redis_serv
         assert sum(f" scored {cid} in " in line for line in log) == 1, cid
         assert stored(cid) == parts and plane.is_scored(cid)
     assert any(
-        f"scored {ids[0]} in" in x and "(3 part(s) computed, 3 already stored)" in x for x in second.lines
+        f"scored {ids[0]} in" in x and "(4 part(s) computed, 4 already stored)" in x for x in second.lines
     )
     after = {(r.partner_group, r.level_set): r.written_at for r in plane.get_results(ids[0])}
     assert all(after[k] == t for k, t in at_kill.items())

@@ -71,6 +71,30 @@ def test_a_stopped_run_says_where_it_stopped_and_how_to_continue_without_an_eta(
     assert "finished" in screen and "continue" not in screen and "ETA" not in screen
 
 
+def test_the_evaluators_training_record_shows_during_and_after_the_run(tmp_path: Path, capsys) -> None:
+    """The evaluator's scores come from the run's record on disk (no stack, no Redis: it has stopped): the
+    newest checkpoint's per partner group and level set, with where each started."""
+    from cec.evaluation.checkpoint_results import ResultFiles
+
+    run = _run(tmp_path)
+    ResultFiles(tmp_path, "r", 10).record(10, 250, [("cross_play", "validation", {"return_mean": 12.5,
+                                                    "return_sem": None, "episodes": 40})])  # fmt: skip
+    latest = [
+        ("cross_play", "validation", {"return_mean": 44.0, "return_sem": 3.5, "episodes": 40}),
+        ("human_proxy", "classic", {"return_mean": None, "return_sem": None, "episodes": 0}),
+    ]
+    ResultFiles(tmp_path, "r", 20).record(20, 500, latest)
+    screen = render(collect(run))
+    assert "2 checkpoint(s) scored; update 20" in screen, screen
+    assert "cross_play" in screen and "return 44 ± 3.5 (40 episodes); 12.5 at update 10" in screen, screen
+    assert "human_proxy" in screen and "return - (0 episodes)" in screen, screen
+    # a torn record (a disk that filled up mid-write is never left: it is renamed into place) reads as none
+    (run / "eval" / "record.csv").write_bytes(b"\xff\x00garbage")
+    assert "checkpoint(s) scored" not in render(collect(run))
+    assert main(["status", str(run)]) == 0
+    assert "Traceback" not in capsys.readouterr().err
+
+
 def test_a_dead_stack_and_its_down_services_are_named(tmp_path: Path) -> None:
     run = _run(tmp_path)
     code = "import time; print('ready', flush=True); time.sleep(60)"
