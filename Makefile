@@ -47,6 +47,7 @@ lint: install
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/lint-imports  # the layer contract in pyproject.toml: cec <- services <- apps
+	$(BIN)/python scripts/history_weight.py  # no file version over 1 MiB since the round's base (DESIGN rule 17)
 
 typecheck: install
 	$(BIN)/mypy

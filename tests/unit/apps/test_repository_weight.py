@@ -4,19 +4,27 @@ policy's are 1.3 MB), and at most 25 MB in all under `benchmarks/results/`. Git 
 regenerated (reports, figures, benchmark JSON, configs, metrics, one compressed table per report); work
 folders' policies and training states stay out, a command regenerates them (`benchmarks/results/README.md`).
 Commit a policy's exported parameters (`cec zoo export`) instead of a training state, and compress tables
-(`.csv.bz2`, `.csv.gz`: read as they are)."""
+(`.csv.bz2`, `.csv.gz`: read as they are).
+
+History too stops growing: every file version committed since the round's base obeys the same 1 MiB, but the
+shipped policies and one compact run state a day under `carry/` (120 MB in all for the round;
+`scripts/history_weight.py`, run by `make lint`), so a state added and then removed from the tree is still
+found."""
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 ROOT = Path(__file__).resolve().parents[3]
 MAX_BYTES = 1 << 20
 SHIPPED, MAX_SHIPPED_BYTES = "cec/shipped/", 2 << 20
+CARRY = "carry/"  # a long run's compact state, its size bounded by the history check's budget
 RESULTS, MAX_RESULTS_BYTES = "benchmarks/results/", 25_000_000
 
 
@@ -31,7 +39,11 @@ def large_files(paths: list[str], root: Path = ROOT) -> list[str]:
     def limit(p: str) -> int:
         return MAX_SHIPPED_BYTES if p.startswith(SHIPPED) else MAX_BYTES
 
-    return sorted(p for p in paths if (root / p).is_file() and (root / p).stat().st_size > limit(p))
+    return sorted(
+        p
+        for p in paths
+        if not p.startswith(CARRY) and (root / p).is_file() and (root / p).stat().st_size > limit(p)
+    )
 
 
 def results_bytes(paths: list[str], root: Path = ROOT) -> int:
@@ -62,9 +74,98 @@ def test_the_rules_find_a_large_file_and_a_heavy_results_folder(tmp_path: Path) 
     shipped = tmp_path / "cec" / "shipped" / "p"
     shipped.mkdir(parents=True)
     (shipped / "state.msgpack").write_bytes(b"\0" * (MAX_BYTES + 1))
-    paths = ["state.msgpack", "small.msgpack", "cec/shipped/p/state.msgpack"]
+    carried = tmp_path / "carry" / "run"
+    carried.mkdir(parents=True)
+    (carried / "state.msgpack").write_bytes(b"\0" * (MAX_BYTES + 1))
+    paths = ["state.msgpack", "small.msgpack", "cec/shipped/p/state.msgpack", "carry/run/state.msgpack"]
     assert large_files(paths, tmp_path) == ["state.msgpack"]
     results = tmp_path / "benchmarks" / "results"
     results.mkdir(parents=True)
     (results / "table.csv").write_bytes(b"\0" * 1000)
     assert results_bytes([*paths, "benchmarks/results/table.csv"], tmp_path) == 1000
+
+
+# History: every file version committed since the round's base (scripts/history_weight.py, in `make lint`).
+
+
+def _history() -> Any:
+    from tests.scripts import tool
+
+    return tool("history_weight")
+
+
+def _repo(tmp_path: Path) -> Path:
+    """A throwaway repository whose first commit is the base."""
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    _commit(repo, {"README.md": b"base\n"}, "base")
+    return repo
+
+
+def _commit(repo: Path, files: dict[str, bytes], message: str, date: str = "2026-12-01T12:00:00") -> str:
+    if not (repo / ".git").exists():
+        subprocess.run(["git", "init", "-q", str(repo)], check=True)
+    for name, data in files.items():
+        (repo / name).parent.mkdir(parents=True, exist_ok=True)
+        (repo / name).write_bytes(data)
+    env = {
+        **os.environ,
+        "GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@example.com", "GIT_AUTHOR_DATE": date,
+        "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@example.com", "GIT_COMMITTER_DATE": date,
+    }  # fmt: skip
+    subprocess.run(["git", "-C", str(repo), "add", "-A"], check=True, env=env)
+    subprocess.run(["git", "-C", str(repo), "commit", "-q", "-m", message], check=True, env=env)
+    out = subprocess.run(
+        ["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True, check=True
+    )
+    return out.stdout.strip()
+
+
+def test_the_history_since_the_base_passes_the_rule() -> None:
+    if shutil.which("git") is None or not (ROOT / ".git").exists():
+        pytest.skip("not a git checkout")
+    assert _history().main([]) == 0
+
+
+def test_a_commit_that_adds_a_2_mib_state_fails_the_history_check(tmp_path: Path, capsys) -> None:
+    hw = _history()
+    repo = _repo(tmp_path)
+    base = subprocess.run(
+        ["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True
+    ).stdout
+    assert hw.main(["--repo", str(repo), "--base", base.strip()]) == 0
+    state = b"\1" * (2 << 20)
+    added = _commit(repo, {"runs/x/checkpoints/update_1/state.msgpack": state}, "add a state")
+    _commit(repo, {"runs/x/checkpoints/update_1/state.msgpack": b"gone"}, "take it out of the tree")
+    assert hw.main(["--repo", str(repo), "--base", base.strip()]) == 1  # history keeps it: still refused
+    err = capsys.readouterr().err
+    assert f"runs/x/checkpoints/update_1/state.msgpack (2.0 MiB, commit {added[:10]})" in err
+    assert "carry/" in err and "120 MB" in err and "once a day" in err  # the rule says what is allowed
+    assert hw.main(["--repo", str(repo), "--base", added]) == 0  # a base after it: not this round's
+
+
+def test_the_shipped_policies_and_one_compact_state_a_day_under_carry_pass(
+    tmp_path: Path, monkeypatch
+) -> None:
+    hw = _history()
+    repo = _repo(tmp_path)
+    base = subprocess.run(["git", "-C", str(repo), "rev-parse", "HEAD"], capture_output=True, text=True)
+    args = ["--repo", str(repo), "--base", base.stdout.strip()]
+    _commit(repo, {"cec/shipped/p/state.msgpack": b"\1" * (2 << 20)}, "ship a policy")
+    _commit(repo, {"carry/run/state.msgpack": b"\2" * (2 << 20)}, "carry a run", "2026-12-01T20:00:00")
+    _commit(repo, {"carry/run/state.msgpack": b"\3" * (2 << 20)}, "carry it on", "2026-12-02T20:00:00")
+    assert hw.main(args) == 0
+    monkeypatch.setattr(hw, "CARRY_BUDGET", 3 << 20)  # two versions of 2 MiB: over a 3 MiB budget
+    assert any("carry/ took 4.2 MB" in p for p in hw.problems(hw.new_blobs(repo, args[-1])))
+    monkeypatch.undo()
+    _commit(repo, {"carry/run/state.msgpack": b"\4" * 10}, "again the same day", "2026-12-02T21:00:00")
+    found = hw.problems(hw.new_blobs(repo, args[-1]))
+    assert len(found) == 1 and "carry/ committed 2 times on 2026-12-02" in found[0]
+
+
+def test_without_the_base_every_commit_held_is_checked(tmp_path: Path) -> None:
+    """A shallow clone lacks the base: all it holds is newer, and all of it is checked."""
+    hw = _history()
+    repo = _repo(tmp_path)
+    _commit(repo, {"big.bin": b"\1" * (MAX_BYTES + 1)}, "big")
+    assert [b.path for b in hw.new_blobs(repo, "0" * 40) if b.size > MAX_BYTES] == ["big.bin"]
