@@ -6,10 +6,16 @@
   kitchens drawn by people for other Overcooked work that fit the 9x9 frame (overcooked-ai 1.1.0's layouts
   other than the classic five and their variants, named `drawn_<layout>`). Nothing is chosen on it: a
   release is evaluated there once, after it was chosen on validation (DESIGN.md rule 13).
+* **Second test** (`test2_levels`, the level set `test2`): 100 more generated kitchens (`test2_000..099`),
+  drawn for the first release the service made (the first test set had been read six times by then; it is
+  reported beside it as reused). Excluded from training like the others from the day it was drawn.
+
+Every read of a test set is recorded in `data/test_reads.csv` (`cec.levels.ledger`).
 
 The generated kitchens were drawn by `generate` (default config) from the keys `PRNGKey(SEED_BASE + i)`,
 the validation ones with the classic kitchens excluded, the test ones with the whole validation set
-excluded, and both are frozen in `data/heldout.txt` and `data/test.txt`, so the sets never change when the
+excluded (the second test set with the first excluded too), and they are frozen in `data/heldout.txt`,
+`data/test.txt` and `data/test2.txt`, so the sets never change when the
 generator does (`python -m cec.levels.heldout_build --write` rebuilds the files; `tests/unit/levels/
 test_heldout.py` checks they still match their seeds). The generator excludes both sets
 (`heldout_fingerprints`). Kitchens are identified by content (`cec.levels.fingerprint`).
@@ -30,8 +36,10 @@ from cec.levels.level import Level, stack_levels
 
 DATA = Path(__file__).with_name("data") / "heldout.txt"
 TEST_DATA = Path(__file__).with_name("data") / "test.txt"
+TEST2_DATA = Path(__file__).with_name("data") / "test2.txt"
 HELDOUT_SEED_BASE = 1_000_000
 TEST_SEED_BASE = 2_000_000
+TEST2_SEED_BASE = 3_000_000
 NUM_GENERATED = 100
 DRAWN_PREFIX = "drawn_"
 
@@ -72,6 +80,13 @@ def test_levels() -> tuple[tuple[str, Level], ...]:
         return tuple(_frozen(TEST_DATA))
 
 
+@cache
+def test2_levels() -> tuple[tuple[str, Level], ...]:
+    """The second test set as (name, level): test2_000..099."""
+    with jax.ensure_compile_time_eval():
+        return tuple(_frozen(TEST2_DATA))
+
+
 def heldout_batch() -> Level:
     """The held-out set as one batched `Level` (leading axis 105)."""
     return stack_levels([lv for _, lv in heldout_levels()])
@@ -79,6 +94,7 @@ def heldout_batch() -> Level:
 
 @cache
 def heldout_fingerprints() -> np.ndarray:
-    """uint32[E, 2] fingerprints of every kitchen kept out of training, validation and test (what the
-    generator excludes and the level server refuses)."""
-    return np.stack([fingerprint_host(lv) for _, lv in (*heldout_levels(), *test_levels())])
+    """uint32[E, 2] fingerprints of every kitchen kept out of training, validation and both test sets (what
+    the generator excludes and the level server refuses)."""
+    kept = (*heldout_levels(), *test_levels(), *test2_levels())
+    return np.stack([fingerprint_host(lv) for _, lv in kept])

@@ -27,9 +27,12 @@ from cec.levels.heldout import (
     DRAWN_PREFIX,
     HELDOUT_SEED_BASE,
     NUM_GENERATED,
+    TEST2_DATA,
+    TEST2_SEED_BASE,
     TEST_DATA,
     TEST_SEED_BASE,
     heldout_levels,
+    test_levels,
 )
 from cec.levels.level import Level, LevelError
 from cec.levels.overcooked_ai import package_dir
@@ -130,19 +133,26 @@ def build_test(layouts: Path | None) -> tuple[list[tuple[str, Level]], dict[str,
     return generated + drawn, skipped
 
 
+def build_test2() -> list[tuple[str, Level]]:
+    """The second test set: 100 generated kitchens, the validation and the first test set excluded."""
+    excluded = [lv for _, lv in (*heldout_levels(), *test_levels())]
+    return build_generated("test2_", TEST2_SEED_BASE, excluded)
+
+
 def render_file(levels: list[tuple[str, Level]]) -> str:
     return "\n\n".join(f"# {name} {content_hash(lv)}\n{to_ascii(lv)}" for name, lv in levels) + "\n"
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description="Rebuild or check the frozen validation and test set files.")
-    ap.add_argument("--write", action="store_true", help=f"rewrite {DATA} and {TEST_DATA}")
+    ap.add_argument("--write", action="store_true", help=f"rewrite {DATA}, {TEST_DATA} and {TEST2_DATA}")
     args = ap.parse_args(argv)
     layouts = overcooked_ai_layouts()
     test, skipped = build_test(layouts)
     for layout, why in skipped.items():
         print(f"overcooked-ai layout {layout!r} left out: {why}")
     files = {DATA: render_file(build_validation()), TEST_DATA: render_file(test)}
+    files[TEST2_DATA] = render_file(build_test2())
     if args.write:
         if layouts is None:
             raise SystemExit("overcooked-ai is not installed (pip install -e '.[peers]'): the drawn test "

@@ -8,6 +8,7 @@ A level spec is a comma-separated list of tokens, each one of
     generated          the 100 generated validation kitchens;  generated_000 .. generated_099 one of them
     test               the test set (100 generated kitchens test_000 .. test_099 and the kitchens people
                        drew for overcooked-ai, drawn_<layout>; `cec.levels.heldout`); one of them by name
+    test2              the second test set (100 generated kitchens test2_000 .. test2_099); one by name
     generated:SEED     the procedural generator's kitchen for SEED (`generated:random` where one kitchen is
                        asked for: a seed drawn per use, see `resolve_level`)
     path/to/file.txt   an ASCII kitchen file (`cec.levels.ascii`), named by its stem
@@ -35,7 +36,7 @@ from cec.levels.level import Level, LevelError
 
 MAX_KITCHEN_FILE_BYTES = 64 * 1024
 KITCHEN_SUFFIX = ".txt"
-SET_NAMES = ("heldout", "validation", "classic", "generated", "test")
+SET_NAMES = ("heldout", "validation", "classic", "generated", "test", "test2")
 GENERATED_PREFIX = "generated:"
 RANDOM_SEED = "random"
 
@@ -116,19 +117,22 @@ def load_kitchens(path: Path, allow_decoys: bool = False) -> dict[str, Level]:
 def resolve_levels(spec: str, base_dir: Path | None = None) -> dict[str, Level]:
     """{name: level} for a level spec (see the module docstring), in the order the tokens name them;
     `ConfigError` naming the bad token or file."""
-    from cec.levels.heldout import heldout_levels, test_levels
+    from cec.levels.heldout import heldout_levels, test2_levels, test_levels
 
     tokens = _tokens(spec)
     if not tokens:
         raise ConfigError("levels is empty; give e.g. `heldout`, `classic`, level names or kitchen files")
-    heldout, test = dict(heldout_levels()), dict(test_levels())
+    heldout, test = dict(heldout_levels()), {**dict(test_levels()), **dict(test2_levels())}
+    test2 = {n: lv for n, lv in test.items() if n.startswith("test2_")}
     base = base_dir or Path()
     out: dict[str, Level] = {}
     for tok in tokens:
         if tok in ("heldout", "validation"):
             out.update(heldout)
         elif tok == "test":
-            out.update(test)
+            out.update({n: lv for n, lv in test.items() if n not in test2})
+        elif tok == "test2":
+            out.update(test2)
         elif tok in test:
             out[tok] = test[tok]
         elif tok == "classic":
@@ -145,7 +149,7 @@ def resolve_levels(spec: str, base_dir: Path | None = None) -> dict[str, Level]:
                     raise ConfigError(f"two kitchens are named {name!r} in levels {spec!r}; rename one file")
                 out[name] = level
         else:
-            raise _unknown(tok, "heldout (validation), test, classic, generated, ")
+            raise _unknown(tok, "heldout (validation), test, test2, classic, generated, ")
     return out
 
 
@@ -153,7 +157,8 @@ def _unknown(token: str, sets: str = "") -> ConfigError:
     classic = ", ".join(sorted(CLASSIC_ASCII))
     return ConfigError(
         f"unknown Overcooked level {token!r}; use {sets}a classic kitchen ({classic}), generated_000.."
-        f"generated_099, test_000..test_099, drawn_<layout>, generated:SEED, an ASCII kitchen file or a "
+        f"generated_099, test_000..test_099, test2_000..test2_099, drawn_<layout>, generated:SEED, an ASCII "
+        "kitchen file or a "
         f"folder of {KITCHEN_SUFFIX} kitchen files"
     )
 
@@ -185,9 +190,10 @@ def generated_level(seed: int) -> Level:
 def _kitchen_file(token: str, base_dir: Path | None) -> Path | None:
     """The ASCII kitchen file a one-kitchen token names (None for a classic or held-out name);
     `ConfigError` if it names neither (a set, a folder, nothing)."""
-    from cec.levels.heldout import heldout_levels, test_levels
+    from cec.levels.heldout import heldout_levels, test2_levels, test_levels
 
-    if token in CLASSIC_ASCII or token in dict(heldout_levels()) or token in dict(test_levels()):
+    named = (*heldout_levels(), *test_levels(), *test2_levels())
+    if token in CLASSIC_ASCII or token in dict(named):
         return None
     path = (base_dir or Path()) / Path(token).expanduser()
     if not path.is_file():

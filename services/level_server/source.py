@@ -23,7 +23,7 @@ from cec.levels.ascii import from_ascii
 from cec.levels.counting import count_layouts
 from cec.levels.fingerprint import content_hash, fingerprint_host
 from cec.levels.generator import GeneratorConfig, generate_batch_with_info
-from cec.levels.heldout import heldout_fingerprints, heldout_levels, test_levels
+from cec.levels.heldout import heldout_fingerprints, heldout_levels, test2_levels, test_levels
 from cec.levels.level import Level, stack_levels, validate_level
 from cec.levels.membership import in_space
 from cec.levels.solvability import validate_solvable
@@ -207,7 +207,8 @@ class LevelSource:
     @cached_property
     def _heldout_by_hash(self) -> dict[str, str]:
         """Every kitchen kept out of training by content hash: the validation (held-out) and test sets."""
-        return {content_hash(lv): name for name, lv in (*heldout_levels(), *test_levels())}
+        kept = (*heldout_levels(), *test_levels(), *test2_levels())
+        return {content_hash(lv): name for name, lv in kept}
 
     def validate(self, level: Level | str, gen: GeneratorConfig | None = None) -> Validation:
         """Checks a client's level (a single `Level` or ASCII text). Raises `LevelError` if malformed."""

@@ -56,6 +56,27 @@ def test_test_file_matches_its_seeds_and_the_overcooked_ai_layouts() -> None:
     assert heldout_build.render_file(test) == recorded
 
 
+def test_the_second_test_set_is_fresh_frozen_and_kept_out_of_training() -> None:
+    """Drawn for the first release the service made: 100 generated kitchens disjoint from validation and
+    the first test set, matching their seeds, resolved as `test2`, and excluded by the generator."""
+    from cec.evaluation.crossplay import eval_levels
+    from cec.levels.generator import GeneratorConfig, generate_with_info
+
+    levels = heldout.test2_levels()
+    assert [n for n, _ in levels] == [f"test2_{i:03d}" for i in range(100)]
+    assert heldout_build.render_file(heldout_build.build_test2()) == heldout.TEST2_DATA.read_text()
+    earlier = {content_hash(lv) for _, lv in (*heldout.heldout_levels(), *heldout.test_levels())}
+    assert not earlier & {content_hash(lv) for _, lv in levels}
+    assert eval_levels("overcooked", "test2").names == tuple(n for n, _ in levels)
+    assert not any(n.startswith("test2_") for n in eval_levels("overcooked", "test").names)
+    # the generator, asked for the first kitchen of test2's own seed, draws another one
+    fps = heldout.heldout_fingerprints()
+    assert len(fps) == 105 + len(heldout.test_levels()) + 100
+    level, info = generate_with_info(jax.random.PRNGKey(heldout.TEST2_SEED_BASE), GeneratorConfig(),
+                                          jax.numpy.asarray(fps))  # fmt: skip
+    assert int(info.resamples) >= 1 and content_hash(jax.device_get(level)) != content_hash(levels[0][1])
+
+
 def test_a_drawn_layout_converts_and_one_that_cannot_be_a_kitchen_says_why() -> None:
     text = '{\n "grid": """XXPXX\n   O  2O\n   X1  X\n   XDXSX""",\n "start_all_orders": []\n}'
     level = heldout_build.convert_drawn(text)
@@ -68,9 +89,9 @@ def test_a_drawn_layout_converts_and_one_that_cannot_be_a_kitchen_says_why() -> 
 
 def test_host_and_jax_fingerprints_agree() -> None:
     batch = heldout.heldout_batch()
-    every = heldout.heldout_fingerprints()  # validation, then test: what the generator excludes
+    every = heldout.heldout_fingerprints()  # validation, then both tests: what the generator excludes
     np.testing.assert_array_equal(np.asarray(jax.vmap(fingerprint)(batch)), every[:105])
-    assert len(every) == 105 + len(heldout.test_levels())
+    assert len(every) == 105 + len(heldout.test_levels()) + len(heldout.test2_levels())
     assert len({tuple(r) for r in every.tolist()}) == len(every)
 
 
