@@ -19,9 +19,10 @@ install: $(VENV)/.installed
 up: install
 	@command -v redis-server >/dev/null || { SUDO=$$([ "$$(id -u)" = 0 ] || echo sudo); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq redis-server; }
-# `cec up` exits 130 after a clean Ctrl-C (checkpointed, everything stopped): that is success here, not make's
-# "Error 130"; CEC_UP_VIA makes its resume hint read `make up ARGS=--resume`.
-	CEC_UP_VIA=make $(BIN)/cec up $(ARGS) || [ $$? -eq 130 ]
+# `cec up`, run by apps/make_up.py so that a Ctrl-C reaches it alone from its first line, not make ("make: ***
+# [up] Interrupt"); it exits 130 after a clean Ctrl-C (checkpointed, everything stopped): that is success
+# here, not make's "Error 130"; CEC_UP_VIA makes its resume hint read `make up ARGS=--resume`.
+	CEC_UP_VIA=make $(BIN)/python -m apps.make_up $(ARGS) || [ $$? -eq 130 ]
 
 ## Random agents in every classic kitchen, side by side, written to out/demo.gif
 demo: install
