@@ -20,7 +20,7 @@ import socket
 import sys
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from cec.agents.zoo import SHIPPED, best_shipped
 from cec.config import ConfigError, from_dict
@@ -30,6 +30,9 @@ from services.play.config import AGENT_ACTIONS, MODES, StudyConfig, load_study
 from services.ports import check_port
 from services.progress import Heartbeat
 from services.store import StoreError  # needs redis: without it `cec X` names the package
+
+if TYPE_CHECKING:
+    from services.play.game import PartnerPool
 
 log = logging.getLogger("cec.play")
 
@@ -129,7 +132,10 @@ def free_play_config(args: argparse.Namespace) -> StudyConfig:
     consent, practice or survey; records in `runs/play/<free_play_name>/` unless `--data` says where."""
     partner: dict[str, Any] = {"name": "partner"}
     if args.partner:
-        partner.update(zoo=SHIPPED, group=best_shipped(args.level) if args.partner == BEST else args.partner)
+        group = best_shipped(args.level) if args.partner == BEST else args.partner
+        if args.partner == BEST:
+            log.info("--partner best in %s: %s (chosen there by cec/shipped/best.yaml)", args.level, group)
+        partner.update(zoo=SHIPPED, group=group)
     if args.checkpoint:  # a path, or the name of a shipped policy
         path = Path(args.checkpoint)
         partner.update(checkpoint=str(path.resolve()) if path.exists() else args.checkpoint, seed=args.seed)
@@ -169,7 +175,8 @@ def prepare(config: StudyConfig, base_dir: Path) -> dict[str, Any]:
     pools = {}
     for partner in config.partners:
         pools[partner.name] = pool = load_partner(partner, base_dir)
-        log.info("partner %s: %d policies loaded", partner.name, len(pool.policies))
+        flags = config.free_play and partner.name == "partner"  # `cec play serve --partner ...`
+        log.info("%s", loaded_line(pool, "free play's partner" if flags else f"partner {partner.name!r}"))
     practice = (
         [(config.practice.partner or config.partners[0].name, config.practice.level)]
         if config.practice
@@ -190,6 +197,14 @@ def prepare(config: StudyConfig, base_dir: Path) -> dict[str, Any]:
         seconds = warm_up(list(pools.values()), config)
     log.info("compiled the game and the agents in %.1f s", seconds)
     return pools
+
+
+def loaded_line(pool: PartnerPool, label: str, shown: int = 6) -> str:
+    """What a partner condition loaded, by name: `label: N policies loaded: name (algorithm), ...`."""
+    n = len(pool.policies)
+    names = [f"{p.name} ({p.algorithm})" for p in pool.policies[:shown]]
+    more = f" and {n - shown} more" if n > shown else ""
+    return f"{label}: {n} {'policy' if n == 1 else 'policies'} loaded: {', '.join(names)}{more}"
 
 
 def serve(config: StudyConfig, base_dir: Path, host: str, port: int) -> int:

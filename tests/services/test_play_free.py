@@ -22,12 +22,14 @@ def test_cec_play_serve_partner_cec_serves_the_page_and_stops_on_ctrl_c(tmp_path
     finally:
         code = server.stop(signal.SIGINT)
     assert code == 0 and "Traceback" not in server.log, server.log
-    assert "partner partner: 4 policies loaded" in server.log, server.log
+    seeds = ", ".join(f"cec758m-s{s} (cec)" for s in range(200, 204))
+    assert f"free play's partner: 4 policies loaded: {seeds}\n" in server.log, server.log
 
 
 def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_the_kitchen(tmp_path: Path) -> None:
     """The README's second play command: in Forced Coordination what best.yaml names (one shipped policy,
-    or every seed of a shipped group), loaded and nothing else."""
+    or every seed of a shipped group), loaded and nothing else, and the log names it (it said "partner
+    partner: 1 policies loaded")."""
     from cec.agents.zoo import best_shipped, shipped_entries
 
     choice = best_shipped("forced_coord")
@@ -41,7 +43,10 @@ def test_cec_play_serve_partner_best_plays_the_partner_chosen_for_the_kitchen(tm
     finally:
         code = server.stop(signal.SIGINT)
     assert code == 0 and "Traceback" not in server.log, server.log
-    assert f"partner partner: {len(named)} policies loaded" in server.log, server.log
+    assert f"--partner best in forced_coord: {choice} (chosen there by cec/shipped/best.yaml)" in server.log
+    loaded = ", ".join(f"{e.name} ({e.algorithm})" for e in named)
+    count = "1 policy" if len(named) == 1 else f"{len(named)} policies"
+    assert f"free play's partner: {count} loaded: {loaded}\n" in server.log, server.log
 
 
 def test_a_busy_port_is_refused_before_the_partners_load(tmp_path: Path) -> None:
