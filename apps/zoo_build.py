@@ -454,13 +454,22 @@ def _write_manifest(path: Path, header: str, policies: list[dict[str, object]]) 
 
 
 def export_zoo(
-    manifest: str | Path, out_dir: str | Path, *, names: Sequence[str] = (), prefix: str = ""
+    manifest: str | Path,
+    out_dir: str | Path,
+    *,
+    names: Sequence[str] = (),
+    prefix: str = "",
+    results: Sequence[str | Path] = (),
 ) -> Path:
     """`cec zoo export`: copies a zoo's policies (all, or those named) as one-seed parameter checkpoints
     (`cec.agents.policy.save_policy`: no optimiser state, a few MB each) into `out_dir`, with a manifest
-    `out_dir/zoo.yaml` (paths relative to it, SHA-256 pinned). Entries already in `out_dir/zoo.yaml` under
-    other names are kept, so a folder can collect policies from several zoos. `prefix` is put before each
-    exported policy's name. Nothing is written when an entry cannot be loaded."""
+    `out_dir/zoo.yaml` (paths relative to it, SHA-256 pinned), a card and an index (`apps.zoo_bundle`:
+    `card.md`, `bundle.json`), so that the folder is a bundle that loads from disk or from a URL. Entries
+    already in `out_dir/zoo.yaml` under other names are kept, so a folder can collect policies from several
+    zoos. `prefix` is put before each exported policy's name; `results` (`cec eval` tables of the zoo) give
+    the card its evaluation. Nothing is written when an entry cannot be loaded or a table plays none of
+    them."""
+    from apps.zoo_bundle import evaluation, write_bundle
     from cec import checkpoints
     from cec.agents.policy import load_policy, resolve_checkpoint, save_policy
     from cec.agents.zoo import load_zoo
@@ -481,13 +490,19 @@ def export_zoo(
                 f"{manifest}: an exported policy cannot be named {MANIFEST} (the manifest); {fix}"
             )
     loaded = [(load_policy(e), checkpoints.read_meta(resolve_checkpoint(e.checkpoint))) for e in chosen]
+    evaluated = evaluation(results, {prefix + e.name: e.name for e in chosen}) if results else None
     out = Path(out_dir)
     written = []
     for policy, meta in loaded:
         name = prefix + policy.name
         path = named_path(out, name, "exported policy name")
         saved = save_policy(
-            policy, path, config=meta["config"], env_steps=meta["env_steps"], update=meta["update"]
+            policy,
+            path,
+            config=meta["config"],
+            env_steps=meta["env_steps"],
+            update=meta["update"],
+            code_version=str(meta.get("metadata", {}).get("code_version", "")),
         )
         env = meta["config"].get("env", {})
         written.append(
@@ -504,7 +519,9 @@ def export_zoo(
             }
         )
     header = "Written by `cec zoo export`: one-seed parameter checkpoints (cec.agents.policy.save_policy)."
-    return merge_manifest(out / MANIFEST, header, written)
+    path = merge_manifest(out / MANIFEST, header, written)
+    write_bundle(out, str(manifest), evaluated)
+    return path
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -536,16 +553,24 @@ def add_subcommands(sub: argparse._SubParsersAction[argparse.ArgumentParser]) ->
     build.set_defaults(func=_cmd_zoo_build)
     export = zoo_sub.add_parser(
         "export",
-        help="copy a zoo's policies as one-seed parameter checkpoints (a few MB) + manifest into a folder",
+        help="copy a zoo's policies as one-seed parameter checkpoints (a few MB) into a folder: a bundle "
+        "with its manifest, card and checksums that `--zoo` loads from the folder or a URL serving it",
     )
     export.add_argument("manifest", help="zoo manifest (e.g. ZOO_DIR/zoo.yaml)")
     export.add_argument("--out", required=True, metavar="DIR", help="folder for the checkpoints and zoo.yaml")
     export.add_argument("--name", action="append", default=[], help="export only this entry (repeatable)")
     export.add_argument("--prefix", default="", help="put this before each exported policy's name")
+    export.add_argument(
+        "--results",
+        action="append",
+        default=[],
+        metavar="CSV",
+        help="a `cec eval` table of the zoo (repeatable): the card's evaluation of each exported policy",
+    )
     export.set_defaults(func=_cmd_zoo_export)
 
 
 def _cmd_zoo_export(args: argparse.Namespace) -> int:
-    path = export_zoo(args.manifest, args.out, names=args.name, prefix=args.prefix)
+    path = export_zoo(args.manifest, args.out, names=args.name, prefix=args.prefix, results=args.results)
     print(f"exported to {path}")
     return 0

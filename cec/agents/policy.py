@@ -146,12 +146,17 @@ def resolve_checkpoint(path: str | Path) -> Path:
     return latest.path
 
 
-def save_policy(policy: Policy, path: str | Path, *, config: dict, env_steps: int, update: int) -> Path:
+def save_policy(
+    policy: Policy, path: str | Path, *, config: dict, env_steps: int, update: int, code_version: str = ""
+) -> Path:
     """Writes one policy's parameters (no optimiser state, no seed axis) as a checkpoint `load_policy`
-    reads: `config` is the training config it came from, kept for its network and environment."""
+    reads: `config` is the training config it came from, kept for its network and environment, and
+    `code_version` the commit that trained it (recorded when given)."""
     if policy.params is None:
         raise ValueError(f"policy {policy.name!r} is scripted: it has no parameters to save")
-    metadata = {"algorithm": policy.algorithm, "seeds": [policy.seed], "params_only": True}
+    metadata: dict[str, Any] = {"algorithm": policy.algorithm, "seeds": [policy.seed], "params_only": True}
+    if code_version:
+        metadata["code_version"] = code_version
     return checkpoints.save(
         path, policy.params, update=update, env_steps=env_steps, config=config, metadata=metadata
     )

@@ -8,7 +8,9 @@ A zoo manifest is YAML or JSON (docs/evaluation.md):
     - {name: oracle, scripted: dd_oracle}      # a scripted policy (`cec.agents.scripted`), no checkpoint
 
 `checkpoint` is a checkpoint directory or a run directory (its latest checkpoint); relative paths are
-relative to the manifest's folder. `algorithm` and `seed` default to the checkpoint's metadata; `seed`
+relative to the manifest's folder. Where a zoo is taken, a folder stands for its `zoo.yaml` and an http(s)
+URL for the bundle `cec zoo export` published there (`cec.agents.bundle`: downloaded once, every file's
+size and SHA-256 checked). `algorithm` and `seed` default to the checkpoint's metadata; `seed`
 picks the seed out of a multi-seed checkpoint. `levels` (optional) restricts the entry to those levels
 (single-task agents): a pairing is played on the levels both partners accept. `sha256` (optional, written
 by `cec zoo build`) pins the checkpoint's state; `env`, `layout` and `env_steps` are descriptive only.
@@ -33,6 +35,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from cec.agents.bundle import zoo_manifest
 from cec.agents.scripted import scripted_kind
 from cec.config import ConfigError, read_user_json, read_user_yaml
 
@@ -162,8 +165,9 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
 
 def load_zoo(path: str | Path) -> list[ZooEntry]:
     """Reads a zoo manifest (YAML or JSON); relative checkpoint paths are relative to its folder. The name
-    `shipped` (`SHIPPED`) is the manifest of the policies shipped with the package."""
-    p = SHIPPED_ZOO if str(path) == SHIPPED else Path(path)
+    `shipped` (`SHIPPED`) is the manifest of the policies shipped with the package; a folder is its
+    `zoo.yaml`, an http(s) URL a bundle's (`cec.agents.bundle.zoo_manifest`)."""
+    p = SHIPPED_ZOO if str(path) == SHIPPED else zoo_manifest(path)
     if not p.exists():
         raise ConfigError(f"zoo manifest {str(p)!r} does not exist (see docs/evaluation.md for the format)")
     read = read_user_json if p.suffix == ".json" else read_user_yaml

@@ -38,6 +38,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cec import checkpoints
+from cec.agents.bundle import is_url
 from cec.agents.network import (
     ActorCritic,
     LSTMState,
@@ -91,8 +92,11 @@ class PartnerPool:
         return [i for i, p in enumerate(self.policies) if p.levels is None or level_spec in p.levels]
 
 
-def _relative_to(base_dir: Path, source: str) -> Path:
-    """A study's checkpoint or zoo path (relative to the study's folder), or a shipped name as it is."""
+def _relative_to(base_dir: Path, source: str) -> Path | str:
+    """A study's checkpoint or zoo path (relative to the study's folder), or a shipped name or a bundle's
+    http(s) URL as it is (`load_zoo` fetches the bundle)."""
+    if is_url(source):
+        return source
     path = Path(source)
     if path.is_absolute() or (base_dir / path).exists() or source != path.name:
         return path if path.is_absolute() else base_dir / path
