@@ -371,10 +371,17 @@ class Stack:
         from services.learner.driver import run_distributed
 
         t = self.train_config
+        seeds = (
+            f"{t.num_seeds} seeds ({t.seed}..{t.seed + t.num_seeds - 1})"
+            if t.num_seeds > 1
+            else f"seed {t.seed}"
+        )
         self.say(
-            f"training {t.run_name}: {t.algorithm} on {t.env.name}/{t.env.levels}, "
+            f"training {t.run_name}: {t.algorithm} on {t.env.name}/{t.env.levels}, {seeds}, "
             f"{self.dist.num_actors} actors ({self.dist.mode}); Ctrl-C stops with a checkpoint"
         )
+        for departure in t.not_the_papers:
+            self.say(f"not the paper's method: this run {departure}")
         out = Stamped(self.out)
         metrics = self.run_dir / "metrics.jsonl"
         before = metrics.stat().st_size if metrics.exists() else 0

@@ -247,6 +247,29 @@ class TrainConfig:
         return self.name or f"{self.algorithm}-{self.env.name}-{self.env.levels_label}-s{self.seed}"
 
     @property
+    def not_the_papers(self) -> tuple[str, ...]:
+        """What this run does that the paper's method does not, in words a user reads at start-up (DESIGN
+        rule 16): a scripted teacher or partner is a hand-written planner, not cooperation learned from the
+        kitchens alone."""
+        out = []
+        if self.ppo.teacher_coef > 0:
+            out.append(
+                "learns from the scripted cook as a teacher (a hand-written planner's action is a second "
+                "target of the loss, weight "
+                f"{self.ppo.teacher_coef:g}"
+                + (" falling to 0" if self.ppo.teacher_anneal_env_steps else "")
+                + ")"
+            )
+        if self.partner.kind == "scripted":
+            out.append(
+                "plays part of its episodes with the scripted cook (a hand-written planner) as partner"
+            )
+        if self.env.generator.handover_share > 0 and self.env.procedural:
+            share = self.env.generator.handover_share
+            out.append(f"draws kitchens that need a hand-over more often (handover_share {share:g})")
+        return tuple(out)
+
+    @property
     def levels_per_env(self) -> int:
         """Level-buffer depth per env per rollout: enough that no level repeats within a rollout."""
         return self.num_steps // self.env.params.max_steps + 2

@@ -45,13 +45,17 @@ class LevelSetConfig:
             Overcooked `classic`, `generated` (the 100 held-out generated kitchens), `heldout` (both),
             or comma-separated names; Dual Destination `fixed`, `multi_task`.
         max_levels: use only the first this many levels of the set, in its stable order (0: all). Caps
-            the cost of large sets such as the 100 held-out kitchens.
+            the cost of large sets such as the 100 held-out kitchens (a fixed share, the same for every
+            checkpoint, so that a run's scores compare).
+        max_steps: episode length on this set (0: `play.max_steps`); the README's Overcooked protocol is
+            400 steps whatever the training episode length.
     """
 
     name: str
     env: str = "overcooked"
     levels: str = "classic"
     max_levels: int = 0
+    max_steps: int = 0
 
     def __post_init__(self) -> None:
         _check_label(self.name, "level set name")
@@ -61,6 +65,11 @@ class LevelSetConfig:
             raise ConfigError(f"level set {self.name!r}: levels is empty; e.g. classic or generated")
         if self.max_levels < 0:
             raise ConfigError(f"level set {self.name!r}: max_levels must be >= 0 (0: all levels)")
+        if not 0 <= self.max_steps <= 100_000:
+            raise ConfigError(
+                f"level set {self.name!r}: max_steps must be in 0..100000 (0: play.max_steps), got "
+                f"{self.max_steps}"
+            )
 
 
 @dataclass(frozen=True)
@@ -83,12 +92,23 @@ class PartnerGroupConfig:
             raise ConfigError(f"partner group {self.name!r} lists no partners")
 
 
+#: The README's protocol: 400-step Overcooked episodes, both seats, on a fixed quarter of the validation
+#: kitchens per checkpoint (the whole set would take a share of a 2-core machine that training needs; `cec
+#: release` plays the whole set for the checkpoints it chooses among) and the five classic kitchens.
+README_STEPS = 400
+
+
 def _default_level_sets() -> tuple[LevelSetConfig, ...]:
     return (
-        LevelSetConfig("classic", "overcooked", "classic"),
-        LevelSetConfig("heldout", "overcooked", "generated", max_levels=20),
+        LevelSetConfig("validation", "overcooked", "generated", max_levels=25, max_steps=README_STEPS),
+        LevelSetConfig("classic", "overcooked", "classic", max_steps=README_STEPS),
         LevelSetConfig("fixed", "dual_destination", "fixed"),
     )
+
+
+#: The shipped zoo's partners a checkpoint meets by default: the CEC seeds (758M env steps, no teacher),
+#: the kickstarted seeds (the scripted cook as a teacher) and the human proxies (each in its own kitchen).
+DEFAULT_ZOO_ALGORITHMS = ("cec", "cec_teacher", "human_proxy")
 
 
 @dataclass(frozen=True)
@@ -134,15 +154,15 @@ class EvaluatorConfig:
     """
 
     store: StoreConfig = field(default_factory=StoreConfig)
-    zoo: str = ""
+    zoo: str = "shipped"
     redis_zoo: bool = True
     group_by: str = "algorithm"
     groups: tuple[PartnerGroupConfig, ...] = ()
     self_play: bool = True
     cross_play: bool = True
-    zoo_algorithms: tuple[str, ...] = ()
+    zoo_algorithms: tuple[str, ...] = DEFAULT_ZOO_ALGORITHMS
     level_sets: tuple[LevelSetConfig, ...] = field(default_factory=_default_level_sets)
-    play: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=2, games_per_call=1))
+    play: EvalConfig = field(default_factory=lambda: EvalConfig(episodes=1, games_per_call=1))
     results_dir: str = "runs"
     consumer_group: str = "evaluator"
     consumer_name: str = "evaluator-0"

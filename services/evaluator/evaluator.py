@@ -415,12 +415,15 @@ class Evaluator:
             if keepalive is not None:
                 keepalive()
 
+        steps = spec.max_steps or cfg.play.max_steps
         tables = []
         if within:
-            eval_config = dataclasses.replace(cfg.play, levels=spec.levels, pairs=within)
+            eval_config = dataclasses.replace(cfg.play, levels=spec.levels, pairs=within, max_steps=steps)
             tables.append(crossplay(list(seeds), self.levels[spec.name], eval_config, progress=progress))
         for policy in seeds if partners else ():
-            eval_config = dataclasses.replace(cfg.play, levels=spec.levels, pairs=f"with:{policy.name}")
+            eval_config = dataclasses.replace(
+                cfg.play, levels=spec.levels, pairs=f"with:{policy.name}", max_steps=steps
+            )
             table = crossplay([policy, *partners], self.levels[spec.name], eval_config, progress=progress)
             tables.append(table.select(table.policy_a != table.policy_b))  # with itself: played above
         EVALUATOR_EPISODES.inc(sum(len(t) for t in tables))

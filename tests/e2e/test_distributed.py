@@ -118,7 +118,7 @@ def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_re
     no traceback and no process left; `cec up --resume` then continues from that checkpoint."""
     psutil = pytest.importorskip("psutil")
     cmd = [
-        sys.executable, "-m", "apps.cli", "up", "--config", str(REPO / "configs/up/default.yaml"),
+        sys.executable, "-m", "apps.cli", "up", "--config", str(REPO / "configs/up/smoke.yaml"),
         "level_server_port=0", "level_server_metrics_port=-1", "evaluator=false", "ray_dashboard=false",
         "distributed.metrics_port=-1", "distributed.ray_num_cpus=4", f"train={DD_QUICK}",
         "train.num_envs=32", "train.num_steps=50", "train.total_env_steps=1600000",

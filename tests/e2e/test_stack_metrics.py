@@ -70,7 +70,7 @@ def _rows(run_dir: Path) -> int:
 def test_dashboards_read_only_live_series_and_scraped_counters_follow_the_run(tmp_path: Path) -> None:
     cmd = [
         sys.executable, "-m", "apps.cli", "up", "--monitoring",
-        "--config", str(REPO / "configs/up/default.yaml"),
+        "--config", str(REPO / "configs/up/smoke.yaml"),
         "level_server_port=0", "level_server_metrics_port=0", "evaluator_metrics_port=0",
         "ray_dashboard=false", "distributed.metrics_port=0", "distributed.ray_num_cpus=4",
         "monitoring_config.prometheus_port=0", "monitoring_config.scrape_interval_s=1",

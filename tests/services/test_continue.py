@@ -22,7 +22,7 @@ from cec.training.run import RESUME_FILE, config_dict, record_resume_command, re
 from services.stack import DEFAULT_CONFIG, UpConfig, preset_path, resume_hint
 
 REPO = Path(__file__).resolve().parents[2]
-PRESET = "configs/train/cramped_room_ci.yaml"
+PRESET = "configs/train/cec_overcooked_teacher.yaml"  # the training preset of configs/up/default.yaml
 
 
 def _cec(*args: str) -> subprocess.CompletedProcess[str]:
@@ -66,7 +66,7 @@ def test_the_resume_hint_repeats_the_options_under_cec_up_or_make(monkeypatch: p
 
 
 def test_a_refused_cec_up_prints_only_the_refusal_with_the_command_that_continues(tmp_path: Path) -> None:
-    run = _with_checkpoint(tmp_path / "up-ippo-overcooked-cramped_room-s0")
+    run = _with_checkpoint(tmp_path / "up-cec-overcooked-generator-s0")
     proc = _cec("up", f"train.run_dir={tmp_path}", "evaluator=false")
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert f"{run} already has checkpoints; continue it with `cec up --resume train.run_dir={tmp_path} " in (
@@ -79,12 +79,12 @@ def test_a_refused_cec_up_prints_only_the_refusal_with_the_command_that_continue
 def test_cec_train_meets_a_distributed_run_and_names_its_own_command(tmp_path: Path) -> None:
     """The README's `cec train --config ...` after `make up`: another run, so no clash; and where a name is
     shared on purpose, the hint is the distributed run's own command, never `cec train --resume`."""
-    up_run = _with_checkpoint(tmp_path / "up-ippo-overcooked-cramped_room-s0")
+    up_run = _with_checkpoint(tmp_path / "up-cec-overcooked-generator-s0")
     record_resume_command(up_run, "make up ARGS=--resume")
     assert (up_run / RESUME_FILE).is_file() and resume_command(up_run) == "make up ARGS=--resume"
-    mine = tmp_path / "ippo-overcooked-cramped_room-s0"
+    mine = tmp_path / "cec-overcooked-generator-s0"
     assert resume_command(mine) == f"cec train --resume {mine}"
-    proc = _cec("train", "--config", PRESET, f"run_dir={tmp_path}", "name=up-ippo-overcooked-cramped_room-s0")
+    proc = _cec("train", "--config", PRESET, f"run_dir={tmp_path}", "name=up-cec-overcooked-generator-s0")
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert "continue it with `make up ARGS=--resume`" in proc.stderr
     assert "cec train --resume" not in proc.stderr
