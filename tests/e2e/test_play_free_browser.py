@@ -1,6 +1,8 @@
 """Free play as a game, in headless Chromium through the entry point (`cec play serve`, a real process):
 three rounds in a row in one visit, a reload in the middle of one and between two, the partner the person
-chose, each round recorded once; and the page's hint to step aside when the cooks bump head-on.
+chose, each round recorded once; the page's hint to step aside when the cooks bump head-on, which says
+whether the partner has a free cell as the board shows it; and its hint when the cooks stand still, one in
+the other's only way (a person in the pot's only access cell, the agent waiting).
 
 Needs Debian's `chromium` and `chromium-driver` (skipped locally without them, failed under CI).
 """
@@ -23,6 +25,9 @@ STEPS = 6
 # Seat 0 at the mouth of seat 1's dead end: seat 1 can move only into seat 0's cell, so every step in which
 # seat 0 walks east into it is a collision, whatever the agent does (a staged head-on block).
 HEAD_ON = "WWWPWW\nO  01W\nWBWWXW\n"
+# The same with a free cell east of seat 1. Seat 0 stands in the pot's only access cell, and in seat 1's only
+# way to the pot, the onions and the plates (seat 1 in seat 0's to the serving window).
+STANDOFF = "WWWPWWW\nO  01 W\nWBWWXWW\n"
 
 
 def _play(player: Player, actions: list[int]) -> None:
@@ -131,9 +136,11 @@ def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path, gives
         player.close()
         server.stop(signal.SIGINT)
     assert shown == [False] * (2 + gives_way_after) + [True] * 3, shown
-    assert f"bumped into each other {3 + gives_way_after} times in a row" in text and "step aside" in text
-    assert ("found no free cell" in text) == (gives_way_after > 0), text
-    assert stats["bumpHints"] == 1
+    assert text == (
+        f"You have bumped into each other {3 + gives_way_after} times in a row. Your partner has no free "
+        "cell beside it to step onto. Step aside into a free cell and let it pass."
+    ), text
+    assert stats["bumpHints"] == 1 and stats["standoffHints"] == 0
     files = FileStore(tmp_path / "records", "head_on")
     try:
         ((pid,),) = [files.participants()]
@@ -142,3 +149,61 @@ def test_the_page_says_to_step_aside_after_bumping_head_on(tmp_path: Path, gives
         files.close()
     # the block the page saw is in the records
     assert [s["collision"] for s in steps[: 5 + gives_way_after]] == [True] * (5 + gives_way_after)
+
+
+def test_a_standoff_without_bumps_and_a_bump_beside_a_free_cell_are_hinted_as_the_board_shows(
+    tmp_path: Path,
+) -> None:
+    """A person who stands in the pot's only access cell (STANDOFF) while the agent waits: no bump, and after
+    5 steps the page says who stands in whose way, to what; it goes when the person moves. Then the person
+    walks into the agent, which has a free cell beside it: the bump hint says so (it said "found no free
+    cell" whatever the board showed). The agent is a random network that always waits (greedy, init seed
+    5; the records show that it did)."""
+    _browser_paths()
+    (tmp_path / "standoff.txt").write_text(STANDOFF)
+    (tmp_path / "study.yaml").write_text(
+        "name: standoff\nfree_play: true\nlevels: [standoff.txt]\nhuman_seat: 0\nagent_actions: greedy\n"
+        "agent_gives_way_after: 0\npartners: [{name: waits, random_init: true, init_seed: 5}]\n"
+        "survey: {items: []}\nenv: {max_steps: 14, random_start_facing: false}\n"
+        f"storage: {{dir: {tmp_path / 'records'}}}\n"
+    )
+    server = PlayServer([str(tmp_path / "study.yaml"), "--port", "0"], "standoff")
+    player = Player(server.url)
+    actions = [4] * 5 + [3, 2] + [2] * 3  # wait 5 steps; step west and back; walk east into the agent 3 times
+    try:
+        player.enter_free_play()
+        _round_page(player, 1)
+        player.click("round-start")
+        player.wait.until(EC.presence_of_element_located((By.ID, "board")))
+        standoff, bump = (player.d.find_element(By.ID, name) for name in ("standoff-hint", "bump-hint"))
+        seen = []
+        for i, action in enumerate(actions):
+            player.turn(i, action)
+            seen.append((standoff.is_displayed(), bump.is_displayed()))
+            if i == 4:
+                standoff_text = standoff.text
+        bump_text = bump.text
+        stats = player.stats()
+    finally:
+        player.close()
+        server.stop(signal.SIGINT)
+    files = FileStore(tmp_path / "records", "standoff")
+    try:
+        ((pid,),) = [files.participants()]
+        steps = [ev for ev in files.events(pid) if ev["type"] == "step"]
+    finally:
+        files.close()
+    # what was staged: the agent waited in its cell, and only the walks into it were bumps
+    assert [s["actions"][1] for s in steps] == [4] * len(actions), [s["actions"] for s in steps]
+    assert {tuple(s["state"]["pos"][1]) for s in steps} == {(1, 4)}
+    assert [s["collision"] for s in steps] == [False] * 7 + [True] * 3
+    assert seen == [(False, False)] * 4 + [(True, False)] + [(False, False)] * 4 + [(False, True)], seen
+    assert standoff_text == (
+        "Neither of you has moved for 5 steps: you are standing in your partner's only way to the pot, the "
+        "onions and the plates. Step aside and let it pass. It stands in your only way to the serving window."
+    ), standoff_text
+    assert bump_text == (
+        "You have bumped into each other 3 times in a row. Your partner has a free cell beside it but does "
+        "not give way. Step aside into a free cell and let it pass."
+    ), bump_text
+    assert stats["standoffHints"] == 1 and stats["bumpHints"] == 1

@@ -29,11 +29,16 @@ const SEAT_NAMES = ["blue", "red"];
 // Free play: after this many bumps in a row the page says to step aside (this many more than the agent's own
 // `gives_way_after`, where it steps aside itself), and the hint goes after this many steps without one.
 const BUMP_HINT = 3, BUMP_CLEAR = 4;
+// Free play: a standoff is this many steps (turn-based), or seconds (real time), in which neither cook moved,
+// picked up or put down anything, or bumped, while one stands in the other's only way to a station.
+const STANDOFF_STEPS = 5, STANDOFF_S = 3;
+const STATIONS = [[TILE.POT, "the pot"], [TILE.ONION_PILE, "the onions"], [TILE.PLATE_PILE, "the plates"],
+  [TILE.GOAL, "the serving window"]];
 
 // Measurements of the current round a test or a researcher can read: key-down to painted frame, key-down to
 // server reply (ms), frames drawn; `lastState` is the compact state on screen.
 function resetStats(mode) {
-  window.cecStats = { keyToFrame: [], roundTrip: [], frames: 0, mode, lastState: null, bumpHints: 0 };
+  window.cecStats = { keyToFrame: [], roundTrip: [], frames: 0, mode, lastState: null, bumpHints: 0, standoffHints: 0 };
 }
 resetStats(null);
 
@@ -238,6 +243,8 @@ class Game {
     this.over = false;
     this.bumps = 0; // collisions in a row (free play's step-aside hint)
     this.calm = 0; // steps without one since the hint was shown
+    this.still = 0; // steps in a row in which no cook moved, picked up or put down anything, or bumped
+    this.last = null; // the state of the last frame (what the hints compare with)
     this.onKey = this.onKey.bind(this);
   }
 
@@ -281,10 +288,13 @@ class Game {
       : this.view.free_play ? `Round ${this.view.number} · with ${this.view.partner_label}`
         : `Round ${this.view.number} of ${this.view.of} · ${this.view.partner_label}`;
     this.bumpHint = el("p", { class: "bump-hint", id: "bump-hint", hidden: "" });
+    this.standoffHint = el("p", { class: "bump-hint", id: "standoff-hint", hidden: "" });
+    this.standoffAfter = this.mode === "real_time" ? Math.max(STANDOFF_STEPS, Math.round(STANDOFF_S * this.tps)) : STANDOFF_STEPS;
     show(el("h1", {}, heading), el("div", { class: "game" }, el("div", { class: "hud" }, you, this.hudScore, this.hudTime), this.canvas,
-      this.bumpHint,
+      this.bumpHint, this.standoffHint,
       el("p", { class: "muted", id: "hint" }, this.mode === "turn_based" ? "Press a key to move; the game waits for you." : "Go!")), this.err);
     this.draw(msg.state);
+    this.last = msg.state;
     this.branches = msg.branches || null;
     document.addEventListener("keydown", this.onKey);
   }
@@ -314,17 +324,21 @@ class Game {
     this.t += 1;
   }
 
-  // Free play: bumped BUMP_HINT (+ the agent's gives_way_after) times in a row -> say to step aside; gone after
-  // BUMP_CLEAR calm steps.
-  bumped(collision) {
+  // Free play: bumped BUMP_HINT (+ the agent's gives_way_after) times in a row -> say to step aside, and whether
+  // the partner has a free cell beside it, read from the board shown; gone after BUMP_CLEAR calm steps.
+  bumped(collision, state) {
     if (!this.view.free_play) return;
     this.bumps = collision ? this.bumps + 1 : 0;
     this.calm = collision ? 0 : this.calm + 1;
     const yields = this.view.gives_way_after || 0;
     if (this.bumps >= BUMP_HINT + yields && this.bumpHint.hidden) {
-      const partner = yields ? "Your partner found no free cell to step onto" : "Your partner does not give way";
-      this.bumpHint.textContent = `You have bumped into each other ${this.bumps} times in a row. ${partner}: ` +
-        "step aside into a free cell and let it pass.";
+      // bumps move no one, so a partner with a free cell beside it did not step onto it
+      const partner = freeCells(this.level, state, 1 - this.seat) === 0 ? "Your partner has no free cell beside it to step onto."
+        : yields ? "Your partner has a free cell beside it but has not stepped aside."
+          : "Your partner has a free cell beside it but does not give way.";
+      const you = freeCells(this.level, state, this.seat) > 0 ? "Step aside into a free cell and let it pass."
+        : "You have no free cell beside you either: wait (X) and let it move.";
+      this.bumpHint.textContent = `You have bumped into each other ${this.bumps} times in a row. ${partner} ${you}`;
       this.bumpHint.hidden = false;
       window.cecStats.bumpHints += 1;
     } else if (this.calm >= BUMP_CLEAR) {
@@ -332,9 +346,41 @@ class Game {
     }
   }
 
+  // Free play: neither cook moved, picked up or put down anything, or bumped for `standoffAfter` steps while one
+  // stands in the other's only way to a station (read from the board shown) -> say who blocks whom; gone at the
+  // next move or hand change.
+  stoodStill(collision, state) {
+    if (!this.view.free_play) return;
+    const same = this.last && JSON.stringify([state.pos, state.inv]) === JSON.stringify([this.last.pos, this.last.inv]);
+    this.last = state;
+    this.still = same && !collision ? this.still + 1 : 0;
+    if (!same) this.standoffHint.hidden = true;
+    if (this.still < this.standoffAfter || !this.standoffHint.hidden) return;
+    const text = this.standoffText(state);
+    if (!text) return;
+    this.standoffHint.textContent = text;
+    this.standoffHint.hidden = false;
+    window.cecStats.standoffHints += 1;
+  }
+
+  standoffText(state) {
+    const theirs = cutOff(this.level, state, 1 - this.seat), yours = cutOff(this.level, state, this.seat);
+    const lead = "Neither of you has moved for " +
+      (this.mode === "real_time" ? `${Math.round(this.still / this.tps)} seconds` : `${this.still} steps`);
+    if (theirs.length) {
+      const also = yours.length ? ` It stands in your only way to ${names(yours)}.` : "";
+      return `${lead}: you are standing in your partner's only way to ${names(theirs)}. Step aside and let it pass.${also}`;
+    }
+    if (!yours.length) return "";
+    const yields = this.view.gives_way_after || 0;
+    const way = yields ? ` It steps aside after ${yields} bumps in a row, if it has a free cell beside it.` : " It does not give way.";
+    return `${lead}: your partner is standing in your only way to ${names(yours)}.${way}`;
+  }
+
   frame(msg) {
     this.score = msg.score;
-    this.bumped(msg.collision);
+    this.bumped(msg.collision, msg.state);
+    this.stoodStill(msg.collision, msg.state);
     if (this.mode === "turn_based") {
       window.cecStats.roundTrip.push(performance.now() - this.sentAt);
       if (JSON.stringify(msg.state) !== JSON.stringify(this.shown)) this.draw(msg.state); // never differs in practice
@@ -388,6 +434,49 @@ class Game {
       if (keyTime !== undefined) window.cecStats.keyToFrame.push(this.frameShownAt - keyTime);
     });
   }
+}
+
+// --- reading the board (free play's hints) ------------------------------------------------------------------
+
+function tileAt(level, r, c) {
+  return r >= 0 && c >= 0 && r < level.h && c < level.w ? level.grid[r][c] : TILE.COUNTER;
+}
+
+function at(pos, r, c) {
+  return pos[0] === r && pos[1] === c;
+}
+
+// How many floor cells beside `seat` no cook stands on.
+function freeCells(level, state, seat) {
+  const [r, c] = state.pos[seat];
+  return DIRS.filter(([dr, dc]) => tileAt(level, r + dr, c + dc) === TILE.FLOOR && !at(state.pos[1 - seat], r + dr, c + dc)).length;
+}
+
+// The tiles next to the floor cells a cook at `start` can walk to, `closed` (a cell or null) closed off.
+function reachableTiles(level, start, closed) {
+  const seen = new Set([start[0] * 16 + start[1]]), todo = [start], tiles = new Set();
+  while (todo.length) {
+    const [r, c] = todo.pop();
+    for (const [dr, dc] of DIRS) {
+      const nr = r + dr, nc = c + dc, tile = tileAt(level, nr, nc);
+      if (tile !== TILE.FLOOR) tiles.add(tile);
+      else if (!seen.has(nr * 16 + nc) && !(closed && at(closed, nr, nc))) {
+        seen.add(nr * 16 + nc);
+        todo.push([nr, nc]);
+      }
+    }
+  }
+  return tiles;
+}
+
+// The stations `seat` can reach only through the cell its partner stands on.
+function cutOff(level, state, seat) {
+  const open = reachableTiles(level, state.pos[seat], null), shut = reachableTiles(level, state.pos[seat], state.pos[1 - seat]);
+  return STATIONS.filter(([tile]) => open.has(tile) && !shut.has(tile)).map(([, name]) => name);
+}
+
+function names(list) {
+  return list.length > 1 ? `${list.slice(0, -1).join(", ")} and ${list[list.length - 1]}` : list[0];
 }
 
 // --- drawing (the palette of cec.envs.overcooked.render) --------------------------------------------------
