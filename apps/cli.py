@@ -157,8 +157,7 @@ def _cmd_levels_sample(args: argparse.Namespace) -> int:
     from cec.levels.generator import GeneratorConfig, generate_batch
 
     config = load_config(GeneratorConfig, args.config, args.overrides)
-    if args.n < 1:
-        raise ValueError(f"--n must be at least 1, got {args.n}")
+    _check_sample_arguments(args)  # before anything is compiled
     t0 = time.perf_counter()
     levels = unstack_levels(jax.device_get(generate_batch(jax.random.PRNGKey(args.seed), args.n, config)))
     log.info("generated %d kitchens in %.1fs", args.n, time.perf_counter() - t0)
@@ -166,8 +165,50 @@ def _cmd_levels_sample(args: argparse.Namespace) -> int:
         print("\n\n".join(to_ascii(lv) for lv in levels))
     if args.out:
         sheet = contact_sheet([render_level(lv, args.tile_size) for lv in levels], args.columns)
-        print(f"wrote {save_png(sheet, args.out)}")
+        try:
+            print(f"wrote {save_png(sheet, args.out)}")
+        except OSError as err:  # a full disk, a folder that cannot be written
+            raise ValueError(f"--out {args.out!r} cannot be written: {err.strerror or err}") from None
     return 0
+
+
+#: `cec levels sample`'s bounds: kitchens generated at once, the contact sheet's pixels (RGB, 3 bytes each),
+#: its tile size and columns, the seed (a PRNG key's 32 bits).
+SAMPLE_MAX_LEVELS = 100_000
+SHEET_MAX_PIXELS = 64 << 20
+TILE_SIZES = (4, 256)
+MAX_COLUMNS = 1_000
+MAX_SEED = 2**32 - 1
+
+
+def _check_sample_arguments(args: argparse.Namespace) -> None:
+    """`ValueError` naming the argument of `cec levels sample` that is out of its range, or an `--out` that
+    cannot be a PNG file (a folder, a device), before any work."""
+    for flag, value, lo, hi in (
+        ("--n", args.n, 1, SAMPLE_MAX_LEVELS),
+        ("--seed", args.seed, 0, MAX_SEED),
+        ("--tile-size", args.tile_size, *TILE_SIZES),
+        ("--columns", args.columns, 1, MAX_COLUMNS),
+    ):
+        if not lo <= value <= hi:
+            raise ValueError(f"{flag} must lie in [{lo:,}, {hi:,}], got {value}")
+    if not args.out:
+        return
+    pixels = args.n * (9 * args.tile_size) ** 2
+    if pixels > SHEET_MAX_PIXELS:
+        raise ValueError(
+            f"a contact sheet of {args.n:,} kitchens at --tile-size {args.tile_size} holds {pixels:,} "
+            f"pixels, more than {SHEET_MAX_PIXELS:,} ({__name__}.SHEET_MAX_PIXELS); lower --n or --tile-size "
+            f"(--ascii alone prints up to {SAMPLE_MAX_LEVELS:,})"
+        )
+    out = Path(args.out)
+    if out.is_dir():
+        raise ValueError(f"--out {args.out!r} is a folder; give a PNG file's name")
+    if out.exists() and not out.is_file():
+        raise ValueError(f"--out {args.out!r} is not a regular file (a device, FIFO or socket); give a file")
+    parent = next((p for p in out.parents if p.exists()), Path("."))
+    if not parent.is_dir():
+        raise ValueError(f"--out {args.out!r}: {parent} is a file, not a folder")
 
 
 def _cmd_levels_validate(args: argparse.Namespace) -> int:

@@ -3,10 +3,13 @@
 A checkpoint is a directory `<run>/checkpoints/update_<N>/` holding
 
     state.msgpack   the training state pytree (params, optimizer state, RNG keys, env and LSTM carries, ...)
-    meta.json       {"format", "sha256", "update", "env_steps", "milestone", "config", "metadata"}
+    meta.json       {"format", "sha256", "size", "update", "env_steps", "milestone", "config", "metadata"}
 
 It is written to a temporary directory and renamed into place, so a crash never leaves a half-written
-checkpoint under its final name. Loading checks the checksum (corruption), then every leaf's shape and
+checkpoint under its final name. Loading reads the state in bounded memory: a file whose size is not the one
+its metadata records (`size`; checkpoints written before it recorded one are hashed in chunks first), or
+larger than `STATE_MAX_BYTES`, is refused before it is read, so a damaged checkpoint costs no more memory
+than a good one. It checks the checksum (corruption), then every leaf's shape and
 dtype against the caller's template (a checkpoint of another network or batch size), and refuses with a
 `CheckpointError` that says what is wrong and what to do.
 """
@@ -20,6 +23,7 @@ import json
 import os
 import shutil
 import subprocess
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TextIO, TypeVar
@@ -35,6 +39,11 @@ STATE_FILE = "state.msgpack"
 META_FILE = "meta.json"
 #: The largest checkpoint metadata read (`save` writes a few kB: the run's config and metadata).
 META_MAX_BYTES = 16 << 20
+#: The largest checkpoint state read (the paper's network with Adam's moments for four seeds is ~50 MB); the
+#: environment's `CEC_CHECKPOINT_MAX_BYTES` raises it.
+STATE_MAX_BYTES = 4 << 30
+#: The bytes hashed at a time when a checkpoint without a recorded size is checked before it is read.
+HASH_CHUNK_BYTES = 1 << 20
 
 T = TypeVar("T")
 
@@ -141,6 +150,7 @@ def save(
     meta = {
         "format": FORMAT,
         "sha256": hashlib.sha256(data).hexdigest(),
+        "size": len(data),
         "update": int(update),
         "env_steps": int(env_steps),
         "milestone": bool(milestone),
@@ -221,7 +231,7 @@ def _meta_problem(meta: dict) -> str | None:
     digest = meta.get("sha256")
     if not isinstance(digest, str) or len(digest) != 64 or any(c not in "0123456789abcdef" for c in digest):
         return f"sha256 must be 64 lowercase hex digits, got {str(digest)[:80]!r}"
-    for key in ("update", "env_steps"):
+    for key in ("update", "env_steps", *(("size",) if "size" in meta else ())):
         value = meta.get(key)
         if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_COUNT:
             return f"{key} must be an integer in [0, {MAX_COUNT}], got {str(value)[:80]!r}"
@@ -243,18 +253,7 @@ def load(path: str | Path, template: T, *, part: str | None = None) -> tuple[T, 
     """
     path = Path(path)
     meta = read_meta(path)
-    state_file = path / STATE_FILE
-    if not state_file.exists():
-        raise CorruptCheckpointError(f"checkpoint {path} has no {STATE_FILE}")
-    with open_user_file(state_file, "checkpoint state", error=CorruptCheckpointError) as f:
-        data = f.read()  # a regular file: its size is what was saved
-    digest = hashlib.sha256(data).hexdigest()
-    if digest != meta["sha256"]:
-        raise CorruptCheckpointError(
-            f"checkpoint {path} is corrupt: {STATE_FILE} has SHA-256 {digest[:12]}..., its metadata says "
-            f"{meta['sha256'][:12]}...; it was not loaded. "
-            "Resume from an earlier checkpoint or delete this one"
-        )
+    data = _read_state(path, meta)
     try:
         raw = serialization.msgpack_restore(data)
         if part is not None:
@@ -269,6 +268,71 @@ def load(path: str | Path, template: T, *, part: str | None = None) -> tuple[T, 
     _check_leaves(path, template, state)
     _check_finite(path, state if part == "params" or not hasattr(state, "params") else state.params)
     return state, meta
+
+
+def state_max_bytes() -> int:
+    """`STATE_MAX_BYTES`, or the environment's `CEC_CHECKPOINT_MAX_BYTES` where set (`CheckpointError` when
+    that is not a positive integer)."""
+    text = os.environ.get("CEC_CHECKPOINT_MAX_BYTES")
+    if text is None:
+        return STATE_MAX_BYTES
+    value = int(text) if text.strip().isdigit() else 0
+    if value <= 0:
+        raise CheckpointError(f"CEC_CHECKPOINT_MAX_BYTES must be a positive integer, got {text[:40]!r}")
+    return value
+
+
+def _read_state(path: Path, meta: dict) -> bytes:
+    """The bytes of the checkpoint's state, in bounded memory: refused (`CorruptCheckpointError`) before they
+    are read when the file's size is not the recorded one or is over `state_max_bytes()`; a checkpoint that
+    records no size (written before it did) is hashed in chunks first; the bytes read are checked against the
+    recorded SHA-256."""
+    state_file = path / STATE_FILE
+    if not state_file.exists():
+        raise CorruptCheckpointError(f"checkpoint {path} has no {STATE_FILE}")
+    limit = state_max_bytes()
+    with open_user_file(state_file, "checkpoint state", error=CorruptCheckpointError) as f:
+        size = os.fstat(f.fileno()).st_size
+        recorded = meta.get("size")
+        if recorded is not None and size != recorded:
+            raise CorruptCheckpointError(
+                f"checkpoint {path} is corrupt: {STATE_FILE} holds {size:,} bytes, its metadata says "
+                f"{recorded:,}; it was not read. Resume from an earlier checkpoint or delete this one"
+            )
+        if size > limit:
+            raise CorruptCheckpointError(
+                f"checkpoint {path}: {STATE_FILE} holds {size:,} bytes, more than {limit:,}, the most read "
+                f"({__name__}.STATE_MAX_BYTES); it was not read. If it is genuine, raise the cap: "
+                "CEC_CHECKPOINT_MAX_BYTES=N in the environment"
+            )
+        try:
+            if recorded is None:  # nothing says how large it should be: its checksum first, in chunks
+                hasher = hashlib.sha256()
+                while chunk := f.read(HASH_CHUNK_BYTES):
+                    hasher.update(chunk)
+                _check_digest(path, hasher.hexdigest(), meta)
+                f.seek(0)
+            data = f.read(size + 1)
+        except OSError as err:
+            raise CorruptCheckpointError(
+                f"checkpoint {path}: {STATE_FILE} cannot be read ({err.strerror or err}); use another "
+                "checkpoint"
+            ) from None
+    if len(data) != size:
+        raise CorruptCheckpointError(
+            f"checkpoint {path}: {STATE_FILE} changed while it was read; load it again"
+        )
+    _check_digest(path, hashlib.sha256(data).hexdigest(), meta)
+    return data
+
+
+def _check_digest(path: Path, digest: str, meta: dict) -> None:
+    if digest != meta["sha256"]:
+        raise CorruptCheckpointError(
+            f"checkpoint {path} is corrupt: {STATE_FILE} has SHA-256 {digest[:12]}..., its metadata says "
+            f"{meta['sha256'][:12]}...; it was not loaded. "
+            "Resume from an earlier checkpoint or delete this one"
+        )
 
 
 def _check_finite(path: Path, params: Any) -> None:
@@ -339,16 +403,24 @@ class CheckpointStore:
         items = self.list()
         return items[-1] if items else None
 
-    def load_latest(self, template: T, log: TextIO) -> tuple[T, dict] | None:
+    def load_latest(
+        self, template: T, log: TextIO, problem: Callable[[dict], str | None] = lambda meta: None
+    ) -> tuple[T, dict] | None:
         """(state, meta) of the newest checkpoint that loads into `template`, or None if there is none.
 
-        A damaged checkpoint (`CorruptCheckpointError`) is passed over for the next older one with a
-        warning on `log` naming it and why, and left in place; one that does not fit `template` stops
-        the search (an older one of the same run would not fit either).
+        A damaged checkpoint (`CorruptCheckpointError`, or metadata in which `problem` finds something
+        wrong: a count the run cannot have reached) is passed over for the next older one with a warning on
+        `log` naming it and why, and left in place; one that does not fit `template` stops the search (an
+        older one of the same run would not fit either).
         """
         skipped = []
         for path in reversed(self.directories()):
             try:
+                wrong = problem(read_meta(path))
+                if wrong:
+                    raise CorruptCheckpointError(
+                        f"checkpoint metadata {path / META_FILE} is corrupt: {wrong}"
+                    )
                 return load(path, template)
             except CorruptCheckpointError as err:
                 print(f"warning: passing over a damaged checkpoint: {err}", file=log, flush=True)

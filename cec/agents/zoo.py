@@ -39,6 +39,8 @@ from cec.agents.bundle import zoo_manifest
 from cec.agents.scripted import scripted_kind
 from cec.config import ConfigError, read_user_json, read_user_yaml
 
+#: The longest entry name or algorithm label (a result table's names are capped so: `cec.evaluation.results`).
+NAME_MAX_CHARS = 256
 #: The zoo name that stands for the manifest of the policies shipped with the package.
 SHIPPED = "shipped"
 SHIPPED_ZOO = Path(__file__).resolve().parents[1] / "shipped" / "zoo.yaml"
@@ -119,6 +121,11 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
             raise ConfigError(f"{at}: unknown key(s) {unknown}; valid keys: {list(_ENTRY_KEYS + _INFO_KEYS)}")
         if not isinstance(item.get("name"), str) or not item["name"]:
             raise ConfigError(f"{at}: `name` is required and must be a non-empty string")
+        if len(item["name"]) > NAME_MAX_CHARS or not item["name"].isprintable():
+            raise ConfigError(
+                f"{at}: `name` {item['name'][:40]!r} must be at most {NAME_MAX_CHARS} printable characters "
+                "(no NUL, line break or other control character); rename the entry"
+            )
         scripted = item.get("scripted")
         if scripted is not None:
             if not isinstance(scripted, str):
@@ -136,8 +143,16 @@ def parse_zoo(data: Any, base_dir: str | Path = ".", *, where: str = "zoo") -> l
                 f"{at}: `checkpoint` is required and must be a non-empty string (or give `scripted`)"
             )
         algorithm = item.get("algorithm")
-        if algorithm is not None and (not isinstance(algorithm, str) or not algorithm):
-            raise ConfigError(f"{at}: `algorithm` must be a non-empty string, got {algorithm!r}")
+        if algorithm is not None and (
+            not isinstance(algorithm, str)
+            or not algorithm
+            or len(algorithm) > NAME_MAX_CHARS
+            or not algorithm.isprintable()
+        ):
+            raise ConfigError(
+                f"{at}: `algorithm` must be a non-empty string of at most {NAME_MAX_CHARS} printable "
+                f"characters, got {str(algorithm)[:40]!r}"
+            )
         seed = item.get("seed")
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
             raise ConfigError(f"{at}: `seed` must be an integer, got {seed!r}")

@@ -160,7 +160,10 @@ def write_csv(table: EpisodeTable, path: str | Path) -> Path:
             writer.writerow([*row, "ok", ""])
         for s in table.skipped:
             blank = [""] * (len(COLUMNS) - 5)
-            writer.writerow([s.name, s.algorithm, s.seed, *blank, "skipped", s.reason])
+            reason = (
+                s.reason if len(s.reason) <= REASON_MAX_CHARS else s.reason[: REASON_MAX_CHARS - 3] + "..."
+            )
+            writer.writerow([s.name, s.algorithm, s.seed, *blank, "skipped", reason])
     tmp.replace(path)
     return path
 
@@ -203,6 +206,20 @@ RESULTS_MAX_LEVELS = 10_000
 #: The longest name (policy, algorithm, level, env, actions) of a row: a policy name is one path component
 #: of at most 255 bytes (`cec.paths`), the kitchens' names are under 40 characters.
 NAME_MAX_CHARS = 256
+#: The longest reason of a skipped row (`cec eval` writes a checkpoint's error: a path and a sentence).
+REASON_MAX_CHARS = 2_000
+
+
+def check_name(column: str, text: str, limit: int = NAME_MAX_CHARS, *, lines: bool = False) -> None:
+    """`ValueError` naming `column` when `text` is longer than `limit` characters (a report copies it into
+    fixed-width tables) or holds a control character (a NUL, an escape: a report and a terminal would
+    break on it; `lines`: line breaks and tabs allowed, as in an error message)."""
+    if len(text) > limit:
+        raise ValueError(f"{column} is longer than {limit} characters ({text[:40]!r}...)")
+    allowed = "\n\r\t" if lines else ""
+    if not text.isprintable() and any(not c.isprintable() and c not in allowed for c in text):
+        bad = next(c for c in text if not c.isprintable() and c not in allowed)
+        raise ValueError(f"{column} holds the control character {bad!r} ({text[:40]!r})")
 
 
 def cap(name: str, default: int | None = None) -> int:
@@ -363,10 +380,11 @@ class _Columns:
         for col, kind in _PLAN:
             raw = row[col]
             if kind == 0:
-                if len(raw) > NAME_MAX_CHARS:  # a level or policy name; a report makes fixed-width copies
-                    raise ValueError(f"{col} is longer than {NAME_MAX_CHARS} characters ({raw[:40]!r}...)")
                 code = codes.get(raw)
-                parsed.append(self.code(raw) if code is None else code)
+                if code is None:  # a string not seen before: checked once
+                    check_name(col, raw)
+                    code = self.code(raw)
+                parsed.append(code)
             elif kind == 1:
                 parsed.append(_integer(col, raw))
             else:
@@ -443,6 +461,9 @@ def _parse(path: Path, reader: csv.DictReader, columns: _Columns) -> None:
                 )
             if row["status"] == "skipped":
                 seed = int(row["seed_a"]) if row["seed_a"] else -1
+                check_name("policy_a", row["policy_a"])
+                check_name("algorithm_a", row["algorithm_a"])
+                check_name("reason", row["reason"], REASON_MAX_CHARS, lines=True)
                 columns.skipped.append(SkippedEntry(row["policy_a"], row["algorithm_a"], seed, row["reason"]))
                 continue
             if row["status"] != "ok":

@@ -102,13 +102,15 @@ class GeneratorConfig:
                 f"the structures {list(self.structures)} is split in two; add forced_coord or "
                 "asymm_advantages"
             )
+        most_weight = 1e6  # weights are normalised: a larger one only risks overflowing their sum
         if self.structure_weights and (
-            len(self.structure_weights) != len(self.structures) or min(self.structure_weights) <= 0
+            len(self.structure_weights) != len(self.structures)
+            or not all(0 < w <= most_weight for w in self.structure_weights)
         ):
             raise ConfigError(
                 f"structure_weights {list(self.structure_weights)} must give a positive weight to each of "
-                f"the {len(self.structures)} structures {list(self.structures)}, in that order (to leave a "
-                "structure out, drop it from structures)"
+                f"the {len(self.structures)} structures {list(self.structures)}, in that order, each at most "
+                f"{most_weight:g} (to leave a structure out, drop it from structures)"
             )
         if not 0.0 < self.count_decay <= 1.0:
             raise ConfigError(f"count_decay must lie in (0, 1], got {self.count_decay}")
@@ -119,6 +121,21 @@ class GeneratorConfig:
                     f"{name} bounds must satisfy 1 <= min <= max (every kitchen needs one of each "
                     f"object for a soup), got ({lo}, {hi})"
                 )
+        # No kitchen holds more of a kind than its structure has counters for objects (count vectors past
+        # that never fit), nor more objects than the 9x9 frame has cells.
+        most = max(int(by_name[n].reachable.sum() + (by_name[n].decoy.sum() if self.allow_decoys else 0))
+                   for n in self.structures)  # fmt: skip
+        for name in ("onion_piles", "plate_piles", "pots", "goals"):
+            if getattr(self, name)[1] > most:
+                raise ConfigError(
+                    f"{name} max {getattr(self, name)[1]} is more than any of the structures "
+                    f"{list(self.structures)} has counters for ({most}); lower it to at most {most}"
+                )
+        if sum(hi for _, hi in self.bounds) > CELLS:
+            raise ConfigError(
+                f"the maxima of onion_piles, plate_piles, pots and goals add up to "
+                f"{sum(hi for _, hi in self.bounds)}, more than the {CELLS} cells of a kitchen; lower them"
+            )
         need = sum(lo for lo, _ in self.bounds)
         for name in self.structures:
             st = by_name[name]

@@ -2,16 +2,31 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
 from cec.agents.network import NETWORK_PRESETS, NetworkConfig, network_of
 from cec.config import ConfigError
 from cec.envs.task import EnvConfig
+from cec.levels.generator import GeneratorConfig
 from cec.paths import safe_name
 from cec.training.partners import PartnerConfig
 from cec.training.ppo import PPOConfig
 from cec.training.tracking import TrackingConfig
+
+#: The upper bound of each size setting (the lower is 1), and of their product per update: far past any run
+#: (the paper's is 1 x 512 x 256) and within what one process can hold.
+SIZES = (
+    ("num_seeds", 1_024),
+    ("num_envs", 1 << 20),
+    ("num_steps", 1 << 16),
+    ("total_env_steps", 10**15),  # what a checkpoint can record (`cec.checkpoints.MAX_COUNT`)
+    ("updates_per_call", 10_000),
+)
+MAX_BATCH_STEPS = 1 << 24
+#: The largest magnitude of a game's reward settings (the paper pays 20 a soup).
+MAX_REWARD = 1e6
 
 #: algorithm -> (partner kind, trains on a procedural distribution)
 ALGORITHMS: dict[str, tuple[str, bool]] = {
@@ -205,6 +220,45 @@ class TrainConfig:
             raise ConfigError(
                 f"unknown network preset {self.network!r}; choose one of {sorted(NETWORK_PRESETS)}"
             )
+        self._check_ranges()
+
+    def _check_ranges(self) -> None:
+        """Every size within its finite range, the game's reward settings within `MAX_REWARD`, and no
+        generator setting where no kitchen comes from the generator (it would be ignored)."""
+        for key, hi in SIZES:
+            if not 1 <= getattr(self, key) <= hi:
+                raise ConfigError(f"{key} must lie in [1, {hi:,}], got {getattr(self, key):,}")
+        batch = self.num_seeds * self.num_envs * self.num_steps
+        if batch > MAX_BATCH_STEPS:
+            raise ConfigError(
+                f"num_seeds x num_envs x num_steps = {batch:,} env steps per update is more than "
+                f"{MAX_BATCH_STEPS:,} (a rollout's observations alone would take tens of GB); lower num_envs "
+                "or num_steps"
+            )
+        params = self.env.params
+        for f in dataclasses.fields(params):
+            value = getattr(params, f.name)
+            if isinstance(value, float) and not abs(value) <= MAX_REWARD:
+                raise ConfigError(
+                    f"env.{self.env.name}.{f.name} must lie in [{-MAX_REWARD:g}, {MAX_REWARD:g}], "
+                    f"got {value:g}"
+                )
+        if self.env.name != "overcooked" or self.env.levels != "generator":
+            default = GeneratorConfig()
+            changed = [
+                f.name
+                for f in dataclasses.fields(default)
+                if getattr(self.env.generator, f.name) != getattr(default, f.name)
+            ]
+            if changed:
+                where = (
+                    "Dual Destination" if self.env.name != "overcooked" else f"env.levels={self.env.levels!r}"
+                )
+                raise ConfigError(
+                    f"{', '.join(f'env.generator.{k}' for k in changed)} would be ignored: only the kitchens "
+                    "of env.levels=generator (Overcooked) come from the generator, and this run trains on "
+                    f"{where}; drop it"
+                )
 
     def check_devices(self, n: int) -> None:
         """A `ConfigError` unless the envs and each minibatch's sequences split evenly over `n` devices

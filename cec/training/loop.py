@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
 import jax
+import numpy as np
 
 from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo
@@ -106,6 +107,9 @@ def run_updates(
         prev, done = done, done + min(source.updates_per_step, stop_at - done)
         t0 = time.perf_counter()
         metrics = source.step(prev, done - prev)
+        diverged = nonfinite(config, prev, metrics)
+        if diverged is not None:  # nothing of this step is written or saved: the last checkpoint stays
+            raise NonFiniteError(f"{diverged}; {_kept(files)}")
         dt = time.perf_counter() - t0
         sps = (done - prev) * spu / dt
         rows = metrics_rows(config, prev, metrics, sps)
@@ -136,6 +140,67 @@ def run_updates(
             flush=True,
         )
     return Outcome(done, stop_at, stopped)
+
+
+class NonFiniteError(ValueError):
+    """An update's loss or gradient norm was not finite: the run stopped before writing or saving it."""
+
+
+def nonfinite(config: TrainConfig, first_update: int, metrics: UpdateMetrics) -> str | None:
+    """What is not finite in the first update of `metrics` (leading axes [seeds, n]) whose loss or gradient
+    norm is NaN or infinite, and the setting to look at; None when every one is finite."""
+    host = jax.device_get(metrics.loss)
+    total, grad = np.asarray(host.total_loss, np.float64), np.asarray(host.grad_norm, np.float64)
+    bad = ~(np.isfinite(total) & np.isfinite(grad))
+    if not bad.any():
+        return None
+    j = int(np.argmax(bad.any(axis=0)))  # the first update with a non-finite value
+    s = int(np.argmax(bad[:, j]))
+    values = {name: float(np.asarray(getattr(host, name))[s, j]) for name in LossInfo._fields}
+    shown = ", ".join(f"{k}={v:.3g}" for k, v in values.items() if k in ("total_loss", "grad_norm"))
+    return (
+        f"update {first_update + j + 1} (seed {config.seed + s}) is not finite ({shown}): training stopped "
+        f"there. Look at {suspect(config, values)}"
+    )
+
+
+def suspect(config: TrainConfig, values: Mapping[str, float]) -> str:
+    """The setting most likely to have made an update not finite, from its loss terms (`values`: the
+    `LossInfo` fields): the weight of a term that is itself not finite, else of the largest weighted term."""
+    ppo = config.ppo
+    rewards = f"the rewards of env.{config.env.name}"
+    weighted = {  # setting -> (its value, the term it weighs)
+        "ppo.teacher_coef": (ppo.teacher_coef, values["teacher_loss"]),
+        "ppo.vf_coef": (ppo.vf_coef, values["value_loss"]),
+        "ppo.ent_coef": (ppo.ent_coef, values["entropy"]),
+        "ppo.partner_coef": (ppo.partner_coef, values["partner_loss"]),
+        "ppo.lr": (ppo.lr, values["policy_loss"]),
+    }
+    broken = [k for k, (_, term) in weighted.items() if not math.isfinite(term)]
+    if {"ppo.lr", "ppo.vf_coef"} <= set(broken):  # the network's outputs themselves: its parameters
+        start = (
+            f"init_from (the parameters it starts from: {config.init_from}), then "
+            if config.init_from
+            else ""
+        )
+        return f"{start}ppo.lr (here {ppo.lr:g}) and ppo.max_grad_norm (here {ppo.max_grad_norm:g})"
+    if broken:
+        name = broken[0]
+    else:
+        name = max(weighted, key=lambda k: abs(weighted[k][0] * weighted[k][1]) if k != "ppo.lr" else 0.0)
+    value = weighted[name][0]
+    also = f"{rewards} (the value loss grows with their square)" if name == "ppo.vf_coef" else "ppo.lr"
+    return f"{name} (here {value:g}), then {also} and ppo.max_grad_norm (here {ppo.max_grad_norm:g})"
+
+
+def _kept(files: RunFiles) -> str:
+    kept = files.store.latest()
+    if kept is None:
+        return "no checkpoint was written before it (the run diverged before its first); start it again"
+    return (
+        f"its last good checkpoint is kept ({kept.path}, update {kept.update}); change that setting and "
+        "train again under another name (name=NEW)"
+    )
 
 
 def _save(source: UpdateSource, files: RunFiles, update: int, milestone: bool) -> None:

@@ -21,6 +21,27 @@ from cec.config import ConfigError
 from cec.training.partners import anneal_to_zero
 from cec.training.rollout import NUM_SEATS, Trajectory
 
+#: The range of each PPO setting with one (name, low, high, low excluded): the weights of the loss's terms
+#: are at most `MAX_WEIGHT` (the paper's are 0.005-1), Adam's step at most 1, the counts of env steps at
+#: most what a checkpoint can record.
+MAX_WEIGHT = 1e3
+MAX_ENV_STEPS = 10**15
+RANGES: tuple[tuple[str, float, float, bool], ...] = (
+    ("lr", 0.0, 1.0, True),
+    ("update_epochs", 1, 1_000, False),
+    ("num_minibatches", 1, 1 << 16, False),
+    ("clip_eps", 0.0, 10.0, True),
+    ("ent_coef", 0.0, MAX_WEIGHT, False),
+    ("vf_coef", 0.0, MAX_WEIGHT, False),
+    ("partner_coef", 0.0, MAX_WEIGHT, False),
+    ("teacher_coef", 0.0, MAX_WEIGHT, False),
+    ("max_grad_norm", 0.0, 1e6, True),
+    ("adam_eps", 0.0, 1.0, True),  # 0: a parameter with no gradient yet divides 0 by 0 (NaN)
+    ("lr_anneal_env_steps", 0, MAX_ENV_STEPS, False),
+    ("shaping_anneal_env_steps", -MAX_ENV_STEPS, MAX_ENV_STEPS, False),  # < 0: kept at 1
+    ("teacher_anneal_env_steps", 0, MAX_ENV_STEPS, False),
+)
+
 
 @dataclass(frozen=True)
 class PPOConfig:
@@ -90,6 +111,14 @@ class PPOConfig:
                 "ppo: need teacher_coef >= 0 (0: no teacher) and teacher_anneal_env_steps >= 0 "
                 f"(0: no anneal), got {self.teacher_coef} and {self.teacher_anneal_env_steps}"
             )
+        # Then finite ranges: a weight far past any that trains (ppo.teacher_coef=1e30) overflows the
+        # float32 gradients (grad_norm inf on every update) instead of failing here.
+        for key, lo, hi, open_low in RANGES:
+            value = getattr(self, key)
+            if not (lo < value <= hi if open_low else lo <= value <= hi):
+                raise ConfigError(
+                    f"{key} must lie in {'(' if open_low else '['}{lo:g}, {hi:g}], got {value:g}"
+                )
 
     def teacher_coef_at(self, env_steps: jax.Array) -> jax.Array:
         """The teacher loss's weight after `env_steps` env steps of training (traced)."""

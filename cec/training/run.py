@@ -8,7 +8,6 @@ loop of `cec.training.loop`, stopped gracefully on SIGINT/SIGTERM.
 from __future__ import annotations
 
 import contextlib
-import csv
 import dataclasses
 import json
 import sys
@@ -24,6 +23,7 @@ from cec.config import ConfigError, from_dict
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig, split_paths
 from cec.training.loop import UpdateSource, run_updates
+from cec.training.metrics_file import MetricsWriter, write_atomic
 from cec.training.tracking import Tracker, describe
 from cec.training.trainer import Trainer, TrainState, UpdateMetrics
 
@@ -88,46 +88,6 @@ def config_dict(config: TrainConfig) -> dict:
     return json.loads(json.dumps(dataclasses.asdict(config)))
 
 
-class MetricsWriter:
-    """Appends metrics rows to `metrics.jsonl` and `metrics.csv` in the run directory."""
-
-    def __init__(self, run_dir: Path) -> None:
-        self.jsonl = run_dir / "metrics.jsonl"
-        self.csv = run_dir / "metrics.csv"
-
-    def write(self, rows: list[dict]) -> None:
-        if not rows:
-            return
-        with open(self.jsonl, "a") as f:
-            for row in rows:
-                f.write(json.dumps(row) + "\n")
-        new = not self.csv.exists()
-        fields = list(rows[0])
-        if not new:  # a resumed run keeps its file's columns (a newer version's extra ones are in the JSONL)
-            with open(self.csv, newline="") as f:
-                fields = next(csv.reader(f), []) or fields
-        with open(self.csv, "a", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-            if new:
-                writer.writeheader()
-            writer.writerows(rows)
-
-    def truncate_after(self, update: int) -> None:
-        """Drops rows past `update` (written after the checkpoint a resumed run continues from)."""
-        if self.jsonl.exists():
-            keep = [ln for ln in self.jsonl.read_text().splitlines() if json.loads(ln)["update"] <= update]
-            self.jsonl.write_text("".join(ln + "\n" for ln in keep))
-        if self.csv.exists():
-            with open(self.csv, newline="") as f:
-                reader = csv.DictReader(f)
-                fields = reader.fieldnames or []
-                kept = [r for r in reader if int(r["update"]) <= update]
-            with open(self.csv, "w", newline="") as f:
-                writer = csv.DictWriter(f, fieldnames=fields)
-                writer.writeheader()
-                writer.writerows(kept)
-
-
 #: A distributed run's launcher (`cec up`, `cec train --distributed`) records here the command that continues
 #: the run; a run without it is a `cec train` run (`resume_command`).
 RESUME_FILE = "logs/resume_command"
@@ -149,7 +109,7 @@ def record_resume_command(run_dir: str | Path, command: str) -> None:
     """Records `command` as the way to continue the run in `run_dir` (see `resume_command`)."""
     path = Path(run_dir) / RESUME_FILE
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(command + "\n")
+    write_atomic(path, (command + "\n").encode())
 
 
 class RunFiles:
@@ -214,12 +174,11 @@ class RunFiles:
                 f"{self.run_dir} already has checkpoints; continue it with `{resume_command(self.run_dir)}`, "
                 "or give this run another name: name=NEW (or run_dir=DIR)"
             )
-        latest = self.store.load_latest(template, log)
+        latest = self.store.load_latest(template, log, self._count_problem)
         if latest is None:
-            self.writer.truncate_after(0)  # rows of an attempt killed before its first checkpoint
-            (self.run_dir / "config.yaml").write_text(
-                yaml.safe_dump(config_dict(self.config), sort_keys=False)
-            )
+            self.writer.truncate_after(0, log)  # rows of an attempt killed before its first checkpoint
+            config_yaml = yaml.safe_dump(config_dict(self.config), sort_keys=False)
+            write_atomic(self.run_dir / "config.yaml", config_yaml.encode())
             return None, 0
         state, meta = latest
         name = self.store.path(int(meta["update"])).name
@@ -229,9 +188,19 @@ class RunFiles:
                 f"run's own config ({self.run_dir / 'config.yaml'}) and no overrides"
             )
         done = int(meta["update"])
-        self.writer.truncate_after(done)
+        self.writer.truncate_after(done, log)
         print(f"resuming {self.run_dir} from update {done} ({name})", file=log, flush=True)
         return state, done
+
+    def _count_problem(self, meta: dict) -> str | None:
+        """What is wrong with a checkpoint's counts for this run (None: nothing): more updates than the run
+        has, or env steps that are not its updates' (a damaged or foreign `meta.json`)."""
+        update, total, spu = int(meta["update"]), self.config.num_updates, self.config.steps_per_update
+        if update > total:
+            return f"update {update} is past the run's last update, {total}"
+        if int(meta["env_steps"]) != update * spu:
+            return f"env_steps {meta['env_steps']} are not update {update} x {spu} env steps per update"
+        return None
 
     def due(self, prev: int, done: int) -> tuple[bool, bool]:
         """(a checkpoint is due after going from update `prev` to `done`, it is a milestone)."""

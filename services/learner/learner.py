@@ -56,7 +56,7 @@ import numpy as np
 
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
 from cec.training.config import TrainConfig
-from cec.training.loop import UpdateSource, run_updates
+from cec.training.loop import NonFiniteError, UpdateSource, run_updates
 from cec.training.ppo import LossInfo
 from cec.training.rollout import RolloutCarry
 from cec.training.run import RunFiles
@@ -225,7 +225,7 @@ class Learner(UpdateSource):
             state = self.trainer.init() if loaded is None else loaded  # leading seed axis
             self._connect_store(resume=loaded is not None)
             self._start_actors(state.carry)
-            status = "failed"
+            status, error = "failed", ""
             try:
                 self._begin(state, done)
                 # no resume hint: the driver gives it (`cec up` and `cec train --distributed` differ)
@@ -235,11 +235,17 @@ class Learner(UpdateSource):
                 done = outcome.done
                 # a stop asked for during the last update lets the run finish
                 status = "interrupted" if outcome.stopped and done < outcome.stop_at else "finished"
+            except (
+                NonFiniteError
+            ) as err:  # stopped before the update was written or saved: the driver says so
+                log.error("%s", err)
+                error = str(err)
             finally:
                 partial = status == "finished" and done < self.config.num_updates  # max_updates reached
                 self._set_status("interrupted" if partial else status)
                 self._close_actors()
-        return {"updates": done, "status": status, "run_dir": str(self.files.run_dir)}
+        summary = {"updates": done, "status": status, "run_dir": str(self.files.run_dir)}
+        return {**summary, "error": error} if error else summary
 
     # ---- the update source of `run_updates`: one update per step from the actors' batches --------------
 

@@ -13,7 +13,9 @@ When a store cannot record (Redis down, a full disk), `/api/join` and `/api/subm
 `{"error", "store"}` naming the store and `Retry-After`, and nothing changes for the participant; a retry is
 recorded once (`services.play.recording`). A round whose events cannot be recorded ends with an `error`
 message and close code 1013 (try again later); reloading plays it again.
-    WS   /ws/round         the current round: start message, then steps (see below)
+    WS   /ws/round         the current round: start message, then steps (see below); past a cap of `limits`
+                           (free-play rounds, reconnects, recorded bytes: `services.play.caps`) an `error`
+                           with `capped` and the setting, and /api/state shows the `capped` page
     GET  /metrics          Prometheus exposition; GET /healthz: "ok"
 
 WebSocket messages (JSON). Server -> browser: `start` (kitchen, seat, start state, in turn-based mode the six
@@ -54,7 +56,15 @@ from services.metrics import ComponentRegistry
 from services.play import metrics
 from services.play.game import STAY, Round
 from services.play.limits import JSONInputError, brief, parse_json
-from services.play.study import InputError, JoinRefusedError, Participant, Study, validate_action, validate_rt
+from services.play.study import (
+    CapReachedError,
+    InputError,
+    JoinRefusedError,
+    Participant,
+    Study,
+    validate_action,
+    validate_rt,
+)
 from services.store import StoreError
 
 log = logging.getLogger("cec.play")
@@ -177,8 +187,9 @@ def create_app(study: Study) -> Starlette:
         await ws.accept()
         try:
             rnd, start = await asyncio.to_thread(study.begin_round, p)
-        except InputError as err:
-            await ws.send_json({"type": "error", "message": str(err), "fatal": True})
+        except InputError as err:  # past a cap of `limits`: the page then shows why (/api/state)
+            capped = {"capped": True, "limit": err.limit} if isinstance(err, CapReachedError) else {}
+            await ws.send_json({"type": "error", "message": str(err), "fatal": True, **capped})
             await ws.close()
             return
         except (OSError, StoreError) as err:

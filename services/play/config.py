@@ -34,6 +34,8 @@ AGENT_ACTIONS = ("greedy", "sampled")
 MAX_TICKS_PER_SECOND = 30.0
 MAX_STEPS = 10_000
 MAX_LIMIT = 10_000_000
+MAX_RECORD_BYTES = 1 << 50  # a PiB: the byte caps' ceiling (they are checked, never reached by accident)
+MIN_RECORD_BYTES = 4_096  # a round's start alone records about 2 kB
 _NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_-]{0,63}$")
 _ID = re.compile(r"^[a-z][a-z0-9_]{0,31}$")
 
@@ -242,17 +244,43 @@ class LimitsConfig:
             still come back and continue).
         max_participants: participants this server holds in all, those taken back from the records of
             earlier runs included; joins beyond it get 503 (each costs memory and a record file).
+        max_rounds_per_participant: free play: rounds one participant may play; past it the page says so
+            and starts no more (a 200-step round takes a person a minute or two).
+        max_reconnects_per_participant: times one participant's rounds may be started again (a reload, a
+            dropped connection, a second tab: each records the round's start again); past it no round
+            starts for them, and the page says so.
+        max_record_bytes_per_participant: bytes of records one participant may make (a 200-step round
+            records about 0.3 MB); past it no round starts for them (the round under way is recorded to its
+            end), and the page says so.
+        max_record_bytes: bytes of records this server may hold in all, those of earlier runs included;
+            past it no round starts and joins get 503.
     """
 
     joins_per_address_per_minute: int = 20
     max_active_participants: int = 500
     idle_minutes: float = 30.0
     max_participants: int = 10_000
+    max_rounds_per_participant: int = 500
+    max_reconnects_per_participant: int = 200
+    max_record_bytes_per_participant: int = 256 << 20
+    max_record_bytes: int = 16 << 30
 
     def __post_init__(self) -> None:
-        for key in ("joins_per_address_per_minute", "max_active_participants", "max_participants"):
+        for key in (
+            "joins_per_address_per_minute",
+            "max_active_participants",
+            "max_participants",
+            "max_rounds_per_participant",
+            "max_reconnects_per_participant",
+        ):
             if not 1 <= getattr(self, key) <= MAX_LIMIT:
                 raise ConfigError(f"limits.{key} must lie in [1, {MAX_LIMIT}], got {getattr(self, key)}")
+        for key in ("max_record_bytes_per_participant", "max_record_bytes"):
+            if not MIN_RECORD_BYTES <= getattr(self, key) <= MAX_RECORD_BYTES:
+                raise ConfigError(
+                    f"limits.{key} must lie in [{MIN_RECORD_BYTES:,}, {MAX_RECORD_BYTES:,}] bytes, got "
+                    f"{getattr(self, key):,}"
+                )
         if not 0.0 < self.idle_minutes <= 7 * 24 * 60:
             raise ConfigError(f"limits.idle_minutes must lie in (0, 10080] (a week), got {self.idle_minutes}")
 

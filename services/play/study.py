@@ -31,6 +31,7 @@ from cec.levels import to_ascii
 from cec.levels.named import resolve_level
 from services.play import free_play, metrics, pages
 from services.play.admission import Admission, JoinRefusedError
+from services.play.caps import CapReachedError, Caps
 from services.play.config import StudyConfig
 from services.play.free_play import Candidate
 from services.play.game import PartnerPool, Round, RoundSetup, StepResult, level_json
@@ -47,7 +48,15 @@ from services.play.plan import (
 )
 from services.play.recording import Recorder
 
-__all__ = ["InputError", "JoinRefusedError", "Participant", "Study", "validate_action", "validate_rt"]
+__all__ = [
+    "CapReachedError",
+    "InputError",
+    "JoinRefusedError",
+    "Participant",
+    "Study",
+    "validate_action",
+    "validate_rt",
+]
 
 log = logging.getLogger("cec.play")
 
@@ -78,6 +87,7 @@ class Study:
         self.digest = config_digest(config)
         self.clock = clock
         self.admission = Admission(config.limits, clock)
+        self.caps = Caps(config.limits, config.free_play)  # rounds, reconnects, bytes recorded
 
     # --- participants ---------------------------------------------------------------------------------
 
@@ -87,6 +97,7 @@ class Study:
         `address`: the client's address, for `limits.joins_per_address_per_minute`. `JoinRefusedError` when a
         bound of `config.limits` does not admit another participant now.
         """
+        self.caps.check_join()
         index = self.admission.admit(address)
         pid = "p" + secrets.token_hex(10)
         try:
@@ -169,6 +180,7 @@ class Study:
         many were restored."""
         restored = 0
         for pid, events in records.items():
+            self.caps.add(pid, events)  # every record counts against `limits.max_record_bytes`
             head = events[0] if events else {}
             index = int(head.get("index", -1))
             self.admission.counted(index)
@@ -214,7 +226,7 @@ class Study:
     def _record_all(self, p: Participant, events: list[dict[str, Any]]) -> None:
         """Records the events of one action together (`RecordUnavailableError`: none is taken as
         recorded, and the participant's state is left as it was, so the action can be retried)."""
-        self.recorder.append(p.id, *events)
+        self.caps.add(p.id, self.recorder.append(p.id, *events))
 
     # --- views ----------------------------------------------------------------------------------------
 
@@ -222,8 +234,10 @@ class Study:
         return plan_of(p, index)
 
     def view(self, p: Participant) -> dict[str, Any]:
-        """What the participant's page shows now (never a partner's identity)."""
-        return pages.view(self.config, self.pools, p)
+        """What the participant's page shows now (never a partner's identity); past a cap of `limits`, a page
+        that says so (`Caps.view`)."""
+        base = {"title": self.config.title, "participant": p.id}
+        return self.caps.view(p, base) or pages.view(self.config, self.pools, p)
 
     # --- submissions ----------------------------------------------------------------------------------
 
@@ -300,6 +314,7 @@ class Study:
             kind, index = p.current
             if kind != "round":
                 raise InputError(f"this participant is at stage {kind!r}, not in a round")
+            self.caps.check_round(p, index)  # before a running round is ended: a capped tab changes nothing
             if p.round is not None:
                 self._abort(p)
             plan = self._plan_of(p, index)

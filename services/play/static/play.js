@@ -139,6 +139,8 @@ function render(view) {
   } else if (stage === "done") {
     show(el("h1", {}, "Thank you!"), el("p", {}, "You have finished the study. Your completion code:"),
       el("p", {}, el("span", { class: "code", id: "completion-code" }, view.code)));
+  } else if (stage === "capped") {
+    show(el("h1", {}, "Thank you!"), el("p", { id: "capped" }, view.text));
   } else if (stage === "declined") {
     show(el("h1", {}, "Thank you"), el("p", {}, "You did not give consent, so the study ends here. You may close this page."));
   } else {
@@ -267,6 +269,7 @@ class Game {
       this.end(msg);
     } else if (msg.type === "error") {
       this.err.textContent = msg.message;
+      if (msg.capped) { this.over = true; refresh(); } // past a cap of the server's limits: its page says why
     }
   }
 
