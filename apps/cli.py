@@ -13,6 +13,7 @@ cec eval --zoo zoo.yaml [--levels heldout]     cross-play a zoo of checkpoints -
 cec report results.csv [...] [--out DIR]       Markdown report + PNG figures from result tables
 cec zoo build SPEC.yaml --out ZOO_DIR          train a partner zoo from a spec (resumable) -> ZOO_DIR/zoo.yaml
 cec reproduce dual-destination [--quick]       the paper's Dual Destination results end to end -> report
+cec release RUN --prefix NAME [--ship]         a cec up run's release: chosen on validation, tested once, shipped
 cec up [--config YAML] [--monitoring]         the whole stack: Redis, level server, Ray learner, evaluator
 cec evaluator [--config YAML] [k=v]            score new checkpoints from Redis vs the zoo (a service)
 cec play serve [STUDY.yaml] [--checkpoint DIR]  human-AI play in the browser (study flow, records)
@@ -456,6 +457,7 @@ COMMANDS = (
     ("apps.zoo_build", ("zoo",)),
     ("apps.humans", ("humans",)),
     ("apps.reproduce", ("reproduce",)),
+    ("apps.release", ("release",)),
     ("services.level_server.main", ("level-server",)),
     ("services.stack", ("up",)),
     ("services.status", ("status",)),

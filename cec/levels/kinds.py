@@ -109,9 +109,9 @@ def subsets(levels: Mapping[str, Level]) -> dict[str, list[str]]:
 
 def validation_parts(levels: Mapping[str, Level]) -> dict[str, list[str]]:
     """{part: level names} of an evaluation set as every report splits it: its generated kitchens (named
-    `generated_*` or `test_*`; the headline), those by kind (`subsets`), the rest (the classic or drawn
-    kitchens) together and each on its own."""
-    generated = {n: lv for n, lv in levels.items() if n.startswith(("generated_", "test_"))}
+    `generated_*`, `test_*` or `test2_*`; the headline), those by kind (`subsets`), the rest (the classic or
+    drawn kitchens) together and each on its own."""
+    generated = {n: lv for n, lv in levels.items() if n.startswith(("generated_", "test_", "test2_"))}
     rest = [n for n in levels if n not in generated]
     label = (
         "classic"
