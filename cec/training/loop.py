@@ -20,18 +20,44 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
+from typing import Any, NamedTuple, Protocol, TextIO
 
 import jax
 import numpy as np
 
+from cec.checkpoints import CheckpointStore
 from cec.training.config import TrainConfig
 from cec.training.ppo import LossInfo
 from cec.training.tracking import Tracker
 from cec.training.trainer import TrainState, UpdateMetrics
 
-if TYPE_CHECKING:
-    from cec.training.run import RunFiles
+
+class RowWriter(Protocol):
+    """Where a run's metrics rows go (`cec.training.run`'s writer of `metrics.jsonl` and `metrics.csv`)."""
+
+    def write(self, rows: list[dict]) -> None: ...
+
+
+class RunFolder(Protocol):
+    """What the loop needs of a run's directory (`cec.training.run.RunFiles`, for `cec train` and the
+    distributed learner alike): its config and milestone updates, where its metrics rows go, the checkpoint
+    it kept last, when a checkpoint is due and how one is saved."""
+
+    @property
+    def config(self) -> TrainConfig: ...
+
+    @property
+    def milestones(self) -> list[int]: ...
+
+    @property
+    def writer(self) -> RowWriter: ...
+
+    @property
+    def store(self) -> CheckpointStore: ...
+
+    def due(self, prev: int, done: int) -> tuple[bool, bool]: ...
+
+    def save(self, state: TrainState, update: int, milestone: bool) -> Path: ...
 
 
 class UpdateSource:
@@ -76,7 +102,7 @@ class Outcome(NamedTuple):
 
 def run_updates(
     source: UpdateSource,
-    files: RunFiles,
+    files: RunFolder,
     tracker: Tracker,
     done: int,
     *,
@@ -193,7 +219,7 @@ def suspect(config: TrainConfig, values: Mapping[str, float]) -> str:
     return f"{name} (here {value:g}), then {also} and ppo.max_grad_norm (here {ppo.max_grad_norm:g})"
 
 
-def _kept(files: RunFiles) -> str:
+def _kept(files: RunFolder) -> str:
     kept = files.store.latest()
     if kept is None:
         return "no checkpoint was written before it (the run diverged before its first); start it again"
@@ -203,7 +229,7 @@ def _kept(files: RunFiles) -> str:
     )
 
 
-def _save(source: UpdateSource, files: RunFiles, update: int, milestone: bool) -> None:
+def _save(source: UpdateSource, files: RunFolder, update: int, milestone: bool) -> None:
     state = source.state()
     t0 = time.perf_counter()
     path = files.save(state, update, milestone)

@@ -33,20 +33,10 @@ import jax
 import jax.numpy as jnp
 
 from cec.config import ConfigError
+from cec.training.schedules import anneal_to_zero
 
 PARTNER_KINDS = ("self_play", "fcp", "e3t", "scripted")
 CHECKPOINT_PICKS = ("first", "middle", "last")
-
-
-def anneal_to_zero(start: float, env_steps: jax.Array, horizon: int) -> jax.Array:
-    """`start` falling linearly to 0 over `horizon` env steps, then 0, after `env_steps` (traced); `horizon`
-    <= 0: `start` throughout. Every schedule of training on env steps (the shaped reward's weight, the
-    scripted partner's share, the teacher's weight)."""
-    value = jnp.float32(start)
-    if horizon <= 0:
-        return value
-    done = jnp.asarray(env_steps, jnp.float32) / float(horizon)
-    return value * jnp.clip(1.0 - done, 0.0, 1.0)
 
 
 @dataclass(frozen=True)

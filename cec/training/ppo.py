@@ -18,8 +18,8 @@ from jax.sharding import Mesh, PartitionSpec
 
 from cec.agents.network import ActorCritic, LSTMState, forward, forward_partner
 from cec.config import ConfigError
-from cec.training.partners import anneal_to_zero
 from cec.training.rollout import NUM_SEATS, Trajectory
+from cec.training.schedules import anneal_to_zero
 
 #: The range of each PPO setting with one (name, low, high, low excluded): the weights of the loss's terms
 #: are at most `MAX_WEIGHT` (the paper's are 0.005-1), Adam's step at most 1, the counts of env steps at
@@ -144,7 +144,8 @@ class Batch(NamedTuple):
 
 
 class LossInfo(NamedTuple):
-    """Per-update diagnostics (means over epochs and minibatches)."""
+    """The loss and its terms: of one minibatch from `ppo_loss`, and per update (means over epochs and
+    minibatches) from `update`, which adds the gradient's norm."""
 
     total_loss: jax.Array
     policy_loss: jax.Array
@@ -154,7 +155,7 @@ class LossInfo(NamedTuple):
     clip_fraction: jax.Array
     partner_loss: jax.Array  # cross-entropy of the partner model's prediction (0 without one)
     teacher_loss: jax.Array  # cross-entropy of the scripted teacher's action under the policy (0 without one)
-    grad_norm: jax.Array
+    grad_norm: jax.Array  # the gradient's global norm before clipping (0 from `ppo_loss`, which takes none)
 
 
 def gae(
@@ -191,6 +192,7 @@ def make_batch(
     shaping_weight: jax.Array,
     gamma: float,
     lam: float,
+    *,
     learner_seat_only: bool = False,
     mask_scripted_seat: bool = False,
     normalise_apart: bool = False,
@@ -305,7 +307,7 @@ def _mean(x: jax.Array, weight: jax.Array | None, axis: str | None) -> jax.Array
 
 def ppo_loss(
     params: Any, network: ActorCritic, batch: Batch, config: PPOConfig, axis: str | None = None
-) -> tuple[jax.Array, tuple[jax.Array, ...]]:
+) -> tuple[jax.Array, LossInfo]:
     """Clipped PPO objective on one minibatch of whole sequences (advantages normalised per minibatch).
 
     `axis`: inside `shard_map` over that mesh axis, `batch` is this device's share of the minibatch; the
@@ -313,8 +315,7 @@ def ppo_loss(
     loss is the share's (its gradients averaged over the devices give the whole minibatch's).
 
     Returns:
-        (total loss, (policy loss, value loss, entropy, approx KL, clip fraction, partner-model loss,
-        teacher loss)).
+        (total loss, its `LossInfo`: the total and each term; `grad_norm` 0, as no gradient is taken here).
     """
     w = batch.weight
     partner_loss = jnp.float32(0.0)
@@ -358,7 +359,18 @@ def ppo_loss(
         total = total + _mean(batch.teacher_coef * cross_entropy, w, axis)
     approx_kl = _mean((ratio - 1.0) - log_ratio, w, axis)
     clip_fraction = _mean(jnp.abs(ratio - 1.0) > config.clip_eps, w, axis)
-    return total, (policy_loss, value_loss, entropy, approx_kl, clip_fraction, partner_loss, teacher_loss)
+    info = LossInfo(
+        total_loss=total,
+        policy_loss=policy_loss,
+        value_loss=value_loss,
+        entropy=entropy,
+        approx_kl=approx_kl,
+        clip_fraction=clip_fraction,
+        partner_loss=partner_loss,
+        teacher_loss=teacher_loss,
+        grad_norm=jnp.float32(0.0),
+    )
+    return total, info
 
 
 def _sharded_grads(grad_fn: Any, mesh: Mesh, network: ActorCritic, config: PPOConfig) -> Any:
@@ -428,12 +440,12 @@ def update(
         time_major = jax.tree.map(lambda x: jnp.take(x, idx, axis=1), batch[:-1])
         mb = Batch._make([*time_major, jax.tree.map(lambda x: x[idx], batch.init_lstm)])
         if mesh is None:
-            (loss, aux), grads = grad_fn(p, network, mb, config)
+            (_, info), grads = grad_fn(p, network, mb, config)
         else:
-            (loss, aux), grads = _sharded_grads(grad_fn, mesh, network, config)(p, mb)
+            (_, info), grads = _sharded_grads(grad_fn, mesh, network, config)(p, mb)
         updates, o = optimizer.update(grads, o, p)
         p = optax.apply_updates(p, updates)
-        return (p, o), jnp.stack([loss, *aux, optax.tree.norm(grads)])
+        return (p, o), jnp.stack(info._replace(grad_norm=optax.tree.norm(grads)))
 
     def epoch(carry: tuple[Any, Any], epoch_key: jax.Array) -> tuple[tuple[Any, Any], jnp.ndarray]:
         order = jax.random.permutation(epoch_key, n).reshape((m, n // m))

@@ -36,10 +36,10 @@ from cec.agents.zoo import ZooEntry
 from cec.config import ConfigError
 from cec.envs.task import Task
 from cec.training.config import TrainConfig
-from cec.training.partners import anneal_to_zero
 from cec.training.population import load_population
 from cec.training.ppo import LossInfo, make_batch, make_optimizer, update
 from cec.training.rollout import RolloutCarry, Trajectory, init_carry, rollout
+from cec.training.schedules import anneal_to_zero
 
 
 class TrainState(NamedTuple):
@@ -211,11 +211,11 @@ class Trainer:
             weight,
             cfg.ppo.gamma,
             cfg.ppo.gae_lambda,
-            cfg.partner.learner_seat_only,
-            cfg.partner.masks_scripted_seat,
-            cfg.partner.scripted_normalise_apart,
-            cfg.ppo.team_shaping,
-            teacher,
+            learner_seat_only=cfg.partner.learner_seat_only,
+            mask_scripted_seat=cfg.partner.masks_scripted_seat,
+            normalise_apart=cfg.partner.scripted_normalise_apart,
+            team_shaping=cfg.ppo.team_shaping,
+            teacher_coef=teacher,
         )
         lr = self.schedule(_adam_count(opt_state))
         params, opt_state, loss = update(

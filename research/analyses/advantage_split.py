@@ -49,7 +49,7 @@ def split(run: Path, update: int, rollouts: int = 3) -> dict[str, dict[str, floa
     carry = seed0.carry
     for i in range(rollouts):
         carry, traj = play(seed0.params, carry, jax.random.PRNGKey(10 + i))
-    batch = make_batch(traj, jnp.float32(1.0), cfg.ppo.gamma, cfg.ppo.gae_lambda, False, True)
+    batch = make_batch(traj, jnp.float32(1.0), cfg.ppo.gamma, cfg.ppo.gae_lambda, mask_scripted_seat=True)
     with_cook = np.repeat(np.asarray(traj.partner_index) == 1, NUM_SEATS, axis=1)  # [T, 2E]
     trained = np.asarray(batch.weight) == 1
     adv, value, target = (np.asarray(x) for x in (batch.advantage, batch.value, batch.target))

@@ -7,19 +7,17 @@ the study's `partners` and their pools; "next" goes round them. Round k's seat a
 `numpy.random.default_rng([study.seed, participant index, k])` whatever the choice, and its partner from the
 records (round 0's is drawn from that generator), so a server that restarts rebuilds the plan from the
 `round_start` and `choice` events.
+What a free-play round's page shows is `services.play.pages.free_play_view`.
 """
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from services.play.config import StudyConfig
 from services.play.game import PartnerPool
-
-if TYPE_CHECKING:  # the plan imports this module
-    from services.play.plan import Participant
 
 CHOICES = ("same", "next")
 SUMMARY_ROWS = 50  # the latest rounds the page sums up
@@ -84,36 +82,6 @@ def summary_row(number: int, partner: dict[str, str], end: dict[str, Any]) -> di
         "collisions": end["collisions"],
         "steps": end["steps"],
     }
-
-
-def view(config: StudyConfig, pools: dict[str, PartnerPool], p: Participant, index: int) -> dict[str, Any]:
-    """A free-play round's page: its partner by name and kind, the choice of partner (after the first round)
-    and the person's rounds so far (the latest `SUMMARY_ROWS`)."""
-    plans = {r.index: r for r in p.rounds}
-    plan = plans[index]
-    current = Candidate(plan.partner, plan.policy)
-    partner = describe(pools, current)
-    out: dict[str, Any] = {
-        "free_play": True,
-        "practice": False,
-        "number": index + 1,
-        "of": None,
-        "partner": partner,
-        "partner_label": f"{partner['name']} ({partner['kind']})",
-        "mode": plan.mode,
-        "steps": plan.steps,
-        "ticks_per_second": config.ticks_per_second,
-        "gives_way_after": config.agent_gives_way_after,
-        "played": p.played[-SUMMARY_ROWS:],
-        "rounds_played": len(p.played),
-    }
-    if index > 0:
-        previous = plans[index - 1]
-        same = Candidate(previous.partner, previous.policy)
-        out["same"] = describe(pools, same)
-        out["next"] = describe(pools, following(candidates(config, pools, p.level_spec), same))
-        out["choice"] = "same" if same == current else "next"
-    return out
 
 
 __all__ = [

@@ -43,7 +43,7 @@ def view(config: StudyConfig, pools: dict[str, PartnerPool], p: Participant) -> 
             "free_play": c.free_play,
         }
     if kind == "round" and c.free_play:
-        return {**base, **free_play.view(c, pools, p, index)}
+        return {**base, **free_play_view(c, pools, p, index)}
     if kind == "round":
         plan = plan_of(p, index)
         return {
@@ -69,6 +69,40 @@ def view(config: StudyConfig, pools: dict[str, PartnerPool], p: Participant) -> 
     if kind == "done":
         return {**base, "code": p.code}
     return base  # declined
+
+
+def free_play_view(
+    config: StudyConfig, pools: dict[str, PartnerPool], p: Participant, index: int
+) -> dict[str, Any]:
+    """A free-play round's page: its partner by name and kind, the choice of partner (after the first round)
+    and the person's rounds so far (the latest `free_play.SUMMARY_ROWS`)."""
+    plans = {r.index: r for r in p.rounds}
+    plan = plans[index]
+    current = free_play.Candidate(plan.partner, plan.policy)
+    partner = free_play.describe(pools, current)
+    out: dict[str, Any] = {
+        "free_play": True,
+        "practice": False,
+        "number": index + 1,
+        "of": None,
+        "partner": partner,
+        "partner_label": f"{partner['name']} ({partner['kind']})",
+        "mode": plan.mode,
+        "steps": plan.steps,
+        "ticks_per_second": config.ticks_per_second,
+        "gives_way_after": config.agent_gives_way_after,
+        "played": p.played[-free_play.SUMMARY_ROWS :],
+        "rounds_played": len(p.played),
+    }
+    if index > 0:
+        previous = plans[index - 1]
+        same = free_play.Candidate(previous.partner, previous.policy)
+        out["same"] = free_play.describe(pools, same)
+        out["next"] = free_play.describe(
+            pools, free_play.following(free_play.candidates(config, pools, p.level_spec), same)
+        )
+        out["choice"] = "same" if same == current else "next"
+    return out
 
 
 def validate_info(config: StudyConfig, fields: Any) -> dict[str, str]:

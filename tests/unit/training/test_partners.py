@@ -164,8 +164,8 @@ def test_e3t_behaviour_log_probs_and_importance_ratio(tmp_path):
     np.testing.assert_allclose(np.exp(mix), (1 - eps) * np.exp(pi) + eps / 5, rtol=1e-5)
     # the trained rows are the learner's: before any gradient step the PPO ratio is exactly 1
     batch = make_batch(traj, jnp.float32(1.0), 0.99, 0.95, learner_seat_only=True)
-    _, (_, _, _, approx_kl, clip_fraction, *_) = ppo_loss(state.params, trainer.network, batch, PPOConfig())
-    assert abs(float(approx_kl)) < 1e-6 and float(clip_fraction) == 0.0
+    _, info = ppo_loss(state.params, trainer.network, batch, PPOConfig())
+    assert abs(float(info.approx_kl)) < 1e-6 and float(info.clip_fraction) == 0.0
 
 
 def _scripted_config(tmp_path, **partner):

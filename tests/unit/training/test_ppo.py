@@ -1,5 +1,7 @@
 """PPO pieces against plain-Python references: GAE, the clipped loss, the optimizer schedule."""
 
+import inspect
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -7,7 +9,7 @@ import pytest
 
 from cec.agents import LSTMState
 from cec.agents.network import NetworkConfig
-from cec.training.ppo import Batch, PPOConfig, gae, make_optimizer, ppo_loss
+from cec.training.ppo import Batch, PPOConfig, gae, make_batch, make_optimizer, ppo_loss
 
 
 def _gae_loop(reward, value, done, last_value, gamma, lam):
@@ -80,9 +82,15 @@ def test_ppo_loss_matches_hand_computed_values():
         weight=None,
         init_lstm=LSTMState(jnp.zeros((1, 1)), jnp.zeros((1, 1))),
     )
-    total, (pg, vf, ent, kl, clipfrac, partner, teacher) = ppo_loss(
-        {"logits": logits, "value": value}, _FixedOutputs(), batch, cfg
+    total, info = ppo_loss({"logits": logits, "value": value}, _FixedOutputs(), batch, cfg)
+    pg, vf, ent, kl, clipfrac = (
+        info.policy_loss,
+        info.value_loss,
+        info.entropy,
+        info.approx_kl,
+        info.clip_fraction,
     )
+    assert float(info.total_loss) == float(total) and float(info.grad_norm) == 0.0  # no gradient taken here
 
     # By hand, in numpy.
     lp = np.asarray(jax.nn.log_softmax(logits))
@@ -101,11 +109,12 @@ def test_ppo_loss_matches_hand_computed_values():
     assert float(ent) == pytest.approx(ent_want, rel=1e-5)
     assert float(total) == pytest.approx(pg_want + 0.5 * vf_want - 0.01 * ent_want, rel=1e-5)
     assert float(clipfrac) == pytest.approx(np.mean(np.abs(ratio - 1) > 0.2))
-    assert float(partner) == 0.0 and float(teacher) == 0.0
+    assert float(info.partner_loss) == 0.0 and float(info.teacher_loss) == 0.0
     assert float(kl) == pytest.approx(np.mean((ratio - 1) - np.log(ratio)), rel=1e-4)
     # weighted (the scripted cook's seat weighs 0): the second step leaves every term
     only_first = batch._replace(weight=jnp.array([[1.0], [0.0]]))
-    _, (pg1, vf1, ent1, *_) = ppo_loss({"logits": logits, "value": value}, _FixedOutputs(), only_first, cfg)
+    _, first = ppo_loss({"logits": logits, "value": value}, _FixedOutputs(), only_first, cfg)
+    pg1, vf1, ent1 = first.policy_loss, first.value_loss, first.entropy
     assert float(vf1) == pytest.approx(0.5 * max((1.0 - 1.5) ** 2, (0.9 - 1.5) ** 2), rel=1e-5)
     assert float(ent1) == pytest.approx(-np.sum(p[0, 0] * lp[0, 0]), rel=1e-5)
     assert float(pg1) == pytest.approx(0.0, abs=1e-6)  # one step's advantage, normalised alone, is 0
@@ -121,3 +130,11 @@ def test_learning_rate_anneals_linearly_to_zero_over_the_run():
     assert float(schedule(80)) == pytest.approx(0.0)
     _, constant = make_optimizer(PPOConfig(anneal_lr=False), 100, 1000)
     assert float(constant(10_000)) == pytest.approx(3e-4)
+
+
+def test_make_batchs_flags_are_keyword_only():
+    """Four booleans in a row are read wrong by position; each flag is named where it is given."""
+    params = inspect.signature(make_batch).parameters
+    flags = [name for name, p in params.items() if p.default is not inspect.Parameter.empty]
+    assert {"learner_seat_only", "mask_scripted_seat", "normalise_apart", "team_shaping"} <= set(flags)
+    assert all(params[name].kind is inspect.Parameter.KEYWORD_ONLY for name in flags)
