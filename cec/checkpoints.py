@@ -94,8 +94,9 @@ class RunLock:
                 f"{self.path.parent} is being trained by another process (pid {holder}); wait for it to "
                 f"finish, or stop it (it saves a checkpoint) and resume"
             ) from None
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        with contextlib.suppress(OSError):  # the pid is for messages only: a full disk keeps the lock
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, str(os.getpid()).encode(), 0)
         self._fd = fd
         return self
 
@@ -161,12 +162,19 @@ def save(
     _check_replaceable(path)  # before any write: a folder that is not a checkpoint is never removed
     _check_replaceable(tmp)
     shutil.rmtree(tmp, ignore_errors=True)
-    tmp.mkdir(parents=True)
-    (tmp / STATE_FILE).write_bytes(data)
-    (tmp / META_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
-    for f in (tmp / STATE_FILE, tmp / META_FILE):
-        with open(f, "rb") as fh:
-            os.fsync(fh.fileno())
+    try:
+        tmp.mkdir(parents=True)
+        (tmp / STATE_FILE).write_bytes(data)
+        (tmp / META_FILE).write_text(json.dumps(meta, indent=2, sort_keys=True))
+        for f in (tmp / STATE_FILE, tmp / META_FILE):
+            with open(f, "rb") as fh:
+                os.fsync(fh.fileno())
+    except OSError as err:  # a full disk: nothing of it stays, the checkpoints before it are untouched
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise CheckpointError(
+            f"cannot write checkpoint {path} ({err.strerror or err}); nothing of it was kept and the "
+            "checkpoints before it are as they were. Free space and resume the run"
+        ) from None
     if path.exists():
         shutil.rmtree(path)
     tmp.rename(path)

@@ -41,6 +41,7 @@ from apps.machine import log_line
 from cec.config import ConfigError
 from cec.evaluation.curves import metrics_file, read_metrics_csv
 from cec.evaluation.results import COMPRESSED, read_csv, stored, write_csv
+from cec.training.metrics_file import read_rows
 
 if TYPE_CHECKING:
     from apps.zoo_build import BuildResult, PlannedRun
@@ -130,8 +131,8 @@ def read_metrics(run_dir: Path) -> list[dict[str, Any]]:
     """A run's `metrics.jsonl` rows, or where a committed run folder kept only its `metrics.csv` (or
     `metrics.csv.gz`), that table's rows; [] when it has none yet."""
     path = run_dir / "metrics.jsonl"
-    if path.is_file():
-        return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+    if path.exists():
+        return read_rows(path)  # bounded, every line checked (a folder or device there: named)
     return read_metrics_csv(run_dir) if metrics_file(run_dir).is_file() else []
 
 

@@ -70,6 +70,38 @@ def _torn(body: bytes, whole: bool) -> bool:
     return not whole or not body.strip(b" \t\r\x00")
 
 
+#: The most bytes of `metrics.jsonl` read whole (`read_rows`: a row is about 1 kB, so about 250,000 rows).
+ROWS_MAX_BYTES = 256 << 20
+
+
+def read_rows(path: Path) -> list[dict[str, Any]]:
+    """The rows of a run's `metrics.jsonl`, read in bounded memory: a regular file of at most
+    `ROWS_MAX_BYTES`, lines of at most `LINE_MAX_BYTES`, each a JSON object (a torn last line, what a crash
+    leaves, is left out); `RunFileError` naming the file and line otherwise."""
+    rows: list[dict[str, Any]] = []
+    read, torn = 0, None
+    for number, body, whole in _lines(path, "metrics file"):
+        read += len(body) + 1
+        if read > ROWS_MAX_BYTES:
+            raise RunFileError(
+                f"metrics file {path} holds more than {ROWS_MAX_BYTES:,} bytes, the most read whole "
+                f"({__name__}.ROWS_MAX_BYTES)"
+            )
+        if torn is not None:
+            raise RunFileError(f"metrics file {path}, line {torn}: a blank or cut line; repair or remove it")
+        if _torn(body, whole):
+            torn = number
+            continue
+        try:
+            row = json.loads(body)
+        except (ValueError, RecursionError):
+            raise RunFileError(f"metrics file {path}, line {number}: not a JSON row") from None
+        if not isinstance(row, dict):
+            raise RunFileError(f"metrics file {path}, line {number}: not a JSON object")
+        rows.append(row)
+    return rows
+
+
 class MetricsWriter:
     """Appends metrics rows to `metrics.jsonl` and `metrics.csv` in the run directory; trims them on
     resume."""
@@ -269,4 +301,4 @@ def _update_of(value: Any, text: bool = False) -> int | None:
     return value if isinstance(value, int) and not isinstance(value, bool) and value >= 0 else None
 
 
-__all__ = ["LINE_MAX_BYTES", "MetricsWriter", "RunFileError", "write_atomic"]
+__all__ = ["LINE_MAX_BYTES", "ROWS_MAX_BYTES", "MetricsWriter", "RunFileError", "read_rows", "write_atomic"]

@@ -250,7 +250,7 @@ class LimitsConfig:
             dropped connection, a second tab: each records the round's start again); past it no round
             starts for them, and the page says so.
         max_record_bytes_per_participant: bytes of records one participant may make (a 200-step round
-            records about 0.3 MB); past it no round starts for them (the round under way is recorded to its
+            records about 70 kB); past it no round starts for them (the round under way is recorded to its
             end), and the page says so.
         max_record_bytes: bytes of records this server may hold in all, those of earlier runs included;
             past it no round starts and joins get 503.
@@ -261,8 +261,8 @@ class LimitsConfig:
     idle_minutes: float = 30.0
     max_participants: int = 10_000
     max_rounds_per_participant: int = 500
-    max_reconnects_per_participant: int = 200
-    max_record_bytes_per_participant: int = 256 << 20
+    max_reconnects_per_participant: int = 100
+    max_record_bytes_per_participant: int = 64 << 20
     max_record_bytes: int = 16 << 30
 
     def __post_init__(self) -> None:

@@ -23,7 +23,7 @@ SHIPPED = REPO / "benchmarks/results/overcooked/shipped"
 DAMAGED = "checkpoint runs/humans/proxies/bc_cramped_room is corrupt: state.msgpack has SHA-256 0123"
 
 
-def _cec(*args: str, timeout: float = 180) -> subprocess.CompletedProcess:
+def _cec(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     cmd = [sys.executable, "-m", "apps.cli", *args]
     return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout)
 
@@ -125,7 +125,7 @@ def base_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     root = tmp_path_factory.mktemp("base")
     config = root / "tiny.yaml"
     config.write_text(yaml.safe_dump({**TINY, "run_dir": str(root / "runs"), "name": "tiny"}))
-    done = _cec("train", "--config", str(config), "--max-updates", "2", "--quiet")
+    done = _cec("train", "--config", str(config), "--max-updates", "2", "--quiet", timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     return root / "runs" / "tiny"
 
@@ -504,3 +504,60 @@ def test_a_generator_setting_is_refused_on_dual_destination(tmp_path):
                 "env.generator.count_decay=0.9",
             ],
         )
+
+
+# ---- a full disk during a resume (writes past RLIMIT_FSIZE fail as on a full disk: EFBIG, not ENOSPC) ------
+
+
+def _cec_with_file_cap(max_bytes: int, *args: str) -> subprocess.CompletedProcess:
+    """`cec ARGS` in a process whose writes past `max_bytes` in any file fail (SIGXFSZ ignored, so the write
+    raises OSError), as writes to a full disk do; the cap is set in the child itself (no fork of this one)."""
+    code = (
+        "import resource, runpy, signal, sys; signal.signal(signal.SIGXFSZ, signal.SIG_IGN); "
+        f"resource.setrlimit(resource.RLIMIT_FSIZE, ({max_bytes}, {max_bytes})); "
+        f"sys.argv = ['cec', *{list(args)!r}]; runpy.run_module('apps.cli', run_name='__main__')"
+    )
+    return subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=300)
+
+
+def test_a_resume_that_cannot_write_its_trimmed_metrics_leaves_them_as_they_were(run):
+    """`metrics.jsonl` was rewritten in place: a full disk midway would have cut it."""
+    shutil.rmtree(run / "checkpoints/update_000000002")  # row 2 must go: the files are rewritten
+    before = {p.name: p.read_bytes() for p in run.glob("metrics.*")}
+    done = _cec_with_file_cap(200, "train", "--resume", str(run), "--max-updates", "1", "--quiet")
+    assert done.returncode == 2, done.stderr[-3000:]
+    assert f"cannot write {run / 'metrics.jsonl'} (File too large); it was left as it was" in done.stderr
+    assert {p.name: p.read_bytes() for p in run.glob("metrics.*")} == before
+    assert not list(run.glob("*.tmp")) and "Traceback" not in done.stderr
+
+
+def test_a_checkpoint_that_cannot_be_written_leaves_nothing_and_the_older_ones_as_they_were(run):
+    shutil.rmtree(run / "checkpoints/update_000000002")
+    state = (run / "checkpoints/update_000000001/state.msgpack").stat().st_size
+    done = _cec_with_file_cap(state // 2, "train", "--resume", str(run), "--max-updates", "1", "--quiet")
+    assert done.returncode == 2, done.stderr[-3000:]
+    assert "cannot write checkpoint" in done.stderr and "update_000000002 (File too large)" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert sorted(p.name for p in (run / "checkpoints").iterdir()) == ["update_000000001"]
+    again = _cec("train", "--resume", str(run), "--max-updates", "1", "--quiet")  # room again: it goes on
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert _updates(run) == ([1, 2], [1, 2])
+
+
+def test_a_runs_rows_are_read_bounded_by_the_reproductions(tmp_path):
+    """`cec reproduce` read a run's whole metrics.jsonl with read_text: /dev/zero or one endless line was
+    read to MemoryError."""
+    from apps.reproduce.pipeline import read_metrics
+    from cec.training.metrics_file import LINE_MAX_BYTES, RunFileError
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "metrics.jsonl").write_text('{"update": 1}\n{"update": 2}\n{"upd')  # a torn last line: left out
+    assert read_metrics(run) == [{"update": 1}, {"update": 2}]
+    (run / "metrics.jsonl").write_bytes(b"x" * (LINE_MAX_BYTES + 10))
+    with pytest.raises(RunFileError, match="line 1: longer than 1,048,576 bytes"):
+        read_metrics(run)
+    (run / "metrics.jsonl").unlink()
+    (run / "metrics.jsonl").symlink_to("/dev/zero")
+    with pytest.raises(RunFileError, match="is not a regular file"):
+        read_metrics(run)
