@@ -13,7 +13,7 @@ cec eval --zoo zoo.yaml [--levels heldout]     cross-play a zoo of checkpoints -
 cec report results.csv [...] [--out DIR]       Markdown report + PNG figures from result tables
 cec zoo build SPEC.yaml --out ZOO_DIR          train a partner zoo from a spec (resumable) -> ZOO_DIR/zoo.yaml
 cec reproduce dual-destination [--quick]       the paper's Dual Destination results end to end -> report
-cec release RUN --prefix NAME [--ship]         a cec up run's release: chosen on validation, tested once, shipped
+cec release RUN --prefix NAME [--ship]        a cec up run's release: chosen on validation, tested once
 cec up [--config YAML] [--monitoring]         the whole stack: Redis, level server, Ray learner, evaluator
 cec evaluator [--config YAML] [k=v]            score new checkpoints from Redis vs the zoo (a service)
 cec play serve [STUDY.yaml] [--checkpoint DIR]  human-AI play in the browser (study flow, records)
@@ -21,6 +21,9 @@ cec play export STUDY.yaml --out DIR           a study's records -> results.csv 
 cec monitoring [--target JOB=HOST:PORT]      Prometheus (+ Grafana) scraping a stack's /metrics
 
 A `cec` process that seems stuck prints every thread's stack on stderr when sent SIGUSR1 (`kill -USR1 PID`).
+
+Size: the library's own small commands (demo, render, layouts, levels, train) and the one registration list
+of every other command; each command's body is a few lines over the library.
 """
 
 from __future__ import annotations

@@ -37,6 +37,7 @@ import os
 import shlex
 import signal
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -85,6 +86,8 @@ class UpConfig:
         monitoring_config: their ports and settings (`services.monitoring.MonitoringConfig`).
         ray_dashboard: start Ray's dashboard with the local Ray.
         start_timeout_s: how long each service may take to report ready.
+        evaluator_drain_s: after the run finishes, how long `cec up` waits for the evaluator to score the
+            checkpoints it has not scored yet (the run's last ones), so that its record ends with the run.
     """
 
     train: str = "configs/train/cramped_room_ci.yaml"
@@ -101,6 +104,7 @@ class UpConfig:
     monitoring_config: MonitoringConfig = field(default_factory=MonitoringConfig)
     ray_dashboard: bool = True
     start_timeout_s: float = 120.0
+    evaluator_drain_s: float = 3600.0
 
     def __post_init__(self) -> None:
         check_port("level_server_port", self.level_server_port)
@@ -405,6 +409,52 @@ class Stack:
                 resume_hint=self.resume_hint,
             )
 
+    def drain_evaluator(self) -> None:
+        """After a finished run: waits (with a line every few seconds) until the evaluator has scored or
+        given up on every checkpoint event of the run, at most `evaluator_drain_s`; a Ctrl-C stops the wait
+        (the events stay in Redis for an evaluator started later)."""
+        evaluator = next((s for s in self.services if s.name == "evaluator"), None)
+        if evaluator is None:
+            return
+        from services.evaluator.config import FAILED_GROUP, FAILED_LEVEL_SET
+        from services.store import ControlPlane, StoreError
+
+        run_id, said = self.train_config.run_name, 0.0
+        deadline = time.monotonic() + self.config.evaluator_drain_s
+        try:
+            with ControlPlane.connect(self.store) as plane:
+                while True:
+                    left = [
+                        e.update
+                        for e in plane.list_checkpoints(run_id)
+                        if not plane.is_scored(e.checkpoint_id)
+                        and not plane.has_result(e.checkpoint_id, FAILED_GROUP, FAILED_LEVEL_SET)
+                    ]
+                    why = ("" if left else "it has scored every checkpoint of the run") or (
+                        "it stopped" if evaluator.proc.poll() is not None else ""
+                    )
+                    if not why and time.monotonic() > deadline:
+                        why = f"stopped waiting after evaluator_drain_s={self.config.evaluator_drain_s:g} s"
+                    if why:
+                        self.say(
+                            f"evaluator              {why}"
+                            + (f"; not scored: updates {left}" if left else "")
+                        )
+                        return
+                    if time.monotonic() - said >= PROGRESS_S:
+                        self.say(
+                            f"evaluator              scoring the run's last checkpoints: {len(left)} left "
+                            f"(updates {left[0]}..{left[-1]}); Ctrl-C stops waiting"
+                        )
+                        said = time.monotonic()
+                    time.sleep(1.0)
+        except StoreError as err:
+            self.say(f"evaluator              not waited for: Redis did not answer ({err})")
+        except KeyboardInterrupt:
+            self.say(
+                "evaluator              stopped waiting: `cec evaluator` scores the rest later from Redis"
+            )
+
     def stop(self) -> None:
         started = bool(self.services or self.ray_started or self.monitoring or self.redis)
         if self.ray_started:
@@ -503,7 +553,10 @@ def cmd_up(args: argparse.Namespace) -> int:
     with terminal_of_our_own():
         try:
             stack.start(resume=args.resume)
-            return stack.train(resume=args.resume, max_updates=args.max_updates)
+            code = stack.train(resume=args.resume, max_updates=args.max_updates)
+            if code == 0:
+                stack.drain_evaluator()
+            return code
         except KeyboardInterrupt:
             print(f"stopped; continue with: {stack.resume_hint}", file=sys.stderr)
             return 130

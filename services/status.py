@@ -11,11 +11,17 @@ Everything comes from what the run already writes, so it also works for a finish
 - the level server's and the learner's Prometheus endpoints: levels sent, active streams, the learner's
   policy version.
 
+- the evaluator's training record (`<run>/eval/record.csv`): its scores per partner group and level set,
+  also after the stack and its Redis have stopped.
+
 Nothing here writes anywhere; a part that cannot be read is shown as such, never an error of the command.
 Everything read is bounded: run files are regular files of at most `RUN_FILE_MAX_BYTES` (the end of
 `metrics.jsonl`: `METRICS_TAIL_BYTES`), values of the wrong type are left out, metrics are fetched only from
 http(s) URLs, at most `SCRAPE_MAX_BYTES` within `HTTP_DEADLINE_S` each, errors are clipped to `ERROR_CHARS`,
 and `--json` prints strict JSON (a NaN is null).
+
+Size: one screen's reading and rendering: each part of the run is a short reader and a short renderer of
+the same dict, and they read best side by side.
 """
 
 from __future__ import annotations
@@ -403,30 +409,17 @@ def _stopped(s: dict[str, Any], finished: bool) -> str:
 
 def _record(run_dir: Path) -> dict[str, Any]:
     """The evaluator's training record of the run (`<run>/eval/record.csv`, on disk, so it outlives the
-    stack): the newest scored checkpoint's rows, and per partner group and level set the first score."""
-    from cec.evaluation.checkpoint_results import RECORD, parse_record
+    stack), summarised (`record_summary`); {} when there is none."""
+    from cec.evaluation.checkpoint_results import RECORD, parse_record, record_summary
 
     path = run_dir / "eval" / RECORD
     if not _small_regular(path):
         return {}
     try:
         with open_user_file(path, "training record") as f:
-            rows = parse_record(f.read(RUN_FILE_MAX_BYTES).decode("utf-8", errors="replace"))
+            return record_summary(parse_record(f.read(RUN_FILE_MAX_BYTES).decode("utf-8", errors="replace")))
     except (ConfigError, OSError):
         return {}
-    if not rows:
-        return {}
-    last = max(r["update"] for r in rows)
-    first: dict[str, Any] = {}
-    for r in rows:  # in update order
-        if r["return_mean"] is not None:
-            first.setdefault(f"{r['partner_group']}|{r['level_set']}", [r["update"], r["return_mean"]])
-    return {
-        "checkpoints": len({r["update"] for r in rows}),
-        "latest_update": last,
-        "latest": [r for r in rows if r["update"] == last],
-        "first": first,
-    }
 
 
 def _evaluator_lines(s: dict[str, Any]) -> Lines:

@@ -219,6 +219,24 @@ def parse_record(text: str) -> list[dict[str, Any]]:
     return rows
 
 
+def record_summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """A training record's rows as `cec status` shows them: how many checkpoints were scored, the newest
+    one's rows, and per `<partner group>|<level set>` its first score ([update, return]); {} for none."""
+    if not rows:
+        return {}
+    last = max(r["update"] for r in rows)
+    first: dict[str, Any] = {}
+    for r in sorted(rows, key=lambda r: r["update"]):
+        if r["return_mean"] is not None:
+            first.setdefault(f"{r['partner_group']}|{r['level_set']}", [r["update"], r["return_mean"]])
+    return {
+        "checkpoints": len({r["update"] for r in rows}),
+        "latest_update": last,
+        "latest": [r for r in rows if r["update"] == last],
+        "first": first,
+    }
+
+
 def read_record(path: Path, max_bytes: int = 16 << 20) -> list[dict[str, Any]]:
     """The rows of the training record at `path` (none when it is missing or unreadable; read bounded)."""
     try:

@@ -20,6 +20,9 @@ from services.store import StoreConfig
 SELF_PLAY = "self_play"
 #: The partner group of cross-play within a checkpoint (each of its seeds with each of its other seeds).
 CROSS_PLAY = "cross_play"
+#: The result recorded for a checkpoint that could not be scored: (partner group, level set).
+FAILED_GROUP = "failed"
+FAILED_LEVEL_SET = "checkpoint"
 GROUP_BY = ("algorithm", "partner", "zoo")
 GAMES = ("overcooked", "dual_destination")
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.:@+-]{0,99}$")

@@ -56,7 +56,14 @@ from cec.evaluation.results import (
     empty_table,
 )
 from cec.training.tracking import Tracker, TrackingConfig
-from services.evaluator.config import CROSS_PLAY, SELF_PLAY, EvaluatorConfig, LevelSetConfig
+from services.evaluator.config import (
+    CROSS_PLAY,
+    FAILED_GROUP,
+    FAILED_LEVEL_SET,
+    SELF_PLAY,
+    EvaluatorConfig,
+    LevelSetConfig,
+)
 from services.evaluator.partners import PartnerZoo, ZooSnapshot, names_in
 from services.metrics import (
     EVALUATOR_CHECKPOINTS_SCORED,
@@ -71,9 +78,6 @@ from services.store import CheckpointEvent, CheckpointMessage, ControlPlane, Eva
 
 log = logging.getLogger("cec.evaluator")
 
-#: The result recorded for a checkpoint that could not be scored: (partner group, level set).
-FAILED_GROUP = "failed"
-FAILED_LEVEL_SET = "checkpoint"
 #: A stored result's values written to the run's TensorBoard events: result key -> tag's last part.
 TRACKED_METRICS = {**{f"{m}_mean": m for m in SUMMARY_METRICS}, "return_sem": "return_sem"}
 #: Runs whose writers are kept open (the least recently used one beyond is closed; reopened when needed).

@@ -135,7 +135,9 @@ def test_dashboards_read_only_live_series_and_scraped_counters_follow_the_run(tm
         assert {(r["partner_group"], r["level_set"]) for r in plane["scores"]} == {("self_play", "classic")}
         assert status["level_server"]["levels_sent"] > 0 and status["learner"]["policy_version"] >= 1
         screen = _cec("status", str(run_dir))
-        assert "running (pid" in screen and "latest metrics/update_" in screen and "levels sent" in screen
+        assert (
+            "running (pid" in screen and "checkpoint(s) scored; update " in screen and "levels sent" in screen
+        )
         proc.send_signal(signal.SIGTERM)
         assert proc.wait(300) == 130
         assert "no `cec up` running" in _cec("status", str(run_dir)), "the stopped stack says so"
