@@ -39,7 +39,11 @@ def start_ray_head(args: list[str], log_path: Path, timeout: float) -> ServicePr
     from services.learner.driver import RayStartError, first_line
 
     try:
-        return ServiceProcess("ray head", args, log_path, "Ray runtime started", timeout)
+        # Ray lowers its workers' priority by 15 by default: the learner and the actors would then yield to
+        # the evaluator, the level server and anything else on the machine (on a busy 2-core one, training
+        # crawled). They run at the stack's own priority instead.
+        env = {"RAY_worker_niceness": "0"}
+        return ServiceProcess("ray head", args, log_path, "Ray runtime started", timeout, env=env)
     except ServiceStartError as err:
         why = "it exited" if err.exited else f"it was not ready within start_timeout_s = {timeout:g} s"
         last = first_line("\n".join(reversed(err.tail)))

@@ -144,6 +144,8 @@ def test_cec_up_survives_a_killed_learner_and_stops_on_a_terminal_ctrl_c_then_re
 
         learners = [p for p in head.children(recursive=True) if "ray::Learner" in cmdline(p)]
         assert learners, "the learner runs in its own Ray worker process"
+        # Ray's workers at the stack's own priority, not 15 below it (below the evaluator and level server)
+        assert {p.nice() for p in learners} == {psutil.Process(term.proc.pid).nice()}
         killed_at = len(_rows(run_dir))
         for p in learners:
             p.kill()
