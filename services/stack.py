@@ -161,10 +161,13 @@ class Stack:
 
     def start(self, resume: bool = False) -> None:
         """Long because it is the module docstring's start-up, step by step; `stop` undoes it in reverse."""
+        from services.learner.config import check_streamed
         from services.learner.driver import check_run
 
         cfg = self.config
         self.dist.check(self.train_config)
+        if self.starts_level_server or cfg.level_server_address:
+            check_streamed(self.train_config)
         check_run(self.train_config, resume, self.resume_hint)  # before anything starts
         self.children.check()  # leftovers of an earlier `cec up` of this run: named, not collided with
         self.check_ports()

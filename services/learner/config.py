@@ -133,6 +133,16 @@ class DistributedConfig:
             )
 
 
+def check_streamed(train: TrainConfig) -> None:
+    """A `ConfigError` naming the setting when a run whose kitchens stream from a level server asks for
+    what no level server streams (before any process starts)."""
+    if train.env.levels == "generator" and not train.env.generator.exclude_heldout:
+        raise ConfigError(
+            "env.generator.exclude_heldout=false: a level server never streams the validation or test "
+            "kitchens, and this run's kitchens stream from one; remove the setting"
+        )
+
+
 def actor_env(dist: DistributedConfig) -> dict[str, str]:
     """The environment of each rollout actor process Ray starts: CPU JAX unless the driver chose another
     platform, and with `actor_threads=1` XLA:CPU's kernels on one thread."""

@@ -27,7 +27,7 @@ from cec.training.loop import NonFiniteError
 from cec.training.run import RunFiles, record_resume_command, resume_command, trains_as
 from cec.training.tracking import describe
 from services.entry import AlreadyDone
-from services.learner.config import DistributedConfig, xla_flags
+from services.learner.config import DistributedConfig, check_streamed, xla_flags
 from services.store import StoreConfig
 
 log = logging.getLogger("cec.driver")
@@ -54,6 +54,7 @@ def check_start(
         except StoreError as err:
             raise ConfigError(str(err)) from err
     if dist.level_server and train.env.levels == "generator":
+        check_streamed(train)
         check_level_server(dist.level_server, dist.level_token)
 
 
