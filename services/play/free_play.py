@@ -65,6 +65,17 @@ def by_name(pools: dict[str, PartnerPool], partner: Any, policy: Any) -> Candida
     return Candidate(partner, names.index(policy)) if policy in names else None
 
 
+#: What the page says beside a partner whose training borrowed from the hand-written scripted cook (DESIGN
+#: rule 16: a difference from the paper's method is named where a user meets it), by its kind (algorithm).
+TEACHER = "CEC with a scripted teacher (imitates a hand-written cook; not the paper's method)"
+NOTES = {"cec_teacher": TEACHER, "cec_finetune_teacher": f"{TEACHER}, fine-tuned in this kitchen"}
+
+
+def note(kind: str) -> str:
+    """The page's words on a partner of this kind beyond its name ("" for none)."""
+    return NOTES.get(kind, "")
+
+
 def describe(pools: dict[str, PartnerPool], cand: Candidate) -> dict[str, str]:
     """What the page shows of a partner: its policy's name and kind (the algorithm that trained it)."""
     policy = pools[cand.partner].policies[cand.policy]
@@ -93,5 +104,6 @@ __all__ = [
     "describe",
     "draw",
     "following",
+    "note",
     "summary_row",
 ]

@@ -53,7 +53,10 @@ def add_arguments(play: argparse.ArgumentParser) -> None:
         help="a policy shipped with the package (`cec zoo`: cec/shipped/zoo.yaml), or an algorithm of them "
         "(e.g. `cec`: one of its seeds drawn per round), or `best`: the shipped partner that cooked most "
         "with a cloned person in --level (cec/shipped/best.yaml, which also names the partner of every "
-        "other kitchen); no training, no download",
+        "other kitchen); no training, no download. `cec`, `cec_finetune`: CEC, the paper's method; "
+        "`cec_teacher`, `cec_finetune_teacher` (what `best` plays in the classic kitchens): CEC with a "
+        "scripted teacher (imitates a hand-written cook; not the paper's method), so they show how far that "
+        "cook's skill carries, not what training across kitchens alone gives; README, Results",
     )
     src.add_argument("--checkpoint", help="checkpoint or run directory of the partner")
     src.add_argument("--seed", type=int, help="with --checkpoint: the seed of a multi-seed checkpoint")

@@ -87,6 +87,7 @@ def free_play_view(
         "of": None,
         "partner": partner,
         "partner_label": f"{partner['name']} ({partner['kind']})",
+        "partner_note": free_play.note(partner["kind"]),
         "mode": plan.mode,
         "steps": plan.steps,
         "ticks_per_second": config.ticks_per_second,

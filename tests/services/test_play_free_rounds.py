@@ -137,3 +137,25 @@ def test_each_set_of_flags_records_to_a_folder_of_its_own_under_runs() -> None:
     assert config.agent_gives_way_after == 3
     assert free_play_config(_flags(give_way_after=0)).agent_gives_way_after == 0
     assert free_play_config(_flags(data="elsewhere")).storage.dir == "elsewhere"
+
+
+def test_the_page_and_the_help_name_a_partner_that_learned_from_the_scripted_cook(
+    tmp_path: Path, pools: dict[str, Any]
+) -> None:
+    """DESIGN rule 16: the kickstarted partners are named for what they are where a person meets them."""
+    from services.play import free_play
+    from services.play.main import add_arguments
+
+    words = "CEC with a scripted teacher (imitates a hand-written cook; not the paper's method)"
+    assert free_play.note("cec_teacher") == words
+    assert free_play.note("cec_finetune_teacher").startswith(words)
+    assert free_play.note("cec") == free_play.note("random_init") == ""
+    study, _ = _study(tmp_path, pools)
+    _, p = study.join()
+    study.submit(p, {"stage": "instructions"})
+    assert study.view(p)["partner_note"] == ""  # an untrained partner: nothing borrowed
+    play = argparse.ArgumentParser(prog="cec play")
+    add_arguments(play)
+    serve = next(a for a in play._subparsers._group_actions if a.dest == "play_command").choices["serve"]
+    text = " ".join(serve.format_help().split())
+    assert "cec_teacher" in text and words in text

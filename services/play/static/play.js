@@ -210,7 +210,7 @@ function showFreeRound(view) {
     }
   }
   show(el("h1", {}, `Round ${view.number}`),
-    el("p", { id: "partner" }, `Your partner: ${view.partner_label}. ${pace}`), ...summary(view),
+    el("p", { id: "partner" }, `Your partner: ${view.partner_label}.${view.partner_note ? ` ${view.partner_note}.` : ""} ${pace}`), ...summary(view),
     el("div", { class: "row" }, ...buttons), err);
 }
 

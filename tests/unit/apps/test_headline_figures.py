@@ -1,25 +1,31 @@
-"""The headline figures the README's results table and docs/results.md quote are those of a committed report:
-each `mean ± error` verbatim, and each other figure of a README row as a number of the report its row
-links (a figure retyped by hand, or left behind when a report was regenerated, fails here)."""
+"""The figures the README's results and the docs quote are those the release tables give: the README's results
+table is what `cec results docs/results.yaml` prints from them, each of its rows' figures is printed on the
+release page the row links, docs/results.md holds the per-kitchen table the same command prints, and every
+other figure of those pages is printed by a report they link (a figure retyped by hand, or left behind when a
+table or report was regenerated, fails here)."""
 
 from __future__ import annotations
 
+import functools
 import re
+import shlex
 from pathlib import Path
 
+from apps import results_table
+
 ROOT = Path(__file__).resolve().parents[3]
+README = ROOT / "README.md"
+SPEC = ROOT / "docs" / "results.yaml"
 LINK = re.compile(r"\]\(([^)\s]+)\)")
 PLUS_MINUS = re.compile(r"(?<![\d.])\d+(?:\.\d+)? ± \d+(?:\.\d+)?(?![\d.])")
 DECIMAL = re.compile(r"(?<![\d.])\d+\.\d+(?![\d.])")
 
 
 def _reports(text: str, page: Path) -> list[Path]:
-    """The committed reports `text` links (Markdown files under benchmarks/results/, or the lever comparisons
-    `research/analyses/levers.py` writes under research/diary/reproduce_overcooked/levers/), relative to
-    `page`."""
+    """The committed reports `text` links (Markdown files under benchmarks/results/, or the diary and the
+    lever comparisons `research/analyses/levers.py` writes under research/diary/), relative to `page`."""
     out = []
-    levers = ROOT / "research" / "diary" / "reproduce_overcooked" / "levers"
-    written = (ROOT / "benchmarks" / "results", levers)
+    written = (ROOT / "benchmarks" / "results", ROOT / "research" / "diary")
     for target in LINK.findall(text):
         path = (page.parent / target.split("#")[0]).resolve()
         if any(path.is_relative_to(folder) for folder in written) and path.suffix == ".md":
@@ -38,26 +44,67 @@ def _missing(text: str, reports: list[Path]) -> list[str]:
     return missing + [x for x in DECIMAL.findall(rest) if x not in numbers]
 
 
-def _results_rows() -> list[str]:
-    text = (ROOT / "README.md").read_text()
-    section = text.split("\n## Results\n", 1)[1].split("\n## ", 1)[0]
-    return [
-        line for line in section.splitlines() if line.startswith("| ") and not line.startswith("| agents")
-    ]
+@functools.cache
+def _printed() -> tuple[str, str]:
+    """(the README's table, the per-kitchen table) as `cec results` prints them from the release tables."""
+    spec, base = results_table.load_spec(SPEC)
+    return results_table.headline(spec, base, ROOT), results_table.per_kitchen(spec, base)
 
 
-def test_the_readmes_results_rows_quote_the_reports_they_link() -> None:
+def _results_section() -> str:
+    return README.read_text().split("\n## Results\n", 1)[1].split("\n## ", 1)[0]
+
+
+def test_the_readmes_results_table_is_what_cec_results_prints_from_the_release_tables() -> None:
+    table, _ = _printed()
+    assert table in _results_section(), "regenerate it: cec results docs/results.yaml"
+    assert "`cec results docs/results.yaml`" in _results_section()
+    rows = table.splitlines()[2:]
+    assert 4 <= len(rows) <= 6  # one per shipped partner set, and the scripted cook beside them
+    assert "cec_finetune_teacher" in rows[0]  # the strongest with the human proxies first
+
+
+def test_each_row_of_the_table_is_printed_on_the_release_page_it_links() -> None:
+    table, _ = _printed()
     checked = 0
-    for row in _results_rows():
-        reports = _reports(row, ROOT / "README.md")
-        if not reports:  # the paper's row: its figure is the paper's, linked to how ours differs
-            assert "paper" in row, row
-            continue
+    for row in table.splitlines()[2:]:
         cells = [c.strip() for c in row.strip().strip("|").split("|")]
-        figures = " ".join(LINK.sub("]", c) for c in cells[1:-1])  # not the agents' names and budgets
-        assert not _missing(figures, reports), (row, _missing(figures, reports))
+        pages = _reports(cells[-1], README)
+        assert pages, row
+        figures = " ".join(cells[2:4]).replace("**", "")
+        assert not _missing(figures, pages), (row, _missing(figures, pages))
         checked += 1
-    assert checked >= 3
+    assert checked == len(table.splitlines()[2:])
+
+
+def test_the_scripted_teacher_is_named_in_every_row_that_learned_from_it() -> None:
+    table, _ = _printed()
+    for row in table.splitlines()[2:]:
+        if "cec_teacher" in row or "cec_finetune_teacher" in row:
+            assert "scripted teacher** (imitates a hand-written cook; not the paper's method)" in row, row
+
+
+def test_docs_results_holds_the_per_kitchen_table_cec_results_prints() -> None:
+    _, kitchens = _printed()
+    assert kitchens in (ROOT / "docs" / "results.md").read_text(), (
+        "regenerate it: cec results docs/results.yaml --per-kitchen"
+    )
+
+
+def test_the_rest_of_the_results_section_quotes_the_reports_it_links() -> None:
+    table, _ = _printed()
+    prose = _results_section().replace(table, "")
+    reports = _reports(prose, README)
+    assert len(reports) >= 3
+    assert not _missing(prose, reports), _missing(prose, reports)
+
+
+def test_the_commands_of_the_readme_parse() -> None:
+    """`cec results` as the README gives it is a command of the `cec` CLI."""
+    from apps.cli import build_parser
+
+    args = build_parser().parse_args(shlex.split("results docs/results.yaml --per-kitchen"))
+    assert args.func.__name__ == "_cmd_results" and args.per_kitchen
 
 
 def test_docs_results_quotes_every_mean_and_error_as_a_linked_report_prints_it() -> None:
@@ -65,9 +112,18 @@ def test_docs_results_quotes_every_mean_and_error_as_a_linked_report_prints_it()
     text = page.read_text()
     reports = _reports(text, page)
     assert len(reports) >= 3  # the shipped seeds, their parts (validation and test), the reproduction
-    pairs = PLUS_MINUS.findall(text)
+    pairs = PLUS_MINUS.findall(text.replace(_printed()[1], ""))
     assert len(pairs) >= 5
     assert not _missing(" ".join(pairs), reports)
+
+
+def test_docs_reproduce_overcooked_quotes_every_mean_and_error_as_a_linked_report_prints_it() -> None:
+    page = ROOT / "docs" / "reproduce_overcooked.md"
+    text = page.read_text()
+    assert len(text.splitlines()) <= 400  # one curated page, not a diary
+    pairs = PLUS_MINUS.findall(text)
+    assert len(pairs) >= 20
+    assert not _missing(" ".join(pairs), _reports(text, page))
 
 
 def test_a_figure_no_report_prints_is_found_missing() -> None:

@@ -85,3 +85,40 @@ def test_the_install_step_of_make_is_not_quiet() -> None:
     makefile = (ROOT / "Makefile").read_text()
     install = [line for line in makefile.splitlines() if "pip install" in line and "-e " in line]
     assert install and all("--quiet" not in line and " -q" not in line for line in install), install
+
+
+#: Words of a session that borrows a machine for timed calls, which a user with their own machine cannot
+#: follow.
+LENT_MACHINE = re.compile(
+    r"\blent\b|\bborrowed\b|CEC_GIT_REV|device tool|\.whl\b|\btimed windows?\b|(?<!-)\bdevice time\b",
+    re.IGNORECASE,
+)
+
+
+def _user_pages() -> list[Path]:
+    """The pages a user reads: the README, docs/ and every README of benchmarks/results/."""
+    pages = [
+        README,
+        *sorted((ROOT / "docs").rglob("*.md")),
+        *sorted((ROOT / "benchmarks" / "results").rglob("README.md")),
+    ]
+    return [p for p in pages if p.is_file()]
+
+
+def test_no_page_describes_a_lent_machine() -> None:
+    """The docs are written for someone with their own machine (a GPU owner, a laptop): no borrowed or lent
+    machine, no timed windows, no commit named through an environment variable, no wheels carried over."""
+    found = [
+        f"{page.relative_to(ROOT)}:{n}: {line.strip()[:100]}"
+        for page in _user_pages()
+        for n, line in enumerate(page.read_text().splitlines(), 1)
+        if LENT_MACHINE.search(line)
+    ]
+    assert not found, found
+
+
+def test_the_lent_machine_check_finds_those_words() -> None:
+    assert LENT_MACHINE.search("trained on one lent H200")
+    assert LENT_MACHINE.search("CEC_GIT_REV=abc bash benchmarks/gpu_session.sh window")
+    assert LENT_MACHINE.search("15 minutes of device time")
+    assert not LENT_MACHINE.search("the one-device time spread over the devices; the talent of a cook")
