@@ -46,7 +46,8 @@ class PartnerSet:
 
     partner: str  # the shipped label: `cec play serve --partner PARTNER`
     what: str  # what it is, in plain words (Markdown)
-    release: str = ""  # its release page
+    release: str = ""  # its release page (or the report that prints its figures)
+    link_text: str = "release"  # the words of the link to it
     play: str = ""  # the command to play it (default `cec play serve --partner PARTNER`)
     label: str = ""  # how the tables label its agents (default: `partner`)
     scripted: bool = False  # one scripted policy (the cook): "with itself", no seeds
@@ -191,7 +192,7 @@ def _together_cell(s: PartnerSet, f: Figures) -> str:
             "in the classic five (not played on the test set)"
         )
     if f.where.startswith("test:"):
-        return f"**{pm(*f.together)}** on the test set's {f.where[5:]} generated kitchens"
+        return f"{pm(*f.together)} on the test set's {f.where[5:]} generated kitchens"
     return f"{pm(*f.together)}, each in its own classic kitchen (the five)"
 
 
@@ -204,7 +205,7 @@ def headline(spec: Spec, base: Path, relative_to: Path) -> str:
     for s in spec.sets:
         f = figures(s, base)
         play = s.play or f"cec play serve --partner {s.partner}"
-        link = f"[release]({_link(base, s.release, relative_to)})" if s.release else ""
+        link = f"[{s.link_text}]({_link(base, s.release, relative_to)})" if s.release else ""
         proxies = pm(*f.proxies)
         rows.append((s.scripted, -f.proxies.mean, [f"`{play}`", s.what, proxies, _together_cell(s, f), link]))
     rows.sort(key=lambda r: (r[0], r[1]))

@@ -126,6 +126,24 @@ def test_docs_reproduce_overcooked_quotes_every_mean_and_error_as_a_linked_repor
     assert not _missing(" ".join(pairs), _reports(text, page))
 
 
+def test_a_spec_that_names_no_table_or_a_missing_one_is_refused_by_name(tmp_path: Path) -> None:
+    import pytest
+
+    from cec.config import ConfigError
+
+    spec = tmp_path / "results.yaml"
+    spec.write_text("sets:\n  - {partner: mine, what: mine}\n")
+    with pytest.raises(ConfigError, match="mine: give `kitchens:`"):
+        results_table.headline(*results_table.load_spec(spec), tmp_path)
+    (tmp_path / "tables").mkdir()
+    spec.write_text("sets:\n  - {partner: mine, what: mine, kitchens: tables}\n")
+    with pytest.raises(ConfigError, match="no table for cramped_room"):
+        results_table.headline(*results_table.load_spec(spec), tmp_path)
+    spec.write_text("sets:\n  - {partner: mine, what: mine, kitchen: tables}\n")
+    with pytest.raises(ConfigError, match="kitchen"):
+        results_table.load_spec(spec)
+
+
 def test_a_figure_no_report_prints_is_found_missing() -> None:
     report = ROOT / "benchmarks" / "results" / "overcooked" / "cpu" / "report.md"
     assert _missing("19.5 ± 0.9 and 11.4 ± 1.4, 39.9-81.5", [report]) == []
