@@ -1,0 +1,103 @@
+"""A training run carried from one working session to the next in git, compact (DESIGN rule 17).
+
+    python scripts/carry_run.py save runs/up-release       # -> carry/up-release/ (commit it, once a day)
+    python scripts/carry_run.py restore carry/up-release   # -> runs/up-release/, then `cec up --resume`
+
+`save` keeps the newest checkpoint's parameters, optimizer state, keys and update count (not the envs'
+carries: the episodes in flight), with the run's config, metrics and the evaluator's record (compressed).
+`restore` writes them back as the run's newest checkpoint, the carries drawn afresh from the run's keys
+(`Trainer.init`), so `cec up --resume` (or `cec train --resume`) continues the run from that update; the
+only difference from an uninterrupted run is that its envs start new episodes there. Project tooling: the
+product never reads `carry/` (`scripts/history_weight.py` bounds what it may hold).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gzip
+import shutil
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+STATE = "state"  # the compact checkpoint's folder
+FILES = ("config.yaml", "metrics.jsonl", "metrics.csv", "eval/record.csv", "logs/resume_command")
+KEPT = ("params", "opt_state", "key", "update")
+
+
+def _trainer(config: dict):  # noqa: ANN202 - a Trainer of the run's config
+    from cec.config import from_dict
+    from cec.training.config import TrainConfig
+    from cec.training.trainer import Trainer
+
+    return Trainer(from_dict(TrainConfig, config, where="the run's config"))
+
+
+def save(run: Path, out: Path) -> Path:
+    from cec import checkpoints
+
+    latest = checkpoints.CheckpointStore(run, keep_last=1).latest()
+    if latest is None:
+        raise SystemExit(f"{run} has no checkpoint to carry")
+    meta = checkpoints.read_meta(latest.path)
+    template = _trainer(meta["config"]).state_template()
+    state, _ = checkpoints.load(latest.path, template)
+    compact = {name: getattr(state, name) for name in KEPT}
+    shutil.rmtree(out, ignore_errors=True)
+    out.mkdir(parents=True)
+    checkpoints.save(out / STATE, compact, update=meta["update"], env_steps=meta["env_steps"],
+                     config=meta["config"], metadata={**meta["metadata"], "carried_from": latest.path.name},
+                     milestone=bool(meta["milestone"]))  # fmt: skip
+    for name in FILES:
+        if (run / name).is_file():
+            target = out / (name.replace("/", "__") + ".gz")
+            target.write_bytes(gzip.compress((run / name).read_bytes(), 9))
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    print(f"carried {latest.path.name} of {run} to {out} ({size / 1e6:.1f} MB)")
+    return out
+
+
+def restore(carried: Path, run_dir: Path) -> Path:
+    import jax
+
+    from cec import checkpoints
+
+    meta = checkpoints.read_meta(carried / STATE)
+    trainer = _trainer(meta["config"])
+    fresh = trainer.init()  # the run's shapes, with carries drawn afresh from its keys
+    kept, _ = checkpoints.load(carried / STATE, {name: getattr(fresh, name) for name in KEPT})
+    state = fresh._replace(**kept)
+    run = run_dir / trainer.config.run_name
+    for name in FILES:
+        source = carried / (name.replace("/", "__") + ".gz")
+        if source.is_file():
+            (run / name).parent.mkdir(parents=True, exist_ok=True)
+            (run / name).write_bytes(gzip.decompress(source.read_bytes()))
+    store = checkpoints.CheckpointStore(run, keep_last=1)
+    path = checkpoints.save(store.path(meta["update"]), jax.device_get(state), update=meta["update"],
+                            env_steps=meta["env_steps"], config=meta["config"], metadata=meta["metadata"],
+                            milestone=bool(meta["milestone"]))  # fmt: skip
+    print(f"restored update {meta['update']} of {run.name} to {path}; continue with its `--resume`")
+    return path
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    sub = ap.add_subparsers(dest="what", required=True)
+    s = sub.add_parser("save", help="the run's newest checkpoint, compact, into carry/<run name>")
+    s.add_argument("run", type=Path)
+    s.add_argument("--out", type=Path, default=None, help="default: carry/<run name>")
+    r = sub.add_parser("restore", help="a carried run back into the runs folder")
+    r.add_argument("carried", type=Path)
+    r.add_argument("--run-dir", type=Path, default=ROOT / "runs")
+    args = ap.parse_args(argv)
+    if args.what == "save":
+        save(args.run, args.out or ROOT / "carry" / args.run.name)
+    else:
+        restore(args.carried, args.run_dir)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
