@@ -443,7 +443,7 @@ def test_a_run_stops_at_its_first_non_finite_update_and_keeps_its_last_good_chec
     args = ["algorithm=cec_finetune", f"init_from={start}", "checkpoint.milestones=[0.0]", "--quiet"]
     if distributed:  # the distributed learner, its actors in this process (what `cec up` runs)
         args += ["--distributed", "distributed.pool=local", "distributed.num_actors=1",
-                 "distributed.publish_checkpoints=false"]  # fmt: skip
+                 "distributed.publish_checkpoints=false", "distributed.metrics_port=0"]  # fmt: skip
     done = _cec("train", "--config", str(_tiny_yaml(tmp_path)), *args, timeout=400)
     assert done.returncode == 2, done.stderr[-3000:]
     assert "Traceback" not in done.stderr
