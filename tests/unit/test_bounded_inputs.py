@@ -94,7 +94,7 @@ def test_a_zoo_manifest_is_read_bounded(tmp_path):
     for path, message in [
         (_zero(tmp_path, "zero.yaml"), "is not a regular file"),
         (_fifo(tmp_path, "fifo.json"), "is not a regular file"),
-        (tmp_path, "is a folder"),
+        (tmp_path, "zoo.yaml' does not exist"),  # a folder stands for its manifest (a bundle)
     ]:
         with pytest.raises(ConfigError, match=message) as info:
             zoo.load_zoo(path)
