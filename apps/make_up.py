@@ -5,7 +5,7 @@
 Under make, `cec up` starts in make's process group, the one the terminal sends Ctrl-C to, so a Ctrl-C
 reaches make and its shell as well, and make then ends with `make: *** [up] Interrupt` (status 130) however
 cleanly `cec up` stops. `cec up` takes the terminal for a process group of its own
-(`services.stack.terminal_of_our_own`), but only once its modules are imported: seconds of JAX and Ray,
+(`services.terminal.foreground_group`), but only once its modules are imported: seconds of JAX and Ray,
 more on a busy machine, in which a Ctrl-C reached make (and in `cec up` itself could be swallowed by JAX's
 garbage-collector callback, so that it trained on and make said "Interrupt" only when it ended).
 
@@ -18,40 +18,12 @@ runs `cec up` as it is.
 
 from __future__ import annotations
 
-import contextlib
-import os
 import signal
 import sys
-from collections.abc import Iterator
+
+from services.terminal import foreground_group
 
 STOPPED = 130  # `cec up`'s status after a clean Ctrl-C, which `make up` counts as success
-
-
-@contextlib.contextmanager
-def foreground_group() -> Iterator[None]:
-    """While inside, this process leads a process group of its own, the terminal's foreground one, when it
-    shared the foreground group with its parent (make's); the terminal goes back to that group on exit."""
-    try:
-        tty = os.open("/dev/tty", os.O_RDWR | os.O_NOCTTY)
-    except OSError:
-        yield
-        return
-    try:
-        shared = os.getpgrp()
-        if os.tcgetpgrp(tty) != shared or shared == os.getpid():
-            yield
-            return
-        quiet = signal.signal(signal.SIGTTOU, signal.SIG_IGN)  # a background group may then take the terminal
-        try:
-            os.setpgid(0, 0)
-            os.tcsetpgrp(tty, os.getpgrp())
-            yield
-        finally:
-            with contextlib.suppress(OSError):
-                os.tcsetpgrp(tty, shared)  # back to make, before it reads our exit status
-            signal.signal(signal.SIGTTOU, quiet)
-    finally:
-        os.close(tty)
 
 
 def main(argv: list[str] | None = None) -> int:

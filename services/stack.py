@@ -30,15 +30,12 @@ far, their ports and logs); split, each part would take that whole state as argu
 from __future__ import annotations
 
 import argparse
-import contextlib
 import dataclasses
 import logging
 import os
 import shlex
-import signal
 import sys
 import time
-from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO, cast
@@ -59,6 +56,7 @@ from services.service_process import (
 )
 from services.status import write_stack_file
 from services.store import StoreConfig
+from services.terminal import foreground_group
 
 log = logging.getLogger("cec.up")
 DEFAULT_CONFIG = "configs/up/default.yaml"
@@ -517,35 +515,6 @@ def resume_hint(args: argparse.Namespace) -> str:
     return shlex.join(["cec", "up", *options])
 
 
-@contextlib.contextmanager
-def terminal_of_our_own() -> Iterator[None]:
-    """While inside, this process's own process group is the terminal's foreground one, when it shared
-    that group with a parent (`make up`): a Ctrl-C then reaches `cec up`, which stops with a checkpoint,
-    and not make, which would die of it ("make: *** [up] Interrupt"). Without a terminal, or as the
-    leader of its group already (run from a shell), nothing changes."""
-    try:
-        tty = os.open("/dev/tty", os.O_RDWR | os.O_NOCTTY)
-    except OSError:
-        yield
-        return
-    try:
-        shared = os.getpgrp()
-        if os.tcgetpgrp(tty) != shared or shared == os.getpid():
-            yield
-            return
-        quiet = signal.signal(signal.SIGTTOU, signal.SIG_IGN)  # a background group may then take the terminal
-        try:
-            os.setpgid(0, 0)
-            os.tcsetpgrp(tty, os.getpgrp())
-            yield
-        finally:
-            with contextlib.suppress(OSError):
-                os.tcsetpgrp(tty, shared)  # back to make, before it reads our exit status
-            signal.signal(signal.SIGTTOU, quiet)
-    finally:
-        os.close(tty)
-
-
 def cmd_up(args: argparse.Namespace) -> int:
     stack_overrides, train_overrides = split_overrides(list(args.overrides))
     if args.monitoring:
@@ -553,7 +522,7 @@ def cmd_up(args: argparse.Namespace) -> int:
     config = load_config(UpConfig, preset_path(args.config), stack_overrides)
     train = config.train_config(train_overrides)
     stack = Stack(config, train, resume_hint=resume_hint(args))
-    with terminal_of_our_own():
+    with foreground_group():  # a no-op under `make up`, which took the terminal first (apps/make_up.py)
         try:
             stack.start(resume=args.resume)
             code = stack.train(resume=args.resume, max_updates=args.max_updates)
