@@ -461,6 +461,7 @@ COMMANDS = (
     ("apps.humans", ("humans",)),
     ("apps.reproduce", ("reproduce",)),
     ("apps.release", ("release",)),
+    ("apps.partners", ("partners",)),
     ("apps.results_table", ("results",)),
     ("services.level_server.main", ("level-server",)),
     ("services.stack", ("up",)),

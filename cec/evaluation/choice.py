@@ -1,5 +1,5 @@
 """A shipping choice that fails closed: the one rule every command that picks what ships goes through
-(`finetune/evaluate.py`'s seed and family, `best.py`'s partner per kitchen, `cec release`).
+(`cec partners finetune`'s seed and family, `cec partners best`'s partner per kitchen, `cec release`).
 
     chosen = choose({"cec": with_bc_of_cec, "cec_finetune": with_bc_of_ft}, what="cramped_room: the partner",
                     skipped=[s for s in table.skipped if s.algorithm in used])

@@ -28,11 +28,6 @@ def _cec(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout)
 
 
-def _script(path: Path, *args: str, timeout: float = 180) -> subprocess.CompletedProcess:
-    cmd = [sys.executable, str(path), *args]
-    return subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, timeout=timeout)
-
-
 # ---- a shipping choice fails closed ------------------------------------------------------------------------
 
 
@@ -66,37 +61,48 @@ def test_choose_refuses_an_empty_or_non_finite_group_or_a_skipped_entry(figures,
         choose(figures, what="the seed", skipped=skipped)
 
 
-def test_finetune_evaluate_refuses_to_ship_without_the_validation_proxy(tmp_path):
+def test_partners_finetune_refuses_to_ship_without_the_validation_proxy(tmp_path):
     """The committed Cramped Room table of the kickstarted family with the bc proxy skipped: before, seed 600
-    shipped instead of 601, `best` flipped to cec_teacher and the script exited 0."""
+    shipped instead of 601, `best` flipped to cec_teacher and the script (now `cec partners finetune`) exited
+    0. Nothing is written beside the table, nothing shipped."""
     out = tmp_path / "out"
     out.mkdir()
     _without_bc(SHIPPED / "finetune/teacher/cramped_room.csv.bz2", out / "cramped_room.csv.bz2")
-    args = ("--family", "ftteach", "--summarise-only", "--kitchens", "cramped_room")
-    done = _script(SHIPPED / "finetune/evaluate.py", *args, "--out", str(out), "--work", str(tmp_path / "w"))
+    zoo = tmp_path / "shipped" / "zoo.yaml"
+    zoo.parent.mkdir()
+    shutil.copyfile(REPO / "cec/shipped/zoo.yaml", zoo)
+    (tmp_path / "runs").mkdir()  # a checkpoint stands for the run, so that --ship gets to the choice
+    (tmp_path / "runs" / "ftteach-cramped_room").symlink_to(REPO / "cec/shipped/ftteach-cramped_room")
+    args = ("--family", "ftteach", "--kitchens", "cramped_room", "--out", str(out), "--zoo", str(zoo))
+    done = _cec("partners", "finetune", *args, "--runs", str(tmp_path / "runs"), "--ship")
     assert done.returncode == 2, done.stderr
     assert "Traceback" not in done.stderr
     assert "refusing to choose" in done.stderr and "'bc_cramped_room'" in done.stderr
     assert DAMAGED in done.stderr
-    assert sorted(p.name for p in out.iterdir()) == ["cramped_room.csv.bz2"]  # no summary, no ship.yaml
-    assert not (tmp_path / "w" / "ship.yaml").exists()
+    assert "playing" not in done.stderr  # the table was read, not played again
+    assert sorted(p.name for p in out.iterdir()) == ["cramped_room.csv.bz2"]  # no summary
+    assert zoo.read_bytes() == (REPO / "cec/shipped/zoo.yaml").read_bytes()
+    assert sorted(p.name for p in zoo.parent.iterdir()) == ["zoo.yaml"]  # nothing shipped
 
 
-def test_best_py_refuses_to_choose_without_the_validation_proxy(tmp_path):
-    """best.py on the committed tables with Cramped Room's bc proxy skipped: a traceback before."""
+def test_partners_best_refuses_to_choose_without_the_validation_proxy(tmp_path):
+    """`cec partners best` on the committed tables with Cramped Room's bc proxy skipped: a traceback before
+    (best.py); now exit 2, and neither best.md nor best.yaml written or shipped."""
     tables = tmp_path / "best"
-    shutil.copytree(SHIPPED / "best", tables)
+    tables.mkdir()
+    for table in (SHIPPED / "best").glob("*.csv.bz2"):
+        shutil.copyfile(table, tables / table.name)
     _without_bc(SHIPPED / "best/cramped_room_bc.csv.bz2", tables / "cramped_room_bc.csv.bz2")
-    md = tmp_path / "best.md"
-    done = _script(
-        SHIPPED / "best.py", "--summarise-only", "--tables", str(tables), "--work", str(tmp_path / "w"),
-        "--markdown", str(md),
-    )  # fmt: skip
+    zoo = tmp_path / "shipped" / "zoo.yaml"
+    zoo.parent.mkdir()
+    shutil.copyfile(REPO / "cec/shipped/zoo.yaml", zoo)
+    done = _cec("partners", "best", "--out", str(tables), "--zoo", str(zoo), "--ship")
     assert done.returncode == 2, done.stderr
     assert "Traceback" not in done.stderr
     assert "cramped_room: the partner of `--partner best`: refusing to choose" in done.stderr
     assert "'bc_cramped_room'" in done.stderr and DAMAGED in done.stderr
-    assert not md.exists() and not (tmp_path / "w" / "best.yaml").exists()
+    assert not (tables / "best.md").exists() and not (tables / "best.yaml").exists()
+    assert not (zoo.parent / "best.yaml").exists()
 
 
 # ---- a resume never loses a row: checked, then written to a temporary file, then renamed ------------------
