@@ -191,10 +191,7 @@ def _names_levels(levels: str) -> tuple[tuple[str, ...], list[Any]]:
 
 def seed_xp(tab: EpisodeTable, label: str) -> list[float]:
     """Each seed's mean cross-play with the other seeds of `label` (the figures a choice averages)."""
-    from cec.evaluation import analysis as an
-
-    own = tab.select((tab.algorithm_a == label) & (tab.algorithm_b == label))
-    m = an.seed_matrix(an.pair_level_scores(own, sorted(set(own.level.astype(str)))), label).values
+    m = _xp_matrix(tab, label)
     off = np.where(np.eye(len(m), dtype=bool), np.nan, m)
     return [float(np.nanmean(row)) if np.any(np.isfinite(row)) else math.nan for row in off]
 
@@ -326,6 +323,7 @@ def _pm(p: PartScore) -> str:
 
 
 def _xp_matrix(tab: EpisodeTable, label: str) -> np.ndarray:
+    """The seed x seed matrix of `label`'s seeds with each other (per pair, levels averaged)."""
     from cec.evaluation import analysis as an
 
     own = tab.select((tab.algorithm_a == label) & (tab.algorithm_b == label))
