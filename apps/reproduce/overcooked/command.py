@@ -18,11 +18,12 @@ from apps.reproduce.overcooked.evaluate import (
     cached_controls,
     cached_curves,
     cached_evaluation,
+    cached_short,
     level_spec,
     planned_episodes,
 )
 from apps.reproduce.overcooked.figures import write_figures
-from apps.reproduce.overcooked.modes import EVAL_STEPS, LEVEL_SETS, MACHINE_FILE, MODES, Mode
+from apps.reproduce.overcooked.modes import AUTHORS_STEPS, EVAL_STEPS, LEVEL_SETS, MACHINE_FILE, MODES, Mode
 from apps.reproduce.overcooked.plan import plan_lines, trained_runs, zoo
 from apps.reproduce.overcooked.report import write_report
 from apps.reproduce.overcooked.sections import analysis_lines, curve_lines, curve_points
@@ -49,12 +50,15 @@ def reproduce_overcooked(
     if report_only:
         table = pipeline.played_table(work, "overcooked", MACHINE_FILE)
         ran_on = json.loads((work / MACHINE_FILE).read_text())
+        short = cached_short(work)
     else:
         result = zoo(mode, work).build(progress=progress, log=log)
         if result.interrupted or result.manifest is None:
             pipeline.note(log, "training interrupted; run the same command again to continue")
             return None
         table = cached_evaluation(mode, result.manifest, work, log=log, commit=commit)
+        # the authors' code's 100-step episodes, the same line-ups and draws (a quarter of the steps)
+        short = cached_evaluation(mode, result.manifest, work, log=log, commit=commit, steps=AUTHORS_STEPS)
         record = work / MACHINE_FILE  # where someone removed it: this machine, unknown training commits
         ran_on = (
             json.loads(record.read_text())
@@ -71,6 +75,9 @@ def reproduce_overcooked(
 
     summary = {ls: seed_scores(with_controls, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
     matrices = {ls: seed_matrix(table, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS}
+    short_summary = None if short is None else {
+        ls: seed_scores(short, level_spec(mode, ls).split(",")) for ls in LEVEL_SETS
+    }  # fmt: skip
     plan, missing = trained_runs(mode, work)
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     points, kitchens = curve_points(cached_curves(mode, work, log=log, report_only=report_only))
@@ -81,7 +88,7 @@ def reproduce_overcooked(
     report = write_report(
         mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
         skipped=table.skipped, train_s=train_s, played_s=play_seconds(work), sections=sections,
-        missing=missing, matrices=matrices,
+        missing=missing, matrices=matrices, short=short_summary,
     )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report
@@ -114,7 +121,8 @@ def _cmd(args: argparse.Namespace) -> int:
             rates = ", ".join(f"{part} {r:g}" for part, r in mode.episodes_per_s.items())
             rate = f"~{duration(seconds)} (episodes/s: {rates}; measured in {mode.eval_measured_on})"
         print(
-            f"then cross-play: {played:,} episodes of {EVAL_STEPS} steps ({parts}), {rate}; then the "
+            f"then cross-play: {played:,} episodes of {EVAL_STEPS} steps ({parts}), {rate}; the same "
+            f"line-ups at the authors' {AUTHORS_STEPS} steps (about a quarter of that time); then the "
             "report (cached games are not played again)"
         )
         return 0

@@ -19,6 +19,7 @@ from apps.machine import machine_info
 from apps.reproduce import pipeline
 from apps.reproduce.overcooked.modes import (
     ALGORITHMS,
+    AUTHORS_STEPS,
     COOK,
     EVAL_STEPS,
     GENERALISTS,
@@ -58,24 +59,25 @@ def human_proxies(mode: Mode) -> list[Policy]:
     return [dataclasses.replace(p, seed=i) for i, p in enumerate(proxies)]
 
 
-def eval_config(mode: Mode, level_set: str, seed: int = 0) -> EvalConfig:
-    """How every policy plays on a level set: the mode's episodes per pair, seat order and kitchen, the
-    paper's episode length, common random numbers from `seed` (per level and episode: the same games
-    whatever the games per call, 8 on a CPU and 64 on an accelerator, which plays them side by side)."""
+def eval_config(mode: Mode, level_set: str, seed: int = 0, steps: int = EVAL_STEPS) -> EvalConfig:
+    """How every policy plays on a level set: the mode's episodes per pair, seat order and kitchen, episodes
+    of `steps` steps (the paper's 400, or the authors' code's 100: `AUTHORS_STEPS`), common random numbers
+    from `seed` (per level and episode: the same games whatever the games per call, 8 on a CPU and 64 on an
+    accelerator, which plays them side by side)."""
     import jax
 
     from cec.evaluation.crossplay import EvalConfig
 
     return EvalConfig(
         levels=level_spec(mode, level_set), episodes=mode.episodes[level_set], seed=seed,
-        max_steps=EVAL_STEPS, games_per_call=8 if jax.default_backend() == "cpu" else 64,
+        max_steps=steps, games_per_call=8 if jax.default_backend() == "cpu" else 64,
     )  # fmt: skip
 
 
-def _eval_key(mode: Mode) -> dict[str, object]:
+def _eval_key(mode: Mode, steps: int = EVAL_STEPS) -> dict[str, object]:
     """What a table of `evaluate` or `evaluate_controls` depends on besides its policies."""
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
-    return {**settings, "steps": EVAL_STEPS}
+    return {**settings, "steps": steps}
 
 
 def lineups(policies: Sequence[Policy], level_set: str) -> list[tuple[list[Policy], frozenset[str] | None]]:
@@ -102,14 +104,15 @@ def lineups(policies: Sequence[Policy], level_set: str) -> list[tuple[list[Polic
 
 
 def evaluate(
-    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, object], seed: int = 0
-) -> EpisodeTable:
+    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, object], seed: int = 0,
+    steps: int = EVAL_STEPS,
+) -> EpisodeTable:  # fmt: skip
     """Per level set, every line-up (`lineups`) with the scripted cook, every pair (XP, SP, ad hoc, with
     the cook), and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable`.
     Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
     reason. Each line-up's table is kept in `parts/<level set>-<i>` under `key` (`cached_table`) until the
     whole one is written: an interrupted evaluation (the CPU version's line-ups took 6 to 9 minutes
-    each on the 2-vCPU Xeon) resumes at the line-up it was playing."""
+    each on the 2-vCPU Xeon) resumes at the line-up it was playing. `steps`: the episodes' length."""
     from apps.reproduce.pipeline import cached_table
     from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import eval_levels
@@ -120,7 +123,7 @@ def evaluate(
     cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
     tables = []
     for level_set in LEVEL_SETS:
-        config = eval_config(mode, level_set, seed)
+        config = eval_config(mode, level_set, seed, steps)
         levels = eval_levels("overcooked", config.levels)
         partners = [cook, *proxies] if level_set == "classic" else [cook]
         with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
@@ -227,11 +230,17 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Epis
     return cached_table(folder, key, play, label="controls: ", log=log)
 
 
-def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str) -> EpisodeTable:
+def cached_evaluation(
+    mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str, steps: int = EVAL_STEPS
+) -> EpisodeTable:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
     SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`). The invocation that plays it
-    writes `work/machine.json`: this machine, `commit` and the commits that wrote the agents' checkpoints
-    (a zoo trained over several invocations)."""
+    writes `machine.json` beside it: this machine, `commit` and the commits that wrote the agents'
+    checkpoints (a zoo trained over several invocations). `steps`: the episodes' length; the table of
+    another length than `EVAL_STEPS` (the authors' 100, `AUTHORS_STEPS`) lives in `work/steps<steps>`
+    (`steps_folder`), the same games cut short."""
+    folder = steps_folder(work, steps)
+    folder.mkdir(parents=True, exist_ok=True)
     from apps.reproduce.pipeline import PLAY_TIME_FILE, cached_table
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
@@ -239,25 +248,43 @@ def cached_evaluation(mode: Mode, manifest: Path, work: Path, *, log: TextIO, co
     entries = sorted(pipeline.zoo_entries(manifest))
     proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
     # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
-    key = {**_eval_key(mode), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
-    parts = work / PARTS
+    key = {**_eval_key(mode, steps), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
+    parts = folder / PARTS
 
     def play() -> EpisodeTable:
-        table = evaluate(mode, manifest, log=log, parts=parts, key=key)
+        table = evaluate(mode, manifest, log=log, parts=parts, key=key, steps=steps)
         # the line-ups' own times, also those an interrupted invocation played
         seconds = sum(play_seconds(part) for part in parts.iterdir())
-        (work / PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
+        (folder / PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
         trained = {
             _short(read_meta(checkpoint)["metadata"].get("code_version", "unknown"))
             for _, _, checkpoint, _ in entries
         }
         ran_on = {"machine": machine_info(), "commit": commit, "trained_at": sorted(trained)}
-        (work / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
+        (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
         return table
 
-    table = cached_table(work, key, play, label="", log=log)
+    label = "" if steps == EVAL_STEPS else f"{steps}-step episodes: "
+    table = cached_table(folder, key, play, label=label, log=log)
     shutil.rmtree(parts, ignore_errors=True)  # all in the table now
     return table
+
+
+def steps_folder(work: Path, steps: int) -> Path:
+    """Where the cross-play table of `steps`-step episodes lives: `work` itself for `EVAL_STEPS`, else
+    `work/steps<steps>`."""
+    return work if steps == EVAL_STEPS else work / f"steps{steps}"
+
+
+def cached_short(work: Path) -> EpisodeTable | None:
+    """For `--report-only`: the 100-step table (`AUTHORS_STEPS`) a complete invocation left in the work
+    folder, None where there is none (a folder played before the reproduction played it, whose checkpoints
+    are not kept)."""
+    from cec.evaluation.results import read_csv
+
+    folder = steps_folder(work, AUTHORS_STEPS)
+    done = results_file(folder).is_file() and (folder / "results.key.json").is_file()
+    return read_csv(results_file(folder)) if done else None
 
 
 def _short(version: str) -> str:

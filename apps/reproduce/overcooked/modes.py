@@ -27,6 +27,7 @@ TITLES = {
 COOK = "cook"
 LEVEL_SETS = ("classic", "heldout")
 EVAL_STEPS = 400  # the paper's episode length; its absolute scores need it
+AUTHORS_STEPS = 100  # the authors' code's evaluation episodes: the report's second table
 MEASURED_ON = "the CEC CPU preset, one seed, 2-core AMD EPYC, both cores busy (2.4k steps/s), 2026-11-22"
 TTS_MEASURED_ON = (
     "the CPU zoo's runs of the time-to-skill preset, four seeds per process, each run's median env-steps/s "

@@ -16,6 +16,7 @@ from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
 from apps.reproduce.overcooked.modes import (
     ALGORITHMS,
+    AUTHORS_STEPS,
     COOK,
     EVAL_STEPS,
     GENERALISTS,
@@ -63,6 +64,7 @@ def write_report(
     plan: list[pipeline.PlanLine], command: str, ran_on: dict[str, Any], commit: str,
     skipped: Sequence[SkippedEntry] = (), train_s: dict[str, float] | None = None, played_s: float = math.nan,
     sections: Sequence[str] = (), missing: Sequence[str] = (), matrices: dict[str, SeedMatrix] | None = None,
+    short: dict[str, dict[str, SeedScores]] | None = None,
 ) -> Path:  # fmt: skip
     """`out/report.md` and `out/summary.json`; `ran_on`: the machine and commit that trained and played;
     `commit`: the checkout's as the command started; `skipped`: the cross-play table's skipped entries
@@ -70,7 +72,8 @@ def write_report(
     run name) and `played_s` of the cross-play (NaN: not recorded), whichever invocation did them;
     `sections`: the lines after the tests (`analysis_lines`); `missing`: runs of the mode's plan that the
     work folder does not have (a folder trained before the mode had them); `matrices`: {level set:
-    `cec.evaluation.seeds.SeedMatrix`} of the same table, for the exact tests (`comparisons`)."""
+    `cec.evaluation.seeds.SeedMatrix`} of the same table, for the exact tests (`comparisons`); `short`: the
+    summary of the same line-ups at the authors' 100-step episodes (None: not played)."""
 
     paper, paper_text = paper_values(), paper_values("text")
     tests = comparisons(summary, matrices)
@@ -100,6 +103,7 @@ def write_report(
             named = ", ".join(f"{a.upper().replace('_', '-')} {v}" for a, v in absent.items())
             lines += ["", f"Not trained here; the paper's text gives: {named}."]
         lines.append("")
+    lines += steps_lines(summary, short)
     if not tests:
         results = ["No test: too few seeds, or no spread between them."]
     else:
@@ -125,8 +129,51 @@ def write_report(
         "eval_steps": EVAL_STEPS, "paper": paper, "tests": tests,
         "summary": {ls: {a: dataclasses.asdict(s) for a, s in sc.items()} for ls, sc in summary.items()},
     }  # fmt: skip
+    if short is not None:
+        data[f"summary_steps{AUTHORS_STEPS}"] = {
+            ls: {a: dataclasses.asdict(s) for a, s in sc.items()} for ls, sc in short.items()
+        }
     (out / "summary.json").write_text(json.dumps(data, indent=1, default=float) + "\n")
     return report
+
+
+STEPS_HEAD = (
+    "level set",
+    "algorithm",
+    f"cross-play, {EVAL_STEPS} steps",
+    f"cross-play, {AUTHORS_STEPS} steps",
+    f"self-play, {EVAL_STEPS}",
+    f"self-play, {AUTHORS_STEPS}",
+    f"XP {AUTHORS_STEPS} over {EVAL_STEPS}",
+)
+
+
+def steps_lines(
+    summary: dict[str, dict[str, SeedScores]], short: dict[str, dict[str, SeedScores]] | None
+) -> list[str]:
+    """The section of the authors' evaluation length: each algorithm's cross-play and self-play at
+    `EVAL_STEPS` beside the same line-ups at `AUTHORS_STEPS` (`short`); where they were not played, why."""
+    head = [f"## At the authors' {AUTHORS_STEPS}-step episodes", ""]
+    if short is None:
+        return [*head, f"Not played: this work folder has no table of {AUTHORS_STEPS}-step episodes (it was "
+                f"played before the reproduction played one, and its checkpoints are not kept, so the "
+                f"agents cannot be played again). A run of `cec reproduce overcooked` that trains plays it "
+                f"after the {EVAL_STEPS}-step table (`work/steps{AUTHORS_STEPS}`).", ""]  # fmt: skip
+    rows = []
+    for level_set, scores in summary.items():
+        for algo in ALGORITHMS:
+            if algo not in scores or algo not in short.get(level_set, {}):
+                continue
+            long_, cut = scores[algo].crossplay(), short[level_set][algo].crossplay()
+            ratio = num(cut.mean / long_.mean, 2) if long_.mean > 0 else NONE
+            rows.append([level_set, TITLES[algo], pm(long_.mean, long_.se), pm(cut.mean, cut.se),
+                         _cell(scores[algo].sp), _cell(short[level_set][algo].sp), ratio])  # fmt: skip
+    about = (f"The same line-ups, seeds and draws as the tables above, the episodes cut at {AUTHORS_STEPS} "
+             f"steps (the authors' code evaluates so; {EVAL_STEPS} is the paper's figures' length and ours): "
+             "cross-play ± its jackknife standard error over seeds, self-play ± the standard error over "
+             "seeds. A quarter of the steps holds less than a quarter of the return: the first soup of an "
+             "episode takes the walk to the onions and the pot's cooking before any delivery.")  # fmt: skip
+    return [*head, about, "", *table_lines(STEPS_HEAD, rows), ""]
 
 
 def _score_rows(level_set: str, scores: dict[str, SeedScores]) -> list[list[str]]:
@@ -181,13 +228,23 @@ def _paper_cell(level_set: str, algo: str, figures: dict[str, dict[str, float]],
 
 
 def _reading(test: dict[str, Any]) -> str:
-    """What a comparison of `comparisons` shows: CEC ahead, CEC behind, or neither at the 5% level of the
-    t-test; a difference the t-test's Holm-adjusted p does not keep below 5% in its family says so."""
+    """What a comparison of `comparisons` shows at the 5% level: CEC ahead, CEC behind, or neither. The
+    t-test finds it; where an exact test stands beside it (`p_exact`), the reading holds only if the exact
+    test's Holm-adjusted p does too, and otherwise says which test shows it and which does not (with 4 seeds
+    a side and 5 tests in the family the exact test cannot go below 0.143 after Holm, whatever the data).
+    Without an exact p, a difference the t-test's Holm-adjusted p does not keep below 5% says so."""
     if not test["significant"]:
         return "no difference shown"
     reading = "CEC ahead" if test["diff"] > 0 else "CEC behind"
     held = test.get("p_holm", test["p"]) < ALPHA
-    return reading if held else f"{reading}; not after Holm"
+    exact, exact_holm = test.get("p_exact", math.nan), test.get("p_exact_holm", math.nan)
+    if math.isnan(exact):
+        return reading if held else f"{reading}; not after Holm"
+    if exact_holm < ALPHA:
+        return f"{reading} (the exact test too, after Holm)"
+    t_part = f"t-test: {reading}" + ("" if held else ", not after Holm")
+    exact_part = "exact test: below 5%, not after Holm" if exact < ALPHA else "exact test: not shown"
+    return f"{t_part}; {exact_part}"
 
 
 def _floor_lines(tests: Sequence[dict[str, Any]]) -> list[str]:

@@ -1,6 +1,6 @@
 """The numbers `cec reproduce overcooked` reports, seeds as units: per level set and algorithm each seed's
-scores (`seed_scores`), and CEC against each baseline (`comparisons`: the jackknife t-test, the exact
-permutation test over seeds, Holm within each family).
+scores (`seed_scores`), and CEC against each baseline (`comparisons`: the jackknife or Welch t-test, an
+exact permutation test over seeds beside each, Holm within each family).
 """
 
 from __future__ import annotations
@@ -75,11 +75,13 @@ def comparisons(
     """CEC against each baseline, per level set: cross-play with the jackknife over seeds (seeds partner
     each other, so their per-seed XP are not independent; `compare_crossplay`), the score with the human
     proxies (the same partners for every seed) with a Welch t-test over seeds and a bootstrap interval.
-    `matrices`: {level set: `cec.evaluation.seeds.SeedMatrix`} of the same table; with it each cross-play
-    test also gets the exact permutation p over seeds from CEC's and the baseline's pooled seed x seed matrix
-    (`p_exact`, its smallest attainable value `p_min`; NaN where two of their seeds never played). Every
-    p is also Holm-adjusted within its family, one level set and one score (`p_holm`, `p_exact_holm`)."""
-    from cec.evaluation.stats import compare, compare_crossplay, holm
+    Beside each, an exact test over seeds (`p_exact`, its smallest attainable value `p_min`): for
+    cross-play, with `matrices` ({level set: `cec.evaluation.seeds.SeedMatrix`} of the same table), the
+    permutation test of CEC's and the baseline's pooled seed x seed matrix (NaN where two of their seeds
+    never played, or without `matrices`); with the human proxies, the two-sample relabelling test of the
+    per-seed scores (`permutation_two_sample`: the seeds are independent there). Every p is also
+    Holm-adjusted within its family, one level set and one score (`p_holm`, `p_exact_holm`)."""
+    from cec.evaluation.stats import compare, compare_crossplay, holm, permutation_two_sample
 
     out = []
     for level_set, scores in summary.items():
@@ -103,6 +105,8 @@ def comparisons(
                     if a.size < 2 or b.size < 2:
                         continue
                     c = compare(a, b)
+                    exact = permutation_two_sample(a, b)
+                    p_exact, p_min = exact.p, exact.p_min
                 if math.isnan(c.p):
                     continue
                 family.append({"level_set": level_set, "measure": measure, "better": "cec", "worse": other,

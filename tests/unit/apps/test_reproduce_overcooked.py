@@ -129,6 +129,43 @@ def test_a_baseline_significantly_ahead_of_cec_reads_cec_behind() -> None:
     assert reading == {"ippo": "CEC behind", "fcp": "no difference shown"}
 
 
+def test_the_reading_claims_only_what_the_exact_test_holds_after_holm() -> None:
+    """A t-test over 4 seeds a side can print a p the seeds cannot support: beside an exact p, the reading
+    says which test shows the difference; without one (no pooled matrix), the t-test's reading alone."""
+    base = {"significant": True, "diff": -30.0, "p": 0.001, "p_holm": 0.004}
+    assert oc_report._reading({**base, "p_exact": math.nan, "p_exact_holm": math.nan}) == "CEC behind"
+    assert oc_report._reading({**base, "p_exact": 0.0286, "p_exact_holm": 0.143}) == (
+        "t-test: CEC behind; exact test: below 5%, not after Holm"
+    )
+    assert oc_report._reading({**base, "p_exact": 0.2, "p_exact_holm": 0.6, "p_holm": 0.09}) == (
+        "t-test: CEC behind, not after Holm; exact test: not shown"
+    )
+    assert oc_report._reading({**base, "p_exact": 0.002, "p_exact_holm": 0.011}) == (
+        "CEC behind (the exact test too, after Holm)"
+    )
+    assert oc_report._reading({**base, "significant": False}) == "no difference shown"
+
+
+def test_the_human_proxy_tests_carry_the_two_sample_exact_p() -> None:
+    """With the human proxies each seed meets the same fixed partners, so the seeds are independent: the
+    exact test there relabels the per-seed scores (4 + 4 seeds: never below 2/70)."""
+    from cec.evaluation.stats import permutation_two_sample
+
+    def scores(human: tuple[float, ...]) -> oc_summary.SeedScores:
+        return oc_summary.SeedScores((0, 1, 2, 3), (1.0,) * 4, (1.0,) * 4, (1.0,) * 4, human)
+
+    summary = {"classic": {"cec": scores((10.0, 11.0, 12.0, 13.0)), "ippo": scores((1.0, 2.0, 3.0, 4.0))}}
+    (test,) = [t for t in oc_summary.comparisons(summary) if t["measure"] == "human"]
+    exact = permutation_two_sample([10.0, 11.0, 12.0, 13.0], [1.0, 2.0, 3.0, 4.0])
+    assert (test["p_exact"], test["p_min"]) == (exact.p, exact.p_min) and exact.p == pytest.approx(2 / 70)
+    assert test["p_exact_holm"] == pytest.approx(2 / 70)  # a family of one
+
+
+def test_a_work_folder_without_a_100_step_table_says_why() -> None:
+    lines = oc_report.steps_lines({"heldout": {}}, None)
+    assert lines[0] == "## At the authors' 100-step episodes" and "Not played" in lines[2]
+
+
 def _round_robin(base: dict[str, float], seeds: int = 4, *, across: bool = True) -> Any:
     """Every seed of every algorithm with every other (`across`: also across the algorithms), one
     held-out kitchen, the pair's return the mean of the two seeds' skills plus noise."""
@@ -300,8 +337,11 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
                    "## The held-out kitchens by training kitchen", "in their own kitchen",
                    "| with human proxies |", "The paper's human study", "| control: untrained CEC network |",
                    "| control: no-op agent |", "## Per kitchen, collisions",
-                   "| cramped_room | held-out |"):  # fmt: skip
+                   "| cramped_room | held-out |", "## At the authors' 100-step episodes",
+                   "| heldout | CEC |"):  # fmt: skip
         assert needle in text, needle
+    short = read_csv(work / "steps100" / "results.csv")  # the same line-ups, cut at 100 steps
+    assert set(short.episode_steps) == {100} and len(short) == len(read_csv(work / "results.csv"))
     # the recorded time of each training run and of the cross-play, kept for a report that reuses them
     assert "Recorded times of the work behind these numbers" in text and "not recorded" not in text
     assert (
@@ -358,7 +398,8 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     # a second invocation trains nothing and plays nothing again
     log = io.StringIO()
     oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
-    assert log.getvalue().count("not played again") == 3 and "finished, skipping" in log.getvalue()
+    # the 400-step table, the 100-step one, the controls and the curves
+    assert log.getvalue().count("not played again") == 4 and "finished, skipping" in log.getvalue()
     assert not (
         work / oc_evaluate.PARTS
     ).exists()  # each line-up's table kept only until the whole one is written
@@ -420,7 +461,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     assert again is not None
     assert "controls: cross-play results found" in log.getvalue()  # the folder's own untrained network
     for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training",
-                    "## Cross-play learning curves"):  # fmt: skip
+                    "## Cross-play learning curves", "## At the authors' 100-step"):  # fmt: skip
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
     assert ran_on["commit"] == "abc1234"  # the invocation that finished the table, not one that read it
     assert ran_on["trained_at"] == [
