@@ -138,7 +138,7 @@ class ServiceProcess:
             self.stop()
             tail = [line.rstrip() for line in err.output.splitlines()[-15:]]
             raise ServiceStartError(
-                f"the {self.name} did not start (no {marker!r} line within {timeout:.0f} s); its output:\n  "
+                f"the {self.name} did not start (no {marker!r} line within {timeout:g} s); its output:\n  "
                 + "\n  ".join(tail),
                 err.exited,
                 tail,

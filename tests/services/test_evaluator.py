@@ -115,7 +115,7 @@ def _config(plane: ControlPlane, zoo: Path, results: Path, **kw) -> EvaluatorCon
     base = dict(
         store=plane.config, zoo=str(zoo), redis_zoo=False, level_sets=(CLASSIC, HELDOUT),
         play=EvalConfig(episodes=1, max_steps=STEPS, games_per_call=1), results_dir=str(results),
-        metrics_port=-1, poll_s=0.2,
+        metrics_port=-1, poll_s=0.2, zoo_algorithms=(),
     )  # fmt: skip
     return EvaluatorConfig(**{**base, **kw})
 
@@ -516,7 +516,7 @@ def test_service_scores_each_checkpoint_exactly_once_across_a_sigkill(redis_serv
     args = [
         f"store.url={redis_server.url}", f"store.key_prefix={prefix}", f"zoo={zoo}", "redis_zoo=false",
         f"results_dir={results_dir}", "metrics_port=0", "play.episodes=1", f"play.max_steps={STEPS}",
-        "poll_s=0.2",
+        "poll_s=0.2", "zoo_algorithms=[]",
         "level_sets=[{name: classic, levels: 'cramped_room,coord_ring'}, "
         "{name: heldout, levels: generated, max_levels: 3}]",
     ]  # fmt: skip

@@ -64,7 +64,9 @@ def test_cec_up_names_start_timeout_s_when_rays_head_is_not_ready_in_time(tmp_pa
     import sys
 
     repo = Path(__file__).resolve().parents[2]
-    cmd = [sys.executable, "-m", "apps.cli", "up", f"train.run_dir={tmp_path}", "train.name=up"]
+    # the smoke preset's fixed kitchens: no level server starts before Ray (it has the same time-out)
+    cmd = [sys.executable, "-m", "apps.cli", "up", "--config", "configs/up/smoke.yaml"]
+    cmd += [f"train.run_dir={tmp_path}", "train.name=up"]
     cmd += ["evaluator=false", "start_timeout_s=0.3"]
     proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 2, proc.stderr[-3000:]

@@ -47,7 +47,10 @@ def test_config_errors_exit_2_with_the_cause(tmp_path):
     assert proc.returncode == 2 and "does not exist" in err
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump(QUICK))
-    proc = _cec("train", "--config", str(good), f"run_dir={tmp_path / 'runs'}", "num_envs=1_000_000_000_000")
+    # within every size's range (those refusals are their own test), but the observations alone of one
+    # update of Overcooked's 9x9x26 view would take hundreds of GiB
+    huge = ["env.name=overcooked", "env.levels=cramped_room", "num_envs=1_048_576", "num_steps=16"]
+    proc = _cec("train", "--config", str(good), f"run_dir={tmp_path / 'runs'}", *huge)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 2 and "GiB" in err and "lower num_envs, num_steps or num_seeds" in err
     assert not (tmp_path / "runs").exists()  # refused before any work
