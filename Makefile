@@ -34,7 +34,7 @@ demo: install
 # time on one worker (their xdist group, tests/conftest.py), listed first so that they start first.
 # The three that host Ray's driver run each in a child pytest of its own process group (tests/own_process.py),
 # so that a crash there fails that test instead of taking down a worker and its group.
-# `make test` is the CI gate: it leaves out the heavy tier (tests/conftest.py HEAVY), which `make test-all` adds.
+# `make test` is the CI gate: it leaves out the heavy tier (tests/heavy_tier.txt), which `make test-all` adds.
 TEST_WORKERS ?= auto
 SUITE = $(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup \
 	tests/e2e tests/unit tests/parity tests/learning tests/services

@@ -66,50 +66,14 @@ def _lighter_xla_optimisation() -> None:
         os.environ["XLA_FLAGS"] = f"{flags} {_OPT_FLAG}=1".strip()
 
 
-# The heavy tier (`make test-all`; `make test`, the CI gate, leaves it out): whole workflows, and repeats of a
-# check in more kitchens or seeds, each a minute or more of CPU, whose code the gate also runs in a cheaper
-# test (named in the comment above each). Together 1,274 of the suite's 5,764 test-seconds (2,924 s
-# of wall time on two workers on the 2-vCPU AMD EPYC, 2026-12-05), which had outgrown the CI's time.
-_PARITY = "tests/parity/test_jaxmarl_parity.py::test_random_and_scripted_play_matches_jaxmarl"
-_SHIPPED = "tests/unit/agents/test_shipped.py::test_each_shipped"
-HEAVY = frozenset(
-    (
-        # the reproduction's parts: the other tests of its file; a whole `cec reproduce`: Dual Destination's
-        "tests/unit/apps/test_reproduce_overcooked.py::"
-        "test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results",
-        # a killed learner under `cec up`: tests/e2e/test_distributed.py
-        "tests/e2e/test_multinode.py::test_a_dead_nodes_actor_comes_back_on_another_node_and_nothing_is_lost",
-        # the dashboards' queries against the exported series: tests/services/test_dashboards.py
-        "tests/e2e/test_stack_metrics.py::test_dashboards_read_only_live_series_and_scraped_counters_follow_the_run",
-        # learning: Dual Destination's test, and the Ray learner's in tests/e2e/test_distributed.py
-        "tests/learning/test_learning.py::test_ippo_cramped_room_delivers_soups",
-        # the learner's update on two devices: tests/services/test_learner_devices.py
-        "tests/unit/training/test_data_parallel.py::"
-        "test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devices",
-        # every generated level runs in the env: test_every_generated_level_runs_in_the_env
-        "tests/unit/levels/test_generator.py::test_two_million_levels_are_solvable_never_heldout_within_bounds_and_uniform",
-        # the gate plays cramped_room and forced_coord
-        f"{_PARITY}[asymm_advantages]",
-        f"{_PARITY}[coord_ring]",
-        f"{_PARITY}[counter_circuit]",
-        # the gate plays cec758m-s200, teach21m-s400, ft758m-asymm_advantages, ft758m-forced_coord,
-        # ftteach-forced_coord and ftteach-counter_circuit
-        *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[cec758m-s{s}]" for s in (201, 202, 203)),
-        *(f"{_SHIPPED}_cec_policy_delivers_with_the_cook[teach21m-s{s}]" for s in (401, 402, 403)),
-        *(
-            f"{_SHIPPED}_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen[ft758m-{k}]"
-            for k in ("cramped_room", "coord_ring", "counter_circuit")
-        ),
-        *(
-            f"{_SHIPPED}_finetuned_agent_cooks_with_itself_and_with_the_cook_in_its_kitchen[ftteach-{k}]"
-            for k in ("cramped_room", "asymm_advantages", "coord_ring")
-        ),
-        # the bomb of distinct algorithms, and test_a_bz2_bomb_of_valid_rows_is_refused_at_the_cap_...
-        "tests/unit/test_hardening_round3.py::"
-        "test_cec_report_of_a_bz2_bomb_stays_within_500_mb_of_its_start"
-        "[rows-520000-holds more than 500,000 rows]",
-    )
-)
+def _heavy_tier() -> frozenset[str]:
+    """The node ids in tests/heavy_tier.txt, which `make test` leaves out (the file says why)."""
+    text = (Path(__file__).parent / "heavy_tier.txt").read_text()
+    ids = (line.split("#", 1)[0].strip() for line in text.splitlines())
+    return frozenset(nodeid for nodeid in ids if nodeid)
+
+
+HEAVY = _heavy_tier()
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:

@@ -1,6 +1,6 @@
-"""The heavy tier (tests/conftest.py `HEAVY`), which `make test` leaves out and `make test-all` runs: every
-entry names a test that exists, so a renamed test cannot leave a stale entry behind, and pytest marks exactly
-those tests `heavy`."""
+"""The heavy tier (tests/heavy_tier.txt, read into tests/conftest.py `HEAVY`), which `make test` leaves out
+and `make test-all` runs: every entry names a test that exists, so a renamed test cannot leave a stale entry
+behind, and pytest marks exactly those tests `heavy`."""
 
 from __future__ import annotations
 
