@@ -66,6 +66,13 @@ def _lighter_xla_optimisation() -> None:
         os.environ["XLA_FLAGS"] = f"{flags} {_OPT_FLAG}=1".strip()
 
 
+def own_jax_cache(tmp_path: Path) -> dict[str, str]:
+    """The environment for a child process with fake host devices (`--xla_force_host_platform_device_count`,
+    a flag JAX's cache key leaves out): a compilation cache of its own, so that no executable compiled among
+    N devices is read by the suite's one-device processes."""
+    return {_CACHE_ENV: str(tmp_path / "jax-cache")}
+
+
 def _heavy_tier() -> frozenset[str]:
     """The node ids in tests/heavy_tier.txt, which `make test` leaves out (the file says why)."""
     text = (Path(__file__).parent / "heavy_tier.txt").read_text()

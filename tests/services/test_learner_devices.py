@@ -22,6 +22,7 @@ from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
 from services.learner.config import DistributedConfig, actor_env
 from services.learner.driver import learner_options
+from tests.conftest import own_jax_cache
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -67,7 +68,7 @@ CHILD = textwrap.dedent(
 @pytest.mark.timeout(300)
 def test_the_learners_update_on_two_devices_is_its_update_on_one(tmp_path: Path) -> None:
     flags = learner_options(DistributedConfig(), devices=2)["runtime_env"]["env_vars"]["XLA_FLAGS"]
-    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
+    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu", **own_jax_cache(tmp_path)}
     proc = subprocess.run(
         [sys.executable, "-c", CHILD, str(tmp_path)],
         cwd=REPO,

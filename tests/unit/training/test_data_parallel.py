@@ -18,6 +18,7 @@ import pytest
 from cec.config import ConfigError, load_config
 from cec.training.config import TrainConfig
 from cec.training.trainer import Trainer
+from tests.conftest import own_jax_cache
 
 REPO = Path(__file__).resolve().parents[3]
 NET = (
@@ -93,7 +94,7 @@ def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devic
     run that did one update on 4 devices and was resumed on one, equal one device's to float rounding; the
     rows of the metrics agree too (the resumed run's programs come from the session's compilation cache)."""
     flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4".strip()
-    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu"}
+    env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu", **own_jax_cache(tmp_path)}
     proc = subprocess.run(
         [sys.executable, "-c", CHILD, json.dumps(BASE), str(tmp_path)],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=540,
