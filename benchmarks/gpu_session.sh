@@ -11,25 +11,32 @@
 #   benchmarks/gpu_session.sh crossplay    # cross-play throughput (paper preset)
 #   benchmarks/gpu_session.sh pack         # stop the paper run (checkpoint), pack results, policies, curves
 #   benchmarks/gpu_session.sh window       # ALL OF IT IN ONE CALL (<= 9 min; docs/gpu.md): the paper
-#                                          # preset's profile, four seeds of the best recipe (or the shipped
-#                                          # seeds trained further), the paper preset's throughput at each
-#                                          # matmul precision, the new policies exported
+#                                          # preset's profile, four seeds of the paper's CEC recipe (or of
+#                                          # another recipe, or the shipped seeds trained further), the new
+#                                          # policies exported
+#   benchmarks/gpu_session.sh smoke        # `window` end to end at tiny sizes on this machine's CPU (the
+#                                          # defaults' code path; minutes): run it before lending a GPU
 #
-# `window` sizes (environment; the defaults fit one 9-minute call; docs/gpu.md has the command that runs it
-# end to end at tiny sizes on a CPU, 4 minutes): WINDOW_RECIPE (configs/train/cec_overcooked_teacher.yaml,
-# the every-kitchen issue's candidate) the config of the four seeds, seeds WINDOW_SEED.. (500); WINDOW_INIT
-# empty: fresh seeds, `shipped`: the shipped CEC seeds continued (with WINDOW_RECIPE=
-# configs/train/cec_overcooked_cpu.yaml, their recipe), or four comma-separated checkpoints continued;
-# WINDOW_TEACHER_ANNEAL (a third of WINDOW_STEPS) the env steps over which a recipe's teacher weight falls
-# to 0; WINDOW_TRAIN_S (260) seconds of CEC training, stopped by SIGTERM (the trainer checkpoints and
-# exits); WINDOW_PAPER_S (60) of the paper preset at each precision of WINDOW_PRECISIONS ("default
-# bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32 accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
+# `window` sizes (environment; the defaults fit one 9-minute call): WINDOW_RECIPE
+# (configs/train/cec_overcooked_paper_10m.yaml: the paper's network, PPO table, LR schedule, shaping and
+# 100-step training episodes, issue 86) the config of the four seeds, seeds WINDOW_SEED.. (600 for a recipe
+# of the paper's network, else 500); WINDOW_INIT empty: fresh seeds, `shipped`: the shipped CEC seeds
+# continued (with WINDOW_RECIPE=configs/train/cec_overcooked_cpu.yaml, their recipe), or four comma-separated
+# checkpoints continued; WINDOW_TEACHER_ANNEAL (a third of WINDOW_STEPS; only for a recipe with a teacher)
+# the env steps over which its teacher weight falls to 0; WINDOW_TRAIN_S (380 for the paper's network, else
+# 260) seconds of CEC training, stopped by SIGTERM (the trainer checkpoints and exits); WINDOW_PAPER_S (0 for
+# the paper's network, whose seeds are the paper preset's throughput; else 60) of the paper preset at each
+# precision of WINDOW_PRECISIONS ("default bfloat16": JAX_DEFAULT_MATMUL_PRECISION, bf16 passes with float32
+# accumulation and float32 weights); WINDOW_PROFILE_S (90) for the profile of WINDOW_PROFILE_CONFIG (the
 # paper preset) with WINDOW_PROFILE_SET overrides; WINDOW_LR (fresh seeds: the recipe's; continued: 1e-3, two
 # restarts at 2e-3 each lost cross-play first, docs/gpu.md) the seeds' LR, annealed to 0 over WINDOW_STEPS
-# per seed (270M: what 4 seeds at 4M env-steps/s on an H200 train in the time left after the compile);
-# WINDOW_BATCH the seeds' and the profile's batch (1024 envs, 2 epochs x 16 minibatches); WINDOW_SET extra
-# overrides for every run. A time of 0 skips the profile or the paper preset (a second window continuing the
-# first's seeds).
+# per seed unless the recipe fixes its own schedule (the paper's: over 3e9, so a window is the first steps of
+# the paper's run); WINDOW_STEPS per seed (the paper's network: 20,971,520, twice the CPU reproduction's
+# 10.5M, whose milestones 0.125/0.25/0.5 fall on its curve's 2.6M/5.2M/10.5M; else 270M: what 4 seeds at 4M
+# env-steps/s on an H200 train in the time left after the compile); WINDOW_BATCH the seeds' batch (the
+# paper's network: the paper's 512 envs x 256 steps, 4 epochs x 2 minibatches; else 1024 envs, 2 epochs x
+# 16 minibatches); WINDOW_SET extra overrides for every run. A time of 0 skips the profile or the paper
+# preset (a second window continuing the first's seeds).
 #
 # Everything that comes back is written under $OUT (at most 8 files of 16 MiB: tarballs, the paper run's
 # checkpoint split in parts). CEC_GIT_REV names the commit the copy was made from (the copy has no .git).
@@ -119,19 +126,41 @@ pack)
     done
     ls -la "$OUT"
     ;;
+smoke)
+    # `window` with its defaults' code path at tiny sizes (4 envs x 16 steps per seed), on this machine; the
+    # training ends at WINDOW_STEPS (its SIGTERM, 900 s, only if the compile takes that long: 150 s did not
+    # reach the first update beside a training run on 2 cores), the export and pack run as on the GPU
+    export PYTHON=${PYTHON:-$PWD/.venv/bin/python}
+    export OUT WINDOW_TRAIN_S=${WINDOW_TRAIN_S:-900} WINDOW_PROFILE_S=${WINDOW_PROFILE_S:-60}
+    export WINDOW_STEPS=${WINDOW_STEPS:-2048} WINDOW_BATCH=${WINDOW_BATCH-num_envs=4 num_steps=16}
+    export WINDOW_PROFILE_SET=${WINDOW_PROFILE_SET-num_envs=4 num_steps=16}
+    bash "$0" window
+    ;;
 window)
-    T_TRAIN=${WINDOW_TRAIN_S:-260} T_PAPER=${WINDOW_PAPER_S:-60} T_PROFILE=${WINDOW_PROFILE_S:-90}
-    STEPS=${WINDOW_STEPS:-270000000} RECIPE=${WINDOW_RECIPE:-configs/train/cec_overcooked_teacher.yaml}
-    SEED=${WINDOW_SEED:-500} INIT=${WINDOW_INIT:-}
+    RECIPE=${WINDOW_RECIPE:-configs/train/cec_overcooked_paper_10m.yaml}
+    # what the recipe is: the paper's network (its batch, seeds and steps below) and whether it has a teacher
+    read -r PAPER_NET HAS_TEACHER <<< "$("$PY" -c "
+from cec.config import load_config
+from cec.training.config import TrainConfig
+c = load_config(TrainConfig, '$RECIPE')
+print(int(c.network == 'paper' and c.network_overrides is None), int(c.ppo.teacher_coef > 0))")"
+    if [ "$PAPER_NET" = 1 ]; then
+        T_TRAIN=${WINDOW_TRAIN_S:-380} T_PAPER=${WINDOW_PAPER_S:-0} STEPS=${WINDOW_STEPS:-20971520}
+        SEED=${WINDOW_SEED:-600} DEFAULT_BATCH="num_envs=512 num_steps=256"
+    else
+        T_TRAIN=${WINDOW_TRAIN_S:-260} T_PAPER=${WINDOW_PAPER_S:-60} STEPS=${WINDOW_STEPS:-270000000}
+        SEED=${WINDOW_SEED:-500} DEFAULT_BATCH="num_envs=1024 ppo.update_epochs=2 ppo.num_minibatches=16"
+    fi
+    T_PROFILE=${WINDOW_PROFILE_S:-90} INIT=${WINDOW_INIT:-}
     PROFILE_CONFIG=${WINDOW_PROFILE_CONFIG:-configs/train/cec_overcooked.yaml}
     read -r -a PRECISIONS <<< "${WINDOW_PRECISIONS-default bfloat16}"
     read -r -a PROFILE_SET <<< "${WINDOW_PROFILE_SET:-}"
     read -r -a EXTRA <<< "${WINDOW_SET:-}"
-    # The batch of the continued seeds: 1024 envs per seed with the time-to-skill recipe's
+    # The batch of the MLP recipes' seeds: 1024 envs per seed with the time-to-skill recipe's
     # 2 epochs (half the update's arithmetic; the same Adam steps per sample with twice the minibatches: 16 of
     # 8,192 samples): 4.04M env-steps/s for 4 seeds on an H200, against 1.0M at the CPU recipe's 128 envs x 4
-    # epochs (benchmarks/results/README.md).
-    read -r -a BATCH <<< "${WINDOW_BATCH-num_envs=1024 ppo.update_epochs=2 ppo.num_minibatches=16}"
+    # epochs (benchmarks/results/README.md). The paper's network: the paper's batch (its PPO table).
+    read -r -a BATCH <<< "${WINDOW_BATCH-$DEFAULT_BATCH}"
     RUN=runs/window
     log="$OUT/window.log"
     {
@@ -158,21 +187,25 @@ yaml.safe_load(open('cec/shipped/zoo.yaml'))['policies'] if e['algorithm'] == 'c
         # A teacher's weight (where the recipe has one) falls to 0 over a third of the steps: at this batch
         # (8x the CPU recipe's samples per Adam step) about the Adam steps of the CPU recipe's whole 1,280
         # updates, over which lever (s) (research/diary/reproduce_overcooked.md) scored above a teacher gone at 960.
-        train+=(ppo.teacher_anneal_env_steps="${WINDOW_TEACHER_ANNEAL:-$((STEPS / 3))}")
+        if [ "$HAS_TEACHER" = 1 ]; then train+=(ppo.teacher_anneal_env_steps="${WINDOW_TEACHER_ANNEAL:-$((STEPS / 3))}"); fi
         echo "== 2. four seeds of $RECIPE ${INIT:+continued from $INIT }(one process, SIGTERM after ${T_TRAIN}s)"
         timeout -s TERM -k 60 "$T_TRAIN" "$PY" -m apps.cli train --config "$RECIPE" "${train[@]}" "${BATCH[@]}" \
             checkpoint.every_updates=50 'checkpoint.milestones=[0.125,0.25,0.5,0.75,1.0]' \
             run_dir=$RUN name=cec-window "${EXTRA[@]}"
         echo "training: exit $? (124: stopped by the window's SIGTERM, after its checkpoint)"
-        echo "== 3. export: every seed at each milestone and at the last checkpoint"
-        "$PY" - "$RUN/cec-window" "$SEED" <<'PYEOF'
+        echo "== 3. export: every seed at each milestone and at the last checkpoint (the paper's network: at the"
+        echo "   middle milestone and the last, 11 MB a policy: what comes back holds 8 parts of 15 MiB)"
+        "$PY" - "$RUN/cec-window" "$SEED" "$PAPER_NET" <<'PYEOF'
 import sys, yaml
 from pathlib import Path
 from cec.checkpoints import CheckpointStore
-run, seed = Path(sys.argv[1]).resolve(), int(sys.argv[2])
+run, seed, paper_net = Path(sys.argv[1]).resolve(), int(sys.argv[2]), sys.argv[3] == "1"
+saved = CheckpointStore(run, keep_last=1).list()
+if paper_net and len(saved) > 2:
+    saved = [saved[(len(saved) - 1) // 2], saved[-1]]
 entries = [
     {"name": f"cec-gpu-s{seed + i}-u{c.update}", "algorithm": "cec", "seed": seed + i, "checkpoint": str(c.path)}
-    for c in CheckpointStore(run, keep_last=1).list()
+    for c in saved
     for i in range(4)
 ]
 (run.parent / "zoo.yaml").write_text(yaml.safe_dump({"policies": entries}))
@@ -202,7 +235,7 @@ crossplay)
     python3 benchmarks/crossplay_throughput.py --preset paper --out "$OUT/crossplay_throughput_gpu.json"
     ;;
 *)
-    sed -n 2,21p "$0"
+    sed -n 2,36p "$0"
     exit 2
     ;;
 esac

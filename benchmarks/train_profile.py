@@ -96,15 +96,16 @@ def train_call_speed(trainer: Any, updates: int, repeats: int) -> dict[str, Any]
     state, metrics = call(state)
     jax.block_until_ready(state)
     first = time.perf_counter() - t
-    device, host = [], []
+    device, host, cpu = [], [], []
     for _ in range(repeats):
-        t = time.perf_counter()
+        t, c = time.perf_counter(), time.process_time()
         state, metrics = call(state)
         jax.block_until_ready(state)
         mid = time.perf_counter()
         jax.device_get(metrics)
         device.append(mid - t)
         host.append(time.perf_counter() - mid)
+        cpu.append(time.process_time() - c)
     median = statistics.median(device)
     out: dict[str, Any] = {
         "updates_per_call": updates,
@@ -112,6 +113,9 @@ def train_call_speed(trainer: Any, updates: int, repeats: int) -> dict[str, Any]
         "s_per_update": median / updates,
         "host_s_per_update": statistics.median(host) / updates,
         "env_steps_per_s": steps / median,
+        # the process's CPU time (every thread) per env step: the cost in core-seconds, which a machine
+        # shared with other work inflates far less than the wall time above
+        "cpu_s_per_env_step": statistics.median(cpu) / steps,
     }
     return out
 
