@@ -33,7 +33,16 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from apps.partners.tables import BC, EPISODES, PROXY, STEPS, Tables, validation_proxy, write_atomic
+from apps.partners.tables import (
+    BC,
+    EPISODES,
+    PROXY,
+    STEPS,
+    Tables,
+    check_play_sizes,
+    validation_proxy,
+    write_atomic,
+)
 from cec.agents.zoo import OTHER_KITCHENS, SHIPPED_ZOO, SkippedEntry, ZooEntry, load_zoo
 from cec.config import ConfigError
 from cec.evaluation.choice import choose
@@ -277,9 +286,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _cmd_best(args: argparse.Namespace) -> int:
     from cec.levels.named import resolve_levels
 
-    for flag, value, top in (("--episodes", args.episodes, 1000), ("--max-steps", args.max_steps, 100_000)):
-        if not 1 <= value <= top:
-            raise ConfigError(f"{flag} must be in 1..{top}, got {value}")
+    check_play_sizes(args.episodes, args.max_steps)
     resolve_levels(args.validation)  # refused by name before anything is played
     choose_best(args, say=lambda m: print(m, file=sys.stderr, flush=True))
     return 0

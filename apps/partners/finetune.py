@@ -43,6 +43,7 @@ from apps.partners.tables import (
     PROXY,
     STEPS,
     Tables,
+    check_play_sizes,
     replace_entries,
     validation_proxy,
     write_atomic,
@@ -354,8 +355,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _cmd_finetune(args: argparse.Namespace) -> int:
-    for flag, value, top in (("--episodes", args.episodes, 1000), ("--max-steps", args.max_steps, 100_000)):
-        if not 1 <= value <= top:
-            raise ConfigError(f"{flag} must be in 1..{top}, got {value}")
+    check_play_sizes(args.episodes, args.max_steps)
     evaluate(args, say=lambda m: print(m, file=sys.stderr, flush=True))
     return 0

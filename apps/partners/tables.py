@@ -113,3 +113,10 @@ def write_atomic(path: Path, text: str) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(text)
     tmp.replace(path)
+
+
+def check_play_sizes(episodes: int, max_steps: int) -> None:
+    """`--episodes` and `--max-steps` within their ranges, refused by name before anything is played."""
+    for flag, value, top in (("--episodes", episodes, 1000), ("--max-steps", max_steps, 100_000)):
+        if not 1 <= value <= top:
+            raise ConfigError(f"{flag} must be in 1..{top}, got {value}")
