@@ -276,8 +276,19 @@ class _InProcess(UpdateSource):
     def step(self, done: int, n: int) -> UpdateMetrics:
         if self.progress and n not in self.trainer._calls:
             print(f"compiling the training call ({n} update(s) per call)...", file=self.log, flush=True)
-        self.train_state, metrics = self.trainer.train_call(n)(self.train_state)
-        jax.block_until_ready(self.train_state)
+        try:
+            self.train_state, metrics = self.trainer.train_call(n)(self.train_state)
+            jax.block_until_ready(self.train_state)
+        except jax.errors.JaxRuntimeError as err:
+            if "RESOURCE_EXHAUSTED" not in str(err):
+                raise
+            config = self.trainer.config
+            raise ConfigError(
+                f"the training call does not fit in the memory of {jax.devices()[0].device_kind} "
+                f"({str(err).splitlines()[0]}): num_seeds {config.num_seeds} x num_envs {config.num_envs} x "
+                f"num_steps {config.num_steps} per update is too large here (the check before compiling "
+                "counts the observations alone); lower num_envs, num_steps or num_seeds"
+            ) from None
         return metrics
 
     def state(self) -> TrainState:

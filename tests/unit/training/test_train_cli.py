@@ -110,3 +110,28 @@ def test_resume_continues_a_moved_run_where_it_lies(tmp_path):
     assert not (tmp_path / "runs" / "cli").exists()  # nothing started at the old location
     updates = [json.loads(line)["update"] for line in (moved / "metrics.jsonl").read_text().splitlines()]
     assert updates == list(range(1, 7))
+
+
+def test_a_training_call_out_of_memory_is_one_line_naming_the_sizes(tmp_path, monkeypatch, capsys):
+    """What the check before compiling lets through (it counts observations only: Dual Destination at
+    65,536 envs x 256 steps passes it and XLA then fails to allocate 32.9 GB) ends `cec train` with exit 2
+    and the sizes to lower, not XLA's traceback."""
+    import jax
+
+    from apps.cli import main
+    from cec.training.trainer import Trainer
+
+    def exhausted(self, n):
+        def call(state):
+            raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 32906073832 bytes")
+
+        return call
+
+    monkeypatch.setattr(Trainer, "train_call", exhausted)
+    good = tmp_path / "good.yaml"
+    good.write_text(yaml.safe_dump(QUICK))
+    assert main(["train", "--config", str(good), f"run_dir={tmp_path / 'runs'}", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "does not fit in the memory" in err and "Out of memory allocating 32906073832 bytes" in err
+    assert "num_envs 4 x num_steps 8" in err and "lower num_envs, num_steps or num_seeds" in err
+    assert "Traceback" not in err
