@@ -381,10 +381,12 @@ def _training_lines(s: dict[str, Any]) -> Lines:
     progress = f"update {row.get('update')}  env steps {steps:,}"
     if total:
         progress += f" / {total:,} ({100 * steps / total:.1f}%)"
-    progress += f"  {sps:,.0f} steps/s"
+    # env steps count per seed, the rate every seed's together (as the learner's progress line prints it)
+    seeds = s["config"].get("num_seeds") or 1
+    progress += f"  {sps:,.0f} steps/s" + (f" ({seeds} seeds)" if seeds > 1 else "")
     running = s["trainer"]["running"]
     if running and total and sps > 0 and steps < total:
-        progress += f"  ETA {_age((total - steps) / sps)}"
+        progress += f"  ETA {_age((total - steps) * seeds / sps)}"
     training = [f"return {_num(row.get('mean_return'))}", f"shaped {_num(row.get('mean_shaped_return'))}"]
     training.append(f"entropy {_num(row.get('entropy'))}")
     if "policy_lag_mean" in row:

@@ -50,6 +50,11 @@ def test_status_reads_progress_checkpoints_and_eta_from_the_run_files(tmp_path: 
     assert main(["status", str(run)]) == 0 and "no `cec up` running" in capsys.readouterr().out
     assert main(["status", str(tmp_path / "gone")]) == 2
     assert "does not exist" in capsys.readouterr().err
+    # Several seeds: env steps count per seed, the rate is every seed's together (the learner's line)
+    config = yaml.safe_load((run / "config.yaml").read_text())
+    (run / "config.yaml").write_text(yaml.safe_dump({**config, "num_seeds": 6}))
+    screen = render(collect(run))
+    assert "env steps 500 / 1,000 (50.0%)  50 steps/s (6 seeds)  ETA 60 s" in screen, screen
 
 
 def test_a_stopped_run_says_where_it_stopped_and_how_to_continue_without_an_eta(tmp_path: Path) -> None:
