@@ -92,7 +92,7 @@ CHILD = textwrap.dedent(
 def test_four_devices_train_what_one_device_trains_and_a_run_moves_between_devices(tmp_path: Path) -> None:
     """Two seeds, an LSTM, 3 updates of 8 envs x 16 steps: the parameters after N = 4 devices, and after a
     run that did one update on 4 devices and was resumed on one, equal one device's to float rounding; the
-    rows of the metrics agree too (the resumed run's programs come from the session's compilation cache)."""
+    rows of the metrics agree too (the resumed run's programs come from the child's own compilation cache)."""
     flags = f"{os.environ.get('XLA_FLAGS', '')} --xla_force_host_platform_device_count=4".strip()
     env = {**os.environ, "XLA_FLAGS": flags, "JAX_PLATFORMS": "cpu", **own_jax_cache(tmp_path)}
     proc = subprocess.run(
