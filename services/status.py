@@ -430,7 +430,10 @@ def _evaluator_lines(s: dict[str, Any]) -> Lines:
         out: Lines = [
             ("evaluator", f"{record['checkpoints']} checkpoint(s) scored; update {record['latest_update']}:")
         ]
+        played = {r["partner_group"] for r in record["latest"] if r["episodes"]}
         for r in sorted(record["latest"], key=lambda r: (r["partner_group"], r["level_set"])):
+            if not r["episodes"] and r["partner_group"] in played:
+                continue  # a group that plays elsewhere only (the human proxies, in their own kitchens)
             score = f"return {_num(r['return_mean'])}"
             if r["return_sem"] is not None:
                 score += f" ± {_num(r['return_sem'])}"

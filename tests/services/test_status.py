@@ -86,13 +86,19 @@ def test_the_evaluators_training_record_shows_during_and_after_the_run(tmp_path:
                                                     "return_sem": None, "episodes": 40})])  # fmt: skip
     latest = [
         ("cross_play", "validation", {"return_mean": 44.0, "return_sem": 3.5, "episodes": 40}),
-        ("human_proxy", "classic", {"return_mean": None, "return_sem": None, "episodes": 0}),
+        ("human_proxy", "classic", {"return_mean": 30.0, "return_sem": 2.0, "episodes": 60}),
+        ("human_proxy", "validation", {"return_mean": None, "return_sem": None, "episodes": 0}),
+        ("cec_teacher", "validation", {"return_mean": None, "return_sem": None, "episodes": 0}),
     ]
     ResultFiles(tmp_path, "r", 20).record(20, 500, latest)
     screen = render(collect(run))
     assert "2 checkpoint(s) scored; update 20" in screen, screen
     assert "cross_play" in screen and "return 44 ± 3.5 (40 episodes); 12.5 at update 10" in screen, screen
-    assert "human_proxy" in screen and "return - (0 episodes)" in screen, screen
+    # a group that plays in some sets only (the proxies: their own classic kitchens) shows where it played;
+    # a group that played nowhere (no loadable partner of it) says so
+    assert "human_proxy          classic      return 30 ± 2 (60 episodes)" in screen, screen
+    assert "human_proxy          validation" not in screen, screen
+    assert "cec_teacher          validation   return - (0 episodes)" in screen, screen
     # a torn record (a disk that filled up mid-write is never left: it is renamed into place) reads as none
     (run / "eval" / "record.csv").write_bytes(b"\xff\x00garbage")
     assert "checkpoint(s) scored" not in render(collect(run))
