@@ -168,8 +168,26 @@ def run_updates(
     return Outcome(done, stop_at, stopped)
 
 
-class NonFiniteError(ValueError):
-    """An update's loss or gradient norm was not finite: the run stopped before writing or saving it."""
+class RunStoppedError(ValueError):
+    """The run stopped at an update it could not make, before writing or saving it (its last checkpoint
+    kept); the message names the cause and what to change. `cec train` and `cec up` exit 2 with it."""
+
+
+class NonFiniteError(RunStoppedError):
+    """An update's loss or gradient norm was not finite."""
+
+
+def out_of_memory(config: TrainConfig, err: Exception, what: str) -> RunStoppedError | None:
+    """The error to stop with when `err` is the device running out of memory in `what` (XLA's
+    RESOURCE_EXHAUSTED; the check before compiling counts the observations alone), naming the sizes to lower;
+    None for any other error."""
+    if not isinstance(err, jax.errors.JaxRuntimeError) or "RESOURCE_EXHAUSTED" not in str(err):
+        return None
+    return RunStoppedError(
+        f"{what} does not fit in the memory of {jax.devices()[0].device_kind} ({str(err).splitlines()[0]}): "
+        f"num_seeds {config.num_seeds} x num_envs {config.num_envs} x num_steps {config.num_steps} "
+        "per update is too large here; lower num_envs, num_steps or num_seeds"
+    )
 
 
 def nonfinite(config: TrainConfig, first_update: int, metrics: UpdateMetrics) -> str | None:

@@ -22,7 +22,7 @@ from cec import checkpoints
 from cec.config import ConfigError, from_dict
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig, split_paths
-from cec.training.loop import UpdateSource, run_updates
+from cec.training.loop import UpdateSource, out_of_memory, run_updates
 from cec.training.metrics_file import MetricsWriter, write_atomic
 from cec.training.tracking import Tracker, describe
 from cec.training.trainer import Trainer, TrainState, UpdateMetrics
@@ -280,15 +280,10 @@ class _InProcess(UpdateSource):
             self.train_state, metrics = self.trainer.train_call(n)(self.train_state)
             jax.block_until_ready(self.train_state)
         except jax.errors.JaxRuntimeError as err:
-            if "RESOURCE_EXHAUSTED" not in str(err):
+            stop = out_of_memory(self.trainer.config, err, "the training call")
+            if stop is None:
                 raise
-            config = self.trainer.config
-            raise ConfigError(
-                f"the training call does not fit in the memory of {jax.devices()[0].device_kind} "
-                f"({str(err).splitlines()[0]}): num_seeds {config.num_seeds} x num_envs {config.num_envs} x "
-                f"num_steps {config.num_steps} per update is too large here (the check before compiling "
-                "counts the observations alone); lower num_envs, num_steps or num_seeds"
-            ) from None
+            raise stop from None
         return metrics
 
     def state(self) -> TrainState:

@@ -23,7 +23,7 @@ from cec import checkpoints
 from cec.config import ConfigError
 from cec.signals import GracefulStop
 from cec.training.config import TrainConfig
-from cec.training.loop import NonFiniteError
+from cec.training.loop import RunStoppedError
 from cec.training.run import RunFiles, record_resume_command, resume_command, trains_as
 from cec.training.tracking import describe
 from services.entry import AlreadyDone
@@ -214,8 +214,8 @@ def run_distributed(
         summary = _run_on_ray(train, dist, store, resume, max_updates, log_to)
     if summary is None:
         return 1
-    if summary.get("error"):  # a non-finite update: one line and exit status 2, like `cec train`
-        raise NonFiniteError(summary["error"])
+    if summary.get("error"):  # a non-finite update, the memory run out: one line and exit 2, like `cec train`
+        raise RunStoppedError(summary["error"])
     line = f"learner: {summary['status']} after {summary['updates']} updates ({summary['run_dir']})"
     if summary["status"] == "interrupted":
         line += f"; continue with: {resume_command(run_dir)}"

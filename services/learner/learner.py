@@ -56,7 +56,7 @@ import numpy as np
 
 from cec.training.compact import CompactRollout, expand, from_bytes, to_bytes
 from cec.training.config import TrainConfig
-from cec.training.loop import NonFiniteError, UpdateSource, run_updates
+from cec.training.loop import RunStoppedError, UpdateSource, out_of_memory, run_updates
 from cec.training.ppo import LossInfo
 from cec.training.rollout import RolloutCarry
 from cec.training.run import RunFiles
@@ -235,9 +235,7 @@ class Learner(UpdateSource):
                 done = outcome.done
                 # a stop asked for during the last update lets the run finish
                 status = "interrupted" if outcome.stopped and done < outcome.stop_at else "finished"
-            except (
-                NonFiniteError
-            ) as err:  # stopped before the update was written or saved: the driver says so
+            except RunStoppedError as err:  # before the update was written or saved: the driver says so
                 log.error("%s", err)
                 error = str(err)
             finally:
@@ -271,10 +269,16 @@ class Learner(UpdateSource):
             )
         t_update = time.perf_counter()
         rollout = _concat_slices(parts)
-        self._params, self._opt_state, metrics = self._learn(
-            self._params, self._opt_state, jnp.int32(done), rollout, k_update
-        )
-        jax.block_until_ready(self._params)
+        try:
+            self._params, self._opt_state, metrics = self._learn(
+                self._params, self._opt_state, jnp.int32(done), rollout, k_update
+            )
+            jax.block_until_ready(self._params)
+        except jax.errors.JaxRuntimeError as err:
+            stop = out_of_memory(self.config, err, "the learner's update")
+            if stop is None:
+                raise
+            raise stop from None
         M.LEARNER_STAGE_SECONDS.labels("update").inc(time.perf_counter() - t_update)
         self._version = done + 1
         self._weights = self._publish(self._params, self._version)

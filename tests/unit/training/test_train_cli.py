@@ -112,26 +112,38 @@ def test_resume_continues_a_moved_run_where_it_lies(tmp_path):
     assert updates == list(range(1, 7))
 
 
-def test_a_training_call_out_of_memory_is_one_line_naming_the_sizes(tmp_path, monkeypatch, capsys):
+@pytest.mark.parametrize(
+    "distributed",
+    [False, pytest.param(True, marks=pytest.mark.slow)],  # the learner and its actor start: ~30 s
+    ids=["cec-train", "learner-local-pool"],
+)
+def test_a_training_call_out_of_memory_is_one_line_naming_the_sizes(
+    tmp_path, monkeypatch, capsys, distributed
+):
     """What the check before compiling lets through (it counts observations only: Dual Destination at
     65,536 envs x 256 steps passes it and XLA then fails to allocate 32.9 GB) ends `cec train` with exit 2
-    and the sizes to lower, not XLA's traceback."""
+    and the sizes to lower, not XLA's traceback; so does the distributed learner's update (what `cec up`
+    runs: before, the learner's actor died with the traceback in its log)."""
     import jax
 
     from apps.cli import main
     from cec.training.trainer import Trainer
+    from services.learner.learner import Learner
 
-    def exhausted(self, n):
-        def call(state):
-            raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 32906073832 bytes")
+    def raise_exhausted(*args):
+        raise jax.errors.JaxRuntimeError("RESOURCE_EXHAUSTED: Out of memory allocating 32906073832 bytes")
 
-        return call
-
-    monkeypatch.setattr(Trainer, "train_call", exhausted)
+    monkeypatch.setattr(Trainer, "train_call", lambda self, n: raise_exhausted)
+    monkeypatch.setattr(Learner, "_learn_fn", raise_exhausted)
     good = tmp_path / "good.yaml"
     good.write_text(yaml.safe_dump(QUICK))
-    assert main(["train", "--config", str(good), f"run_dir={tmp_path / 'runs'}", "--quiet"]) == 2
+    args = ["train", "--config", str(good), f"run_dir={tmp_path / 'runs'}", "--quiet"]
+    if distributed:  # its actors in this process
+        args += ["--distributed", "distributed.pool=local", "distributed.num_actors=1",
+                 "distributed.publish_checkpoints=false", "distributed.metrics_port=0"]  # fmt: skip
+    assert main(args) == 2
     err = capsys.readouterr().err
-    assert "does not fit in the memory" in err and "Out of memory allocating 32906073832 bytes" in err
+    what = "the learner's update" if distributed else "the training call"
+    assert f"{what} does not fit in the memory" in err and "Out of memory allocating 32906073832 bytes" in err
     assert "num_envs 4 x num_steps 8" in err and "lower num_envs, num_steps or num_seeds" in err
     assert "Traceback" not in err
