@@ -54,7 +54,7 @@ from services.service_process import (
     forget_ray_address,
     start_ray_head,
 )
-from services.status import write_stack_file
+from services.status import last_row, write_stack_file
 from services.store import StoreConfig
 from services.terminal import foreground_group
 
@@ -389,7 +389,9 @@ class Stack:
             self.say(f"not the paper's method: this run {departure}")
         out = Stamped(self.out)
         metrics = self.run_dir / "metrics.jsonl"
-        before = metrics.stat().st_size if metrics.exists() else 0
+        # the first update's row is one past the checkpoint resumed from (a resume first drops the rows after
+        # it, so the file's size says nothing until the run has re-made them)
+        start = self._resumed_update() if resume else 0
         heartbeat = Heartbeat(
             out.say,
             lambda s: (
@@ -397,7 +399,7 @@ class Stack:
             ),
             every_s=PROGRESS_S,
             quiet_since=lambda: out.last,
-            done=lambda: metrics.exists() and metrics.stat().st_size > before,
+            done=lambda: wrote_past(metrics, start),
         )
         with heartbeat:
             return run_distributed(
@@ -409,6 +411,13 @@ class Stack:
                 log_to=cast(TextIO, out),
                 resume_hint=self.resume_hint,
             )
+
+    def _resumed_update(self) -> int:
+        """The update of the checkpoint a resume continues from (0 when there is none)."""
+        from cec.checkpoints import CheckpointStore
+
+        latest = CheckpointStore(self.run_dir, keep_last=1).latest()
+        return latest.update if latest else 0
 
     def drain_evaluator(self) -> None:
         """After a finished run: waits (with a line every few seconds) until the evaluator has scored or
@@ -534,3 +543,9 @@ def cmd_up(args: argparse.Namespace) -> int:
             return 130
         finally:
             stack.stop()
+
+
+def wrote_past(metrics: Path, update: int) -> bool:
+    """Whether the last row of a run's `metrics.jsonl` is of an update after `update`."""
+    last = last_row(metrics).get("update")
+    return isinstance(last, int) and not isinstance(last, bool) and last > update

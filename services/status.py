@@ -94,7 +94,7 @@ def collect(run_dir: Path, redis_url: str = "", now: float | None = None) -> dic
         raise ConfigError(f"run directory {str(run_dir)!r} does not exist")
     out: dict[str, Any] = {"run_dir": str(run_dir), "run": run_dir.name, "at": now}
     out["config"] = _config(run_dir)
-    out["progress"] = _last_row(run_dir / "metrics.jsonl")
+    out["progress"] = last_row(run_dir / "metrics.jsonl")
     out["checkpoint"] = _checkpoint(run_dir, now)
     stack = _stack(run_dir, now)
     out["stack"] = stack
@@ -136,7 +136,7 @@ def _config(run_dir: Path) -> dict[str, Any]:
     }
 
 
-def _last_row(path: Path) -> dict[str, Any]:
+def last_row(path: Path) -> dict[str, Any]:
     """The last complete line of a JSON-lines file that is a JSON object (read from its end, however long
     the file), with its JSON scalars only (a list or object where a number belongs is left out)."""
     try:

@@ -19,7 +19,7 @@ from cec.checkpoints import CheckpointStore
 from cec.config import load_config
 from cec.training.config import TrainConfig
 from cec.training.run import RESUME_FILE, config_dict, record_resume_command, resume_command
-from services.stack import DEFAULT_CONFIG, UpConfig, preset_path, resume_hint
+from services.stack import DEFAULT_CONFIG, UpConfig, preset_path, resume_hint, wrote_past
 
 REPO = Path(__file__).resolve().parents[2]
 PRESET = "configs/train/cec_overcooked_teacher.yaml"  # the training preset of configs/up/default.yaml
@@ -119,3 +119,29 @@ def test_a_finished_run_is_said_finished_before_anything_starts(tmp_path: Path) 
     assert (
         proc.returncode == 2 and "already has checkpoints; continue it with `cec up --resume" in proc.stderr
     )
+
+
+def test_a_resumed_runs_first_update_ends_the_wait_line_though_its_metrics_file_shrank(
+    tmp_path: Path,
+) -> None:
+    """`cec up --resume` prints "no update yet" until the learner writes its first row; the resume first
+    drops the rows after its checkpoint, so the file is smaller than before for as many updates as were
+    lost (35 updates, 77 s of a release run that still said "no update yet" while training)."""
+    import json
+
+    metrics = tmp_path / "metrics.jsonl"
+
+    def rows(last: int) -> str:
+        return "".join(
+            json.dumps({"update": u, "env_steps": 8192 * u, "return": 1.5}) + "\n" for u in range(1, last + 1)
+        )
+
+    metrics.write_text(rows(35))
+    before = metrics.stat().st_size
+    metrics.write_text(rows(20))  # resumed from update 20: the rows after it dropped
+    assert not wrote_past(metrics, 20)
+    metrics.write_text(rows(21))
+    assert metrics.stat().st_size < before and wrote_past(metrics, 20)
+    metrics.write_text(rows(21) + '{"update": 22, "env_st')  # a row being written
+    assert wrote_past(metrics, 20) and not wrote_past(metrics, 21)
+    assert not wrote_past(tmp_path / "none.jsonl", 0)
