@@ -450,6 +450,7 @@ def report(f: dict[str, Any]) -> str:
         headline=_pm(_headline(v)),
         handover="—" if handover is None else _pm(handover),
         incumbent=_pm(_headline(f["incumbent"])),
+        ships="yes" if shippable(f) else "no (below the shipped seeds)",
         diff=f"{num(versus.diff, signed=True)} [{num(versus.ci_low, signed=True)}, "
         f"{num(versus.ci_high, signed=True)}]",
         candidates=table(["update", "validation cross-play", ""], cands),
@@ -473,10 +474,15 @@ def report(f: dict[str, Any]) -> str:
     )
 
 
+def shippable(f: dict[str, Any]) -> bool:
+    """The ship rule: the release's validation cross-play at least the shipped seeds' on the same episodes."""
+    return bool(_headline(f["validation"]).xp >= _headline(f["incumbent"]).xp)
+
+
 def ship(opts: Options, seeds: Sequence[Policy], f: dict[str, Any]) -> None:
     """The release into the shipped zoo in place of the family's seeds, if not worse on validation."""
     ours, theirs = _headline(f["validation"]).xp, _headline(f["incumbent"]).xp
-    if not ours >= theirs:
+    if not shippable(f):
         raise ConfigError(
             f"not shipped: the release's validation cross-play {num(ours)} is below the shipped "
             f"{opts.family} seeds' {num(theirs)} on the same episodes; the report: {opts.run / 'release'}"

@@ -85,6 +85,7 @@ def test_release_chooses_on_validation_tests_once_and_ships_only_what_is_not_wor
     readme = (out / "README.md").read_text()
     assert "not the paper's method" in readme and f"checkpoint of update {choice['update']}" in readme
     assert "read 0 time(s) before" in readme  # test2_000 is new; test_000 ...
+    assert "| no (below the shipped seeds) |" in readme, "the report says that it does not ship"
     reads = ledger.reads(tmp_path / "reads.csv")
     assert [r.set for r in reads] == ["test2_000", "test_000"], reads
     assert yaml.safe_load((tmp_path / "shipped" / "zoo.yaml").read_text()) == yaml.safe_load(ZOO)
@@ -104,6 +105,7 @@ def test_release_chooses_on_validation_tests_once_and_ships_only_what_is_not_wor
         for a, b in zip(jax.tree.leaves(shipped.params), jax.tree.leaves(trained.params), strict=True):
             np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
     assert (tmp_path / "docs" / "t1" / "README.md").read_text() == (out / "README.md").read_text()
+    assert "| yes |" in (out / "README.md").read_text()
     assert (tmp_path / "docs" / "t1" / "record.png").stat().st_size > 0
 
 
