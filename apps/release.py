@@ -13,7 +13,8 @@ In order, each step's tables kept under RUN/release/ so that a second call reuse
    100 generated kitchens; 400-step episodes, both seats, one episode per pairing and kitchen, sampled
    actions, common random numbers). The highest cross-play is chosen (`cec.evaluation.choice`: a candidate
    without a finite figure stops the command, naming it).
-3. **Against what ships**: the shipped seeds of the family (`--family`, `cec_teacher`) on the same episodes.
+3. **Against what ships**: the shipped seeds of the family (`--family`, `cec_teacher`) on the same episodes,
+   and each release seed with each of them, for an exact permutation test over the pooled seeds.
    `--ship` ships only a release that is not worse on validation (its cross-play at least theirs).
 4. **Test, once, after the choice**: the release's own test set (`test2`, fresh) and the first test set
    (`test`, reused: read before, reported as such), each recorded in the ledger
@@ -65,7 +66,7 @@ from cec.evaluation.crossplay import EvalConfig, crossplay, eval_levels
 from cec.evaluation.markdown import Templates, num, pm, table
 from cec.evaluation.parts import PartScore, part_scores
 from cec.evaluation.results import EpisodeTable, read_csv, write_csv
-from cec.evaluation.stats import compare_crossplay, sem
+from cec.evaluation.stats import compare_crossplay, permutation_crossplay, sem
 from cec.levels import ledger
 from cec.training.config import TrainConfig
 
@@ -246,6 +247,14 @@ def release(opts: Options, say: Any = print) -> dict[str, Any]:
     inc_tab, _ = tables.get(f"validation_{opts.family}", incumbent, sets.validation, steps=opts.steps)
     inc_parts = xp_parts(inc_tab, opts.family, sets.validation)
     versus = compare_crossplay(_xp_matrix(valid[chosen], label), _xp_matrix(inc_tab, opts.family))
+    exact = None  # the exact test needs the two families' seeds with each other too, and 2 seeds a side
+    if len(seeds) >= 2 and len(incumbent) >= 2:
+        between = _with(
+            tables, f"validation_with_{opts.family}", seeds, incumbent, sets.validation, 1, opts.steps
+        )
+        names = [p.name for p in (*seeds, *incumbent)]
+        pooled = _pooled_matrix(EpisodeTable.concat([valid[chosen], inc_tab, between]), names)
+        exact = permutation_crossplay(pooled, len(seeds))
     # 4. the test sets, once each, after the choice
     tests: dict[str, TestScores] = {}
     for name, spec in (("test", sets.test), ("reused_test", sets.reused_test)):
@@ -288,6 +297,7 @@ def release(opts: Options, say: Any = print) -> dict[str, Any]:
         "candidates": {u: _headline(parts[u]) for u in updates},
         "incumbent": inc_parts,
         "versus": versus,
+        "exact": exact,
         "tests": tests,
         "classic": xp_parts(classic, label, sets.classic),
         "with_proxies": _partner_means(with_proxies, label, "human_proxy"),
@@ -328,6 +338,24 @@ def _xp_matrix(tab: EpisodeTable, label: str) -> np.ndarray:
 
     own = tab.select((tab.algorithm_a == label) & (tab.algorithm_b == label))
     return an.seed_matrix(an.pair_level_scores(own, sorted(set(own.level.astype(str)))), label).values
+
+
+def _pooled_matrix(tab: EpisodeTable, names: Sequence[str]) -> np.ndarray:
+    """The seed x seed matrix of the policies `names` (each pair's mean return over both seat orders per
+    level, then over levels), across families: what `permutation_crossplay` relabels."""
+    index = {n: i for i, n in enumerate(names)}
+    sums: dict[tuple[int, int, str], list[float]] = {}
+    for a, b, level, ret in zip(tab.policy_a, tab.policy_b, tab.level, tab.returns, strict=True):
+        if a in index and b in index:
+            i, j = sorted((index[a], index[b]))
+            sums.setdefault((i, j, str(level)), []).append(float(ret))
+    per_pair: dict[tuple[int, int], list[float]] = {}
+    for (i, j, _), rets in sums.items():
+        per_pair.setdefault((i, j), []).append(float(np.mean(rets)))
+    m = np.full((len(names), len(names)), np.nan)
+    for (i, j), levels in per_pair.items():
+        m[i, j] = m[j, i] = float(np.mean(levels))
+    return m
 
 
 def _with(
@@ -452,7 +480,11 @@ def report(f: dict[str, Any]) -> str:
         incumbent=_pm(_headline(f["incumbent"])),
         ships="yes" if shippable(f) else "no (below the shipped seeds)",
         diff=f"{num(versus.diff, signed=True)} [{num(versus.ci_low, signed=True)}, "
-        f"{num(versus.ci_high, signed=True)}]",
+        f"{num(versus.ci_high, signed=True)}], p {num(versus.p, 3)}",
+        exact="—"
+        if f["exact"] is None
+        else f"p {num(f['exact'].p, 3)} (the smallest it can be: {num(f['exact'].p_min, 3)}; "
+        f"{f['exact'].relabellings} relabellings)",
         candidates=table(["update", "validation cross-play", ""], cands),
         validation=parts_table(v),
         incumbent_parts=parts_table(f["incumbent"]),

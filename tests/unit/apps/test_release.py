@@ -4,6 +4,7 @@ tiny run of three random seeds (small networks, one kitchen per set, short episo
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -86,6 +87,11 @@ def test_release_chooses_on_validation_tests_once_and_ships_only_what_is_not_wor
     assert "not the paper's method" in readme and f"checkpoint of update {choice['update']}" in readme
     assert "read 0 time(s) before" in readme  # test2_000 is new; test_000 ...
     assert "| no (below the shipped seeds) |" in readme, "the report says that it does not ship"
+    # 3 seeds against 2 cooks, each having played all the others: 10 splits of the pooled 5 seeds
+    assert re.search(
+        r"exact permutation test .*\| p [01]\.\d{3} \(the smallest it can be: 0\.100; 10 relabellings\)",
+        readme,
+    ), readme
     reads = ledger.reads(tmp_path / "reads.csv")
     assert [r.set for r in reads] == ["test2_000", "test_000"], reads
     assert yaml.safe_load((tmp_path / "shipped" / "zoo.yaml").read_text()) == yaml.safe_load(ZOO)
