@@ -4,6 +4,11 @@ recipe's generator config, against the library's own draws with that config and 
 
     python benchmarks/streamed_coverage.py [--n 2000]
 
+Then every other feature of the kitchens the same way, the stream against the library's draws with the same
+config: the share of each kind, each tile's count, the kitchen's height and width and the seats' start
+distance, each as the two means and their difference in standard errors (|z| above 3 in a feature: the
+stream is not the library's distribution there).
+
 Before the wire carried `handover_share` and `structure_weights` (594daee), a stream asked for the release
 recipe got the server's defaults: the third line is what it trained on then.
 """
@@ -56,7 +61,33 @@ def main() -> int:
     )
     for name, value in rows:
         print(f"{name}: {value:.3f} of {args.n} kitchens need a hand-over")
+    ours, theirs = _features(jax.tree.map(lambda *x: np.concatenate(x), *streamed)), _features(local)
+    print(
+        f"\nfeature: streamed | the library's draws | difference in standard errors ({args.n} kitchens each)"
+    )
+    for name in ours:
+        a, b = ours[name], theirs[name]
+        se = float(np.sqrt(a.var(ddof=1) / len(a) + b.var(ddof=1) / len(b)))
+        z = (a.mean() - b.mean()) / se if se > 0 else 0.0
+        print(f"{name:>24}: {a.mean():7.3f} | {b.mean():7.3f} | {z:+.1f}")
     return 0
+
+
+def _features(levels: Any) -> dict[str, Any]:
+    """Per kitchen: its kind (one-hot), each tile's count, height, width, the seats' start distance."""
+    import jax
+    import numpy as np
+
+    from cec.levels.kinds import Kind, classify
+    from cec.levels.level import Tile
+
+    kind = np.asarray(jax.vmap(classify)(levels).kind)
+    grid, pos, size = np.asarray(levels.grid), np.asarray(levels.agent_pos), np.asarray(levels.size)
+    out = {f"kind: {k.label}": (kind == k).astype(float) for k in Kind}
+    out |= {f"tiles: {t.name.lower()}": (grid == t).sum(axis=(1, 2)).astype(float) for t in Tile}
+    out["height"], out["width"] = size[:, 0].astype(float), size[:, 1].astype(float)
+    out["start distance"] = np.abs(pos[:, 0] - pos[:, 1]).sum(axis=1).astype(float)
+    return out
 
 
 if __name__ == "__main__":
