@@ -252,9 +252,11 @@ def release(opts: Options, say: Any = print) -> dict[str, Any]:
         between = _with(
             tables, f"validation_with_{opts.family}", seeds, incumbent, sets.validation, 1, opts.steps
         )
-        names = [p.name for p in (*seeds, *incumbent)]
-        pooled = _pooled_matrix(EpisodeTable.concat([valid[chosen], inc_tab, between]), names)
-        exact = permutation_crossplay(pooled, len(seeds))
+        pooled = _pooled_matrix(EpisodeTable.concat([valid[chosen], inc_tab, between]), label, opts.family)
+        try:
+            exact = permutation_crossplay(pooled, len(seeds))
+        except ValueError:  # more splits than it enumerates (many seeds): the Welch p only, as cec report
+            exact = None
     # 4. the test sets, once each, after the choice
     tests: dict[str, TestScores] = {}
     for name, spec in (("test", sets.test), ("reused_test", sets.reused_test)):
@@ -340,22 +342,14 @@ def _xp_matrix(tab: EpisodeTable, label: str) -> np.ndarray:
     return an.seed_matrix(an.pair_level_scores(own, sorted(set(own.level.astype(str)))), label).values
 
 
-def _pooled_matrix(tab: EpisodeTable, names: Sequence[str]) -> np.ndarray:
-    """The seed x seed matrix of the policies `names` (each pair's mean return over both seat orders per
-    level, then over levels), across families: what `permutation_crossplay` relabels."""
-    index = {n: i for i, n in enumerate(names)}
-    sums: dict[tuple[int, int, str], list[float]] = {}
-    for a, b, level, ret in zip(tab.policy_a, tab.policy_b, tab.level, tab.returns, strict=True):
-        if a in index and b in index:
-            i, j = sorted((index[a], index[b]))
-            sums.setdefault((i, j, str(level)), []).append(float(ret))
-    per_pair: dict[tuple[int, int], list[float]] = {}
-    for (i, j, _), rets in sums.items():
-        per_pair.setdefault((i, j), []).append(float(np.mean(rets)))
-    m = np.full((len(names), len(names)), np.nan)
-    for (i, j), levels in per_pair.items():
-        m[i, j] = m[j, i] = float(np.mean(levels))
-    return m
+def _pooled_matrix(tab: EpisodeTable, label: str, family: str) -> np.ndarray:
+    """The seed x seed matrix of `label`'s seeds followed by `family`'s, every pair across the two too
+    (levels averaged): what `permutation_crossplay` relabels."""
+    from cec.evaluation import analysis as an
+
+    pl = an.pair_level_scores(tab, sorted(set(tab.level.astype(str))))
+    idx = [i for a in (label, family) for i, p in enumerate(pl.policies) if p.algorithm == a]
+    return an.pair_scores(pl)[np.ix_(idx, idx)]
 
 
 def _with(
