@@ -112,12 +112,12 @@ CPU = Mode(
     # preset's held-out cross-play at 10.5M steps and 0.38 core-h per seed instead of 15M and about 1.7
     preset="configs/train/cec_overcooked_tts.yaml",
     seeds={
-        "cec": (200, 201, 202, 203),
-        "cec_e3t": (400, 401, 402, 403),
-        "ippo": (0, 1, 2, 3),
-        "fcp": (100, 101, 102, 103),
-        "e3t": (150, 151, 152, 153),
-        "cec_finetune": (300, 301, 302, 303),
+        "cec": (200, 201, 202, 203, 204, 205),
+        "cec_e3t": (400, 401, 402, 403, 404, 405),
+        "ippo": (0, 1, 2, 3, 4, 5),
+        "fcp": (100, 101, 102, 103, 104, 105),
+        "e3t": (150, 151, 152, 153, 154, 155),
+        "cec_finetune": (300, 301, 302, 303, 304, 305),
     },
     # CEC: the recipe's 1,280 updates; IPPO reached 56 per 128-step episode on Cramped Room at 2M steps
     steps={

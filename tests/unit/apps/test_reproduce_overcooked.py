@@ -81,7 +81,7 @@ def test_the_plan_trains_every_baseline_per_kitchen_with_the_cec_network(tmp_pat
         assert all(p.estimate_s > 0 for p in lines) or mode is oc_modes.PAPER  # not measured on a CPU
     spec = yaml.safe_load((tmp_path / "cpu" / "spec.yaml").read_text())["entries"]
     fcp = next(e for e in spec if e["name"] == "fcp_cramped_room")
-    assert "runs/ippo_cramped_room-s0, seeds: [0, 1, 2, 3]" in next(
+    assert "runs/ippo_cramped_room-s0, seeds: [0, 1, 2, 3, 4, 5]" in next(
         o for o in fcp["overrides"] if o.startswith("partner.population")
     )
     assert {e["preset"] for e in spec} == {str(oc_modes.ROOT / oc_modes.CPU.preset)}
