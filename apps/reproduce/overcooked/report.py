@@ -110,7 +110,7 @@ def write_report(
         results = table_lines(TEST_HEAD, (_test_row(t) for t in tests))
         floor = _floor_lines(tests)  # a line and a blank one, or none
         results += ["", floor[0]] if floor else []
-    lines += TEMPLATES.lines("tests", results="\n".join(results))
+    lines += TEMPLATES.lines("tests", results="\n".join(results), floor=_floor_sentence(tests, summary))
     lines += sections
     recorded = {run: duration(t) for run, t in (train_s or {}).items() if math.isfinite(t) and t > 0}
     training = [[p.run, p.seeds, f"{p.env_steps:,}", p.updates, recorded.get(p.run, NONE)] for p in plan]
@@ -231,7 +231,8 @@ def _reading(test: dict[str, Any]) -> str:
     """What a comparison of `comparisons` shows at the 5% level: CEC ahead, CEC behind, or neither. The
     t-test finds it; where an exact test stands beside it (`p_exact`), the reading holds only if the exact
     test's Holm-adjusted p does too, and otherwise says which test shows it and which does not (with 4 seeds
-    a side and 5 tests in the family the exact test cannot go below 0.143 after Holm, whatever the data).
+    a side and 5 tests in the family the exact test cannot go below 0.143 after Holm, whatever the data; with
+    6, 0.011).
     Without an exact p, a difference the t-test's Holm-adjusted p does not keep below 5% says so."""
     if not test["significant"]:
         return "no difference shown"
@@ -245,6 +246,21 @@ def _reading(test: dict[str, Any]) -> str:
     t_part = f"t-test: {reading}" + ("" if held else ", not after Holm")
     exact_part = "exact test: below 5%, not after Holm" if exact < ALPHA else "exact test: not shown"
     return f"{t_part}; {exact_part}"
+
+
+def _floor_sentence(tests: Sequence[dict[str, Any]], summary: dict[str, dict[str, SeedScores]]) -> str:
+    """What the exact tests cannot go below at these seed counts, whatever the data (empty without one): the
+    smallest `p_min` of the tests, and that times the largest family's size after Holm."""
+    exact = [t for t in tests if not math.isnan(t["p_exact"])]
+    if not exact:
+        return ""
+    sizes = sorted({len(summary[t["level_set"]][a].seeds) for t in exact for a in (t["better"], t["worse"])})
+    seeds = f"{sizes[0]} seeds each" if len(sizes) == 1 else f"{sizes[0]}-{sizes[-1]} seeds a side"
+    floor, k = min(t["p_min"] for t in exact), max(t["family"] for t in exact)
+    return (
+        f"With {seeds} neither can go below {floor:.3g} whatever the difference, and with {k} tests in a "
+        f"family no Holm-adjusted exact p below {min(1.0, k * floor):.3g}. "
+    )
 
 
 def _floor_lines(tests: Sequence[dict[str, Any]]) -> list[str]:

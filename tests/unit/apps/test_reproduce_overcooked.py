@@ -161,6 +161,21 @@ def test_the_human_proxy_tests_carry_the_two_sample_exact_p() -> None:
     assert test["p_exact_holm"] == pytest.approx(2 / 70)  # a family of one
 
 
+def test_the_report_states_the_exact_tests_floor_at_the_seed_counts_it_has() -> None:
+    """The sentence on what the exact test cannot go below is the report's own seed counts' (4 a side: 2/70,
+    5 tests: 0.143 after Holm; 6 a side: 2/924 and 0.0108), not a fixed text."""
+    from cec.evaluation.seeds import seed_matrix
+
+    for seeds, floor, holm_floor in ((4, "0.0286", "0.143"), (6, "0.00216", "0.0108")):
+        table = _round_robin({"cec": 10.0, **{a: 80.0 for a in ("ippo", "fcp", "e3t", "cec_e3t", "cec_finetune")}}, seeds)
+        summary = {"heldout": oc_summary.seed_scores(table, ["generated_000"])}
+        tests = oc_summary.comparisons(summary, {"heldout": seed_matrix(table, ["generated_000"])})
+        sentence = oc_report._floor_sentence(tests, summary)
+        assert sentence.startswith(f"With {seeds} seeds each neither can go below {floor} ")
+        assert f"with 5 tests in a family no Holm-adjusted exact p below {holm_floor}." in sentence
+    assert oc_report._floor_sentence([], {}) == ""
+
+
 def test_a_work_folder_without_a_100_step_table_says_why() -> None:
     lines = oc_report.steps_lines({"heldout": {}}, None)
     assert lines[0] == "## At the authors' 100-step episodes" and "Not played" in lines[2]
