@@ -167,7 +167,9 @@ def test_the_report_states_the_exact_tests_floor_at_the_seed_counts_it_has() -> 
     from cec.evaluation.seeds import seed_matrix
 
     for seeds, floor, holm_floor in ((4, "0.0286", "0.143"), (6, "0.00216", "0.0108")):
-        table = _round_robin({"cec": 10.0, **{a: 80.0 for a in ("ippo", "fcp", "e3t", "cec_e3t", "cec_finetune")}}, seeds)
+        table = _round_robin(
+            {"cec": 10.0, **{a: 80.0 for a in ("ippo", "fcp", "e3t", "cec_e3t", "cec_finetune")}}, seeds
+        )
         summary = {"heldout": oc_summary.seed_scores(table, ["generated_000"])}
         tests = oc_summary.comparisons(summary, {"heldout": seed_matrix(table, ["generated_000"])})
         sentence = oc_report._floor_sentence(tests, summary)
