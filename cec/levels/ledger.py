@@ -66,17 +66,22 @@ def times_read(test_set: str, path: Path = LEDGER) -> int:
 
 
 def record(test_set: str, what: str, command: str, commit: str, path: Path = LEDGER) -> Read:
-    """Appends one read (today's date) and returns it: the ledger rewritten whole to a temporary file and
-    renamed, so that a full disk never leaves it torn."""
+    """Appends one read (today's date) and returns it. The rows before it are kept as they were written,
+    byte for byte (hand-written ones with their own quoting), after `reads` checked them; the ledger is
+    written whole to a temporary file and renamed, so that a full disk never leaves it torn."""
     clip = lambda text: " ".join(str(text).split())[:MAX_FIELD]  # noqa: E731 - one line, bounded
     row = Read(datetime.date.today().isoformat(), clip(commit), clip(test_set), clip(what), clip(command))
-    rows = [*reads(path), row]
+    reads(path)  # a ledger, or ConfigError before anything is written
     out = io.StringIO()
+    if path.exists():
+        kept = path.read_text(encoding="utf-8", errors="replace")
+        out.write(kept if kept.endswith("\n") else kept + "\n")
     writer = csv.writer(out, lineterminator="\n")
-    writer.writerow(COLUMNS)
-    writer.writerows(rows)
+    if not path.exists():
+        writer.writerow(COLUMNS)
+    writer.writerow(row)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(out.getvalue())
+    tmp.write_text(out.getvalue(), encoding="utf-8")
     tmp.replace(path)
     return row
