@@ -72,12 +72,11 @@ def record(test_set: str, what: str, command: str, commit: str, path: Path = LED
     clip = lambda text: " ".join(str(text).split())[:MAX_FIELD]  # noqa: E731 - one line, bounded
     row = Read(datetime.date.today().isoformat(), clip(commit), clip(test_set), clip(what), clip(command))
     reads(path)  # a ledger, or ConfigError before anything is written
-    out = io.StringIO()
-    if path.exists():
-        kept = path.read_text(encoding="utf-8", errors="replace")
-        out.write(kept if kept.endswith("\n") else kept + "\n")
+    kept = path.read_text(encoding="utf-8", errors="replace") if path.exists() else ""
+    out = io.StringIO(kept if not kept or kept.endswith("\n") else kept + "\n")
+    out.seek(0, io.SEEK_END)
     writer = csv.writer(out, lineterminator="\n")
-    if not path.exists():
+    if not kept:
         writer.writerow(COLUMNS)
     writer.writerow(row)
     path.parent.mkdir(parents=True, exist_ok=True)
