@@ -43,13 +43,25 @@ class Read(NamedTuple):
 def reads(path: Path = LEDGER) -> list[Read]:
     """The ledger's rows, oldest first (none when it does not exist); `ConfigError` naming the file and the
     line for one that is not a ledger."""
+    return _rows(_text(path), path)
+
+
+def _text(path: Path) -> str:
+    """The ledger's text ('' when it does not exist), read once and at most `MAX_BYTES` of it."""
     if not path.exists():
-        return []
+        return ""
     with path.open("rb") as f:
         data = f.read(MAX_BYTES + 1)
     if len(data) > MAX_BYTES:
         raise ConfigError(f"{path} is over {MAX_BYTES} bytes; it is not a test-set ledger")
-    rows = list(csv.reader(io.StringIO(data.decode("utf-8", errors="replace"))))
+    return data.decode("utf-8", errors="replace")
+
+
+def _rows(text: str, path: Path) -> list[Read]:
+    """The rows of a ledger's text (none for ''), or `ConfigError` naming `path` and the line."""
+    if not text and not path.exists():
+        return []
+    rows = list(csv.reader(io.StringIO(text)))
     if not rows or tuple(rows[0]) != COLUMNS:
         raise ConfigError(f"{path}: line 1 must be the header {','.join(COLUMNS)}")
     out = []
@@ -67,14 +79,14 @@ def times_read(test_set: str, path: Path = LEDGER) -> int:
 
 def record(test_set: str, what: str, command: str, commit: str, path: Path = LEDGER) -> Read:
     """Appends one read (today's date) and returns it. The rows before it are kept as they were written,
-    byte for byte (hand-written ones with their own quoting), after `reads` checked them; the ledger is
+    byte for byte (hand-written ones with their own quoting), once they were checked; the ledger is
     written whole to a temporary file and renamed, so that a full disk never leaves it torn."""
     clip = lambda text: " ".join(str(text).split())[:MAX_FIELD]  # noqa: E731 - one line, bounded
     row = Read(datetime.date.today().isoformat(), clip(commit), clip(test_set), clip(what), clip(command))
-    reads(path)  # a ledger, or ConfigError before anything is written
-    kept = path.read_text(encoding="utf-8", errors="replace") if path.exists() else ""
-    out = io.StringIO(kept if not kept or kept.endswith("\n") else kept + "\n")
-    out.seek(0, io.SEEK_END)
+    kept = _text(path)
+    _rows(kept, path)  # a ledger, or ConfigError before anything is written
+    out = io.StringIO()
+    out.write(kept if not kept or kept.endswith("\n") else kept + "\n")
     writer = csv.writer(out, lineterminator="\n")
     if not kept:
         writer.writerow(COLUMNS)
