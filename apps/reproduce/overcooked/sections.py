@@ -231,6 +231,7 @@ class _Plateau(NamedTuple):
 
     last: float  # team return per training episode, the last 10 updates
     rise: float  # its rise over the last quarter of the run
+    before: float  # its rise over the quarter before that
     env_steps: int  # env steps per seed at its last update
     seeds: int
     seconds_per_seed: float  # training time per seed its metrics record (`pipeline.train_seconds`)
@@ -238,6 +239,36 @@ class _Plateau(NamedTuple):
     @property
     def levelled(self) -> bool:
         return self.rise <= PLATEAU_SHARE * abs(self.last)
+
+    @property
+    def quarters(self) -> int | None:
+        """`plateau_quarters` of this group's returns."""
+        return plateau_quarters(self.last - self.rise - self.before, self.last - self.rise, self.last)
+
+
+#: The longest run `plateau_quarters` projects, in quarters of the present one (16x it).
+MAX_QUARTERS = 64
+
+
+def plateau_quarters(half: float, three_quarters: float, last: float) -> int | None:
+    """How long a run would have to be, in quarters of the present one (4: it is long enough), for its own
+    last quarter to rise by at most `PLATEAU_SHARE` of its return, from the training return at a half, three
+    quarters and all of the present run: an exponential approach R(t) = A - B rho^t (t in quarters) through
+    those three points, rho the ratio of the last quarter's rise to the one before. None where the rise is
+    not slowing (rho >= 1, or no rise before the last quarter) or the projection passes `MAX_QUARTERS`. An
+    extrapolation of the training return: a longer run also stretches the recipe's LR schedule."""
+    rise, before = last - three_quarters, three_quarters - half
+    if rise <= PLATEAU_SHARE * abs(last):
+        return 4
+    if before <= 0 or rise >= before:
+        return None
+    rho = rise / before
+    b = rise / (rho**3 * (1 - rho))  # R(4) - R(3) = B rho^3 (1 - rho)
+    a = last + b * rho**4
+    for q in range(5, MAX_QUARTERS + 1):  # a run of q quarters: its last quarter spans 0.75q .. q
+        if b * (rho ** (0.75 * q) - rho**q) <= PLATEAU_SHARE * abs(a - b * rho**q):
+            return q
+    return None
 
 
 def _plateau(runs: Path, algo: str, kitchen: str) -> _Plateau | None:
@@ -248,19 +279,23 @@ def _plateau(runs: Path, algo: str, kitchen: str) -> _Plateau | None:
     smooth = [trailing_mean(v, 10) for v in _curves(runs, algo, kitchen, "mean_return") if len(v) >= 4]
     if not smooth:
         return None
-    last, earlier = np.mean([(m[-1], m[(3 * len(m)) // 4 - 1]) for m in smooth], axis=0)
+    half, three_quarters, last = np.mean(
+        [(m[len(m) // 2 - 1], m[(3 * len(m)) // 4 - 1], m[-1]) for m in smooth], axis=0
+    )
     rows = [read_metrics(r) for r in _kitchen_runs(runs, algo, kitchen)]
     seeds = sum(len({r["seed"] for r in rr}) for rr in rows)
     steps = max((int(r["env_steps"]) for rr in rows for r in rr), default=0)
     seconds = sum(train_seconds(rr) for rr in rows) / max(seeds, 1)
-    return _Plateau(float(last), float(last - earlier), steps, seeds, seconds)
+    rise, before = float(last - three_quarters), float(three_quarters - half)
+    return _Plateau(float(last), rise, before, steps, seeds, seconds)
 
 
 def plateau_lines(mode: Mode, runs: Path) -> list[str]:
     """Whether each single-kitchen algorithm's training had levelled off: its team return per training
     episode over the last 10 updates, how much it rose over the last quarter of the run (the mean over
     seeds; `metrics.csv` of its runs under `runs`) and the verdict by `PLATEAU_SHARE`; then a line per
-    group that had not, with where it stopped and what another quarter of its training costs."""
+    group that had not, with where it stopped, how much longer its run would have to be by
+    `plateau_quarters` and what the rest of its training costs."""
     algos = [a for a in ALGORITHMS if a not in GENERALISTS]
     groups = {(a, k): g for a in algos for k in mode.kitchens if (g := _plateau(runs, a, k)) is not None}
     if not groups:
@@ -271,29 +306,52 @@ def plateau_lines(mode: Mode, runs: Path) -> list[str]:
         g = groups.get((a, k))
         return NONE if g is None else f"{g.last:.1f} ({g.rise:+.1f}) {'yes' if g.levelled else 'no'}"
 
+    def rest(g: _Plateau) -> float:  # seconds per seed from the present end to the projected plateau
+        return g.seconds_per_seed * ((g.quarters or 4) / 4 - 1)
+
     verdict = f"{len(groups) - len(rising)} of {len(groups)} groups levelled off."
     if rising:
-        quarter = sum(g.seconds_per_seed / 4 * g.seeds for _, _, g in rising)
+        projected = [g for _, _, g in rising if g.quarters is not None]
+        quarter = duration(sum(g.seconds_per_seed / 4 * g.seeds for _, _, g in rising))
         verdict += (
             " The others stopped, still rising, at the env steps their mode gives a single-kitchen run "
-            "(`steps` in `apps/reproduce/overcooked/modes.py`); none was trained on to a plateau. Another "
-            f"quarter of training for all of them, every seed, costs about {duration(quarter)} of the machine"
-            " that trained them:"
+            "(`steps` in `apps/reproduce/overcooked/modes.py`); none was trained on to a plateau. Where a "
+            "group's rise per quarter was shrinking, an exponential approach through its return at a half, "
+            "three quarters and all of its run projects the length at which it would level off by the same "
+            "test (an extrapolation: a longer run also stretches the recipe's LR schedule). "
         )
+        if projected:
+            cost = duration(sum(rest(g) * g.seeds for g in projected))
+            verdict += (
+                f"Training the {len(projected)} projected group(s) on to it, every seed, costs about {cost} "
+                f"of the machine that trained them; another quarter for all {len(rising)}, about {quarter}:"
+            )
+        else:
+            verdict += f"Another quarter of training for all of them, every seed, costs about {quarter}:"
+
+    def still(a: str, k: str, g: _Plateau) -> str:
+        line = (
+            f"- {TITLES[a]}, {k}: +{g.rise:.1f} over the last quarter, {g.rise / abs(g.last):.0%} of its "
+            f"{g.last:.1f}, at {g.env_steps:,} env steps per seed; "
+        )
+        if g.quarters is None:
+            return line + (
+                f"its rise not slowing (+{g.before:.1f} the quarter before), no length projected; another "
+                f"quarter costs {g.seconds_per_seed / 4 / 60:.1f} min per seed"
+            )
+        return line + (
+            f"projected to level off at {g.quarters / 4:g}x its run, the rest costing "
+            f"{rest(g) / 60:.1f} min per seed"
+        )
+
     head = ["algorithm", "training episode (steps)", *mode.kitchens]
     rows = [
         [TITLES[a], _episode_steps(runs, a, mode.kitchens), *(cell(a, k) for k in mode.kitchens)]
         for a in algos
     ]
-    still = [
-        f"- {TITLES[a]}, {k}: +{g.rise:.1f} over the last quarter, {g.rise / abs(g.last):.0%} of its "
-        f"{g.last:.1f}, at {g.env_steps:,} env steps per seed; another quarter costs "
-        f"{g.seconds_per_seed / 4 / 60:.1f} min per seed"
-        for a, k, g in rising
-    ]
     return TEMPLATES.lines(
         "plateau", share=f"{PLATEAU_SHARE:.0%}", table=md.table(head, rows),
-        verdict="\n".join([verdict, *([""] if rising else []), *still]),
+        verdict="\n".join([verdict, *([""] if rising else []), *(still(a, k, g) for a, k, g in rising)]),
     )  # fmt: skip
 
 

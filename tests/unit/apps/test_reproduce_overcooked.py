@@ -32,7 +32,7 @@ from apps.zoo_build import export_zoo
 from cec.agents.zoo import SkippedEntry
 from cec.checkpoints import code_version
 from cec.config import ConfigError, load_config
-from cec.evaluation.curves import metrics_file, read_curve
+from cec.evaluation.curves import metrics_file, read_curve, trailing_mean
 from cec.evaluation.results import make_table, read_csv
 from cec.humans.bc import BCConfig
 from cec.training.config import TrainConfig
@@ -327,8 +327,46 @@ def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_trai
     rising = [line for line in plateau if line.startswith("- ")]
     assert rising == [
         "- IPPO, cramped_room: +5.0 over the last quarter, 32% of its 15.5, at 2,000 env steps per seed; "
-        "another quarter costs 0.0 min per seed"
-    ]
+        "its rise not slowing (+5.0 the quarter before), no length projected; another quarter costs 0.0 min "
+        "per seed"
+    ]  # a straight line: no plateau to project
+
+
+@pytest.mark.parametrize("rho", [0.6, 0.8, 0.9])
+def test_the_plateau_projection_finds_where_an_exponential_approach_levels_off(rho: float) -> None:
+    """Three points of R(t) = 100 - 100 rho^t (t in quarters of the run: a half, three quarters, the end)
+    give the first run length whose own last quarter rises by at most 5% of its return; a rise that is
+    not slowing, or one already within 5%, projects nothing or the run itself."""
+
+    def r(t: float) -> float:
+        return 100 - 100 * rho**t
+
+    truth = next(q for q in range(5, 65) if r(q) - r(0.75 * q) <= oc_sections.PLATEAU_SHARE * r(q))
+    assert oc_sections.plateau_quarters(r(2), r(3), r(4)) == truth
+    assert oc_sections.plateau_quarters(10.0, 20.0, 30.0) is None  # a straight line
+    assert oc_sections.plateau_quarters(30.0, 20.0, 30.0) is None  # fell, then rose: no rate to read
+    assert oc_sections.plateau_quarters(90.0, 99.0, 100.0) == 4  # levelled off already
+
+
+def test_a_group_still_rising_but_slowing_is_given_the_cost_of_the_rest(tmp_path: Path) -> None:
+    """A run whose return rises by less each quarter: the report projects how much longer it would have
+    to run and what the rest costs per seed, from the training seconds its metrics record."""
+    run = tmp_path / "runs" / "e3t_coord_ring-s150"
+    run.mkdir(parents=True)
+    returns = [100 - 100 * 0.8 ** (u / 10) for u in range(1, 41)]
+    lines = ["update,env_steps,seed,mean_return,env_steps_per_s"]  # 60 s an update
+    lines += [f"{u},{u * 600},150,{v},10" for u, v in enumerate(returns, 1)]
+    (run / "metrics.csv").write_text("\n".join(lines) + "\n")
+    mode = dataclasses.replace(TINY, kitchens=("coord_ring",))
+    text = "\n".join(oc_sections.plateau_lines(mode, tmp_path / "runs"))
+    assert "0 of 1 groups levelled off." in text and "Training the 1 projected group(s) on to it" in text
+    line = next(x for x in text.splitlines() if x.startswith("- E3T, coord_ring:"))
+    smooth = trailing_mean(np.array(returns), 10)  # the report reads the trailing mean of 10 updates
+    quarters = oc_sections.plateau_quarters(smooth[19], smooth[29], smooth[39])
+    assert quarters is not None and quarters > 4
+    rest = 40 * (quarters / 4 - 1)  # minutes per seed beyond the 40 it ran
+    end = f"projected to level off at {quarters / 4:g}x its run, the rest costing {rest:.1f} min per seed"
+    assert line.endswith(end)
 
 
 @pytest.mark.slow

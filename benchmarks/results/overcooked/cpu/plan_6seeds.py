@@ -6,13 +6,14 @@ Markdown (`plan_6seeds.md` beside it):
 
 The plateau criterion is the report's (`apps/reproduce/overcooked/sections.py`, PLATEAU_SHARE): a group
 levelled off when its team return per training episode (trailing mean of 10 updates, mean over seeds) rose
-by at most 5% of its last value over the last quarter of its run. The projection: with R50, R75, R100 the
-return at a half, three quarters and all of the run, the rise per quarter shrinks by rho = (R100 - R75) /
-(R75 - R50); an exponential approach R(t) = A - B rho^(4t/T) through those points gives the first length (in
-quarters of the present run) whose own last quarter rises by at most 5%. Where the rise did not slow (rho >=
-1, or a rise too noisy to read: R75 <= R50), no projection: the plan doubles the run and checks again. It is
-an extrapolation of the training return with its LR schedule stretched over a longer run (the recipe anneals
-the LR over the run's total), so the plan's second step reads the criterion off the new runs' metrics.
+by at most 5% of its last value over the last quarter of its run. The projection is the report's too
+(`plateau_quarters`): with R50, R75, R100 the return at a half, three quarters and all of the run, the rise
+per quarter shrinks by rho = (R100 - R75) / (R75 - R50); an exponential approach R(t) = A - B rho^(4t/T)
+through those points gives the first length (in quarters of the present run) whose own last quarter rises by
+at most 5%. Where the rise did not slow (rho >= 1, or a rise too noisy to read: R75 <= R50), no projection:
+the plan doubles the run and checks again. It is an extrapolation of the training return with its LR
+schedule stretched over a longer run (the recipe anneals the LR over the run's total), so the plan's second
+step reads the criterion off the new runs' metrics.
 
 Cost: `seconds_per_update` of the CPU mode (`apps/reproduce/overcooked/modes.py`: s per update and seed on one
 core, both cores training) x updates x seeds. The checkpoints of the 4-seed zoo are not kept, so 6 seeds means
@@ -28,12 +29,11 @@ import numpy as np
 import yaml
 
 from apps.reproduce.overcooked.modes import CPU, GENERALISTS, TITLES
-from apps.reproduce.overcooked.sections import PLATEAU_SHARE
+from apps.reproduce.overcooked.sections import plateau_quarters
 from cec.evaluation.curves import read_curve, trailing_mean
 
 RUNS = Path(__file__).resolve().parent / "work" / "zoo" / "runs"
 SEEDS = 6
-MAX_QUARTERS = 64  # 16x the present run: beyond it the projection is not worth printing
 
 
 def curve(algo: str, kitchen: str) -> np.ndarray:
@@ -47,22 +47,14 @@ def curve(algo: str, kitchen: str) -> np.ndarray:
 
 
 def projection(m: np.ndarray) -> tuple[float, float, float, int | None]:
-    """(last, rise over the last quarter, rho, quarters of the present run needed; None: no projection)."""
+    """(last, rise over the last quarter, rho, quarters of the present run needed: the report's
+    `plateau_quarters`; None: no projection)."""
     n = len(m)
     r50, r75, r100 = m[n // 2 - 1], m[(3 * n) // 4 - 1], m[-1]
     rise, before = r100 - r75, r75 - r50
-    if rise <= PLATEAU_SHARE * abs(r100):
-        return float(r100), float(rise), math.nan, 4
-    if before <= 0 or rise >= before:
-        return float(r100), float(rise), math.nan if before <= 0 else rise / before, None
-    rho = rise / before
-    b = rise / (rho**3 * (1 - rho))
-    a = r100 + b * rho**4
-    for q in range(5, MAX_QUARTERS + 1):  # a run of q quarters: its last quarter spans q*3/4 .. q
-        end = a - b * rho**q
-        if b * (rho ** (0.75 * q) - rho**q) <= PLATEAU_SHARE * abs(end):
-            return float(r100), float(rise), rho, q
-    return float(r100), float(rise), rho, None
+    quarters = plateau_quarters(r50, r75, r100)
+    rho = math.nan if quarters == 4 or before <= 0 else rise / before
+    return float(r100), float(rise), rho, quarters
 
 
 def main() -> None:
