@@ -26,10 +26,14 @@ which levels, and what its report says beside the paper's numbers.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import json
 import math
+import os
+import shutil
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -65,31 +69,130 @@ def note(out: TextIO, msg: str) -> None:
     log_line(out, "reproduce", msg)
 
 
+#: How often an invocation waiting for a table another one plays looks again (seconds).
+POLL_S = 10.0
+
+
 def cached_table(
-    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], *, label: str, log: TextIO
-) -> EpisodeTable:
+    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], *, label: str, log: TextIO,
+    poll_s: float = POLL_S,
+) -> EpisodeTable:  # fmt: skip
     """The result table `folder/results.csv` an earlier invocation wrote when `key` (what it depends on,
     stored beside it in `results.key.json`) is unchanged, else `play()`'s table, written there with the time
     `play()` took (`PLAY_TIME_FILE`) unless it recorded its own (a table of cached parts: the parts' times).
-    The key is written last, so an invocation interrupted while playing plays again."""
+    The key is written last, so an invocation interrupted while playing plays again. Where another
+    invocation is playing it (two builders of one work folder), this one waits for that table
+    (`shared_tables`)."""
+    return shared_tables([(folder, label, play)], key, log=log, poll_s=poll_s)[0]
+
+
+def shared_tables(
+    jobs: Sequence[tuple[Path, str, Callable[[], EpisodeTable]]], key: Mapping[str, object], *, log: TextIO,
+    poll_s: float = POLL_S,
+) -> list[EpisodeTable]:  # fmt: skip
+    """Each job's (folder, label, play) cached table (`cached_table`), in order. Several invocations may
+    work on the same jobs at once (one per core): each plays the jobs no other has claimed (a job's folder
+    lock, `cec.checkpoints.RunLock`, which the kernel drops however its holder ends), then waits for the
+    others' tables, looking every `poll_s` seconds."""
+    tables: dict[int, EpisodeTable] = {}
+    waiting: set[int] = set()
+    while True:
+        for k, (folder, label, play) in enumerate(jobs):
+            if k not in tables and (table := _claimed_table(folder, key, play, label, log)) is not None:
+                tables[k] = table
+        left = [k for k in range(len(jobs)) if k not in tables]
+        if not left:
+            return [tables[k] for k in range(len(jobs))]
+        for k in sorted(set(left) - waiting):
+            log_line(log, "reproduce", f"{jobs[k][1]}played by another invocation; waiting for its table")
+        waiting.update(left)
+        time.sleep(poll_s)
+
+
+def stored_table(folder: Path, key: Mapping[str, object], *, label: str, log: TextIO) -> EpisodeTable | None:
+    """The table an earlier invocation wrote in `folder` under `key` (`cached_table`), else None."""
     results, key_file = results_file(folder), folder / "results.key.json"
-    key = json.loads(json.dumps(key))  # as stored: tuples as lists
-    if results.exists() and key_file.exists() and json.loads(key_file.read_text()) == key:
+    stored_key = json.loads(key_file.read_text()) if key_file.exists() else None
+    if results.exists() and stored_key == json.loads(json.dumps(key)):  # as stored: tuples as lists
         log_line(log, "reproduce", f"{label}cross-play results found ({results}); not played again")
         return read_csv(results)
-    log_line(log, "reproduce", f"{label}cross-play")
-    key_file.unlink(missing_ok=True)
-    for suffix in COMPRESSED:  # a committed table the new one replaces
-        (folder / f"results.csv{suffix}").unlink(missing_ok=True)
-    time_file = folder / PLAY_TIME_FILE
-    time_file.unlink(missing_ok=True)
-    t0 = time.perf_counter()
-    table = play()
-    write_csv(table, folder / "results.csv")
-    if not time_file.exists():
-        time_file.write_text(json.dumps({"seconds": time.perf_counter() - t0}) + "\n")
-    key_file.write_text(json.dumps(key, indent=1) + "\n")
-    return table
+    return None
+
+
+def _claimed_table(
+    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], label: str, log: TextIO
+) -> EpisodeTable | None:
+    """`cached_table`'s table, played under `folder`'s lock; None while another invocation holds it."""
+    from cec.checkpoints import RunBusyError, RunLock
+
+    if (table := stored_table(folder, key, label=label, log=log)) is not None:
+        return table
+    try:
+        lock = RunLock(folder).acquire()
+    except RunBusyError:
+        return None
+    try:
+        if (table := stored_table(folder, key, label=label, log=log)) is not None:
+            return table  # another invocation finished it meanwhile
+        log_line(log, "reproduce", f"{label}cross-play")
+        key_file = folder / "results.key.json"
+        key_file.unlink(missing_ok=True)
+        for suffix in COMPRESSED:  # a committed table the new one replaces
+            (folder / f"results.csv{suffix}").unlink(missing_ok=True)
+        time_file = folder / PLAY_TIME_FILE
+        time_file.unlink(missing_ok=True)
+        t0 = time.perf_counter()
+        table = play()
+        write_csv(table, folder / "results.csv")
+        if not time_file.exists():
+            time_file.write_text(json.dumps({"seconds": time.perf_counter() - t0}) + "\n")
+        key_file.write_text(json.dumps(key, indent=1) + "\n")
+        return table
+    finally:
+        lock.release()
+
+
+@contextlib.contextmanager
+def held(folder: Path, *, what: str, log: TextIO, poll_s: float = POLL_S) -> Iterator[None]:
+    """`folder`'s lock (`cec.checkpoints.RunLock`) for the block, waiting while another invocation holds it
+    (two invocations side by side writing the same report: one after the other, not into each other's
+    files). `what`: what the other one is doing, for the log."""
+    from cec.checkpoints import RunBusyError, RunLock
+
+    lock, said = RunLock(folder), False
+    while True:
+        try:
+            lock.acquire()
+            break
+        except RunBusyError:
+            if not said:
+                log_line(log, "reproduce", f"another invocation is writing {what}; waiting for it")
+                said = True
+            time.sleep(poll_s)
+    try:
+        yield
+    finally:
+        lock.release()
+
+
+@contextlib.contextmanager
+def scratch(folder: Path) -> Iterator[None]:
+    """`folder` as scratch space that several invocations may use at once (`shared_tables`' parts), removed
+    when the block ends without an error and no other invocation is still in it (a shared flock on
+    `folder/.users` while in it; the last one out removes it). Kept after an error or interruption, for
+    the next invocation to go on from."""
+    folder.mkdir(parents=True, exist_ok=True)
+    fd = os.open(folder / ".users", os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH)
+        yield
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return  # another invocation is still in it: it removes the folder when it leaves
+        shutil.rmtree(folder, ignore_errors=True)
+    finally:
+        os.close(fd)
 
 
 def results_file(folder: Path) -> Path:

@@ -81,15 +81,16 @@ def reproduce_overcooked(
     plan, missing = trained_runs(mode, work)
     train_s = {p.run: train_seconds(read_metrics(work / "zoo" / "runs" / p.run)) for p in plan}
     points, kitchens = curve_points(cached_curves(mode, work, log=log, report_only=report_only))
-    figures = write_figures(
-        mode, work, out, table, points, log=log, policies=policies or work / "zoo" / "zoo.yaml"
-    )  # fmt: skip
     sections = [*analysis_lines(mode, table, work / "zoo" / "runs", controls), *curve_lines(points, kitchens)]
-    report = write_report(
-        mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
-        skipped=table.skipped, train_s=train_s, played_s=play_seconds(work), sections=sections,
-        missing=missing, matrices=matrices, short=short_summary,
-    )  # fmt: skip
+    with pipeline.held(out, what=f"the report in {out}", log=log):  # two invocations side by side: in turn
+        figures = write_figures(
+            mode, work, out, table, points, log=log, policies=policies or work / "zoo" / "zoo.yaml"
+        )
+        report = write_report(
+            mode, summary, out, figures=figures, plan=plan, command=command, ran_on=ran_on, commit=commit,
+            skipped=table.skipped, train_s=train_s, played_s=play_seconds(work), sections=sections,
+            missing=missing, matrices=matrices, short=short_summary,
+        )  # fmt: skip
     pipeline.note(log, f"report: {report}")
     return report
 

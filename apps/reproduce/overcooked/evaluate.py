@@ -9,7 +9,6 @@ from __future__ import annotations
 import dataclasses
 import functools
 import json
-import shutil
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -112,8 +111,9 @@ def evaluate(
     Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
     reason. Each line-up's table is kept in `parts/<level set>-<i>` under `key` (`cached_table`) until the
     whole one is written: an interrupted evaluation (the CPU version's line-ups took 6 to 9 minutes
-    each on the 2-vCPU Xeon) resumes at the line-up it was playing. `steps`: the episodes' length."""
-    from apps.reproduce.pipeline import cached_table
+    each on the 2-vCPU Xeon) resumes at the line-up it was playing; invocations side by side (two
+    builders of one work folder) share the line-ups out (`pipeline.shared_tables`). `steps`: the episodes'
+    length."""
     from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import eval_levels
     from cec.evaluation.results import EpisodeTable
@@ -121,7 +121,7 @@ def evaluate(
     policies = pipeline.load_zoo_policies(manifest, str(manifest))
     proxies = human_proxies(mode)
     cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
-    tables = []
+    jobs = []
     for level_set in LEVEL_SETS:
         config = eval_config(mode, level_set, seed, steps)
         levels = eval_levels("overcooked", config.levels)
@@ -135,8 +135,8 @@ def evaluate(
                 _play_lineup, [*lineup, *partners], levels, config, adds, what=what, log=log
             )
             label = f"{level_set} line-up {i + 1} of {len(everyone)}: "
-            tables.append(cached_table(parts / f"{level_set}-{i}", key, play, label=label, log=log))
-    return EpisodeTable.concat(tables)
+            jobs.append((parts / f"{level_set}-{i}", label, play))
+    return EpisodeTable.concat(pipeline.shared_tables(jobs, key, log=log))
 
 
 def _play_lineup(
@@ -250,11 +250,11 @@ def cached_evaluation(
     # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
     key = {**_eval_key(mode, steps), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
     parts = folder / PARTS
+    label = "" if steps == EVAL_STEPS else f"{steps}-step episodes: "
 
-    def play() -> EpisodeTable:
-        table = evaluate(mode, manifest, log=log, parts=parts, key=key, steps=steps)
+    def assemble(table: EpisodeTable) -> EpisodeTable:  # the line-ups' table, with their times and machine
         # the line-ups' own times, also those an interrupted invocation played
-        seconds = sum(play_seconds(part) for part in parts.iterdir())
+        seconds = sum(play_seconds(part) for part in parts.iterdir() if part.is_dir())
         (folder / PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
         trained = {
             _short(read_meta(checkpoint)["metadata"].get("code_version", "unknown"))
@@ -264,10 +264,13 @@ def cached_evaluation(
         (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
         return table
 
-    label = "" if steps == EVAL_STEPS else f"{steps}-step episodes: "
-    table = cached_table(folder, key, play, label=label, log=log)
-    shutil.rmtree(parts, ignore_errors=True)  # all in the table now
-    return table
+    # line-ups first, outside the table's lock, so that invocations side by side share them out; the
+    # parts are removed by the last invocation out once the whole table is written
+    with pipeline.scratch(parts):
+        if (found := pipeline.stored_table(folder, key, label=label, log=log)) is not None:
+            return found
+        played = evaluate(mode, manifest, log=log, parts=parts, key=key, steps=steps)
+        return cached_table(folder, key, functools.partial(assemble, played), label=label, log=log)
 
 
 def steps_folder(work: Path, steps: int) -> Path:
