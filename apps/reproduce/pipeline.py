@@ -74,16 +74,15 @@ POLL_S = 10.0
 
 
 def cached_table(
-    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], *, label: str, log: TextIO,
-    poll_s: float = POLL_S,
-) -> EpisodeTable:  # fmt: skip
+    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], *, label: str, log: TextIO
+) -> EpisodeTable:
     """The result table `folder/results.csv` an earlier invocation wrote when `key` (what it depends on,
     stored beside it in `results.key.json`) is unchanged, else `play()`'s table, written there with the time
     `play()` took (`PLAY_TIME_FILE`) unless it recorded its own (a table of cached parts: the parts' times).
     The key is written last, so an invocation interrupted while playing plays again. Where another
     invocation is playing it (two builders of one work folder), this one waits for that table
     (`shared_tables`)."""
-    return shared_tables([(folder, label, play)], key, log=log, poll_s=poll_s)[0]
+    return shared_tables([(folder, label, play)], key, log=log)[0]
 
 
 def shared_tables(

@@ -241,7 +241,7 @@ def cached_evaluation(
     (`steps_folder`), the same games cut short."""
     folder = steps_folder(work, steps)
     folder.mkdir(parents=True, exist_ok=True)
-    from apps.reproduce.pipeline import PLAY_TIME_FILE, cached_table
+    from apps.reproduce.pipeline import PLAY_TIME_FILE
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
 
@@ -270,7 +270,7 @@ def cached_evaluation(
         if (found := pipeline.stored_table(folder, key, label=label, log=log)) is not None:
             return found
         played = evaluate(mode, manifest, log=log, parts=parts, key=key, steps=steps)
-        return cached_table(folder, key, functools.partial(assemble, played), label=label, log=log)
+        return pipeline.cached_table(folder, key, functools.partial(assemble, played), label=label, log=log)
 
 
 def steps_folder(work: Path, steps: int) -> Path:
