@@ -4,10 +4,13 @@
     python scripts/carry_run.py restore carry/up-release   # -> runs/up-release/, then `cec up --resume`
 
 `save` keeps the newest checkpoint's parameters, optimizer state, keys and update count (not the envs'
-carries: the episodes in flight), with the run's config, metrics and the evaluator's record (compressed).
-`restore` writes them back as the run's newest checkpoint, the carries drawn afresh from the run's keys
-(`Trainer.init`), so `cec up --resume` (or `cec train --resume`) continues the run from that update; the
-only difference from an uninterrupted run is that its envs start new episodes there. Project tooling: the
+carries: the episodes in flight; a finished run's optimizer state neither, nothing continues from it), and
+every older checkpoint the run kept (its milestones, which learning curves are played from) as parameters,
+keys and count, with the run's config, metrics and the evaluator's record (compressed). `restore` writes
+them back as the run's checkpoints, the carries (and an older checkpoint's optimizer state) drawn afresh
+from the run's keys (`Trainer.init`), so `cec up --resume` (or `cec train --resume`) continues the run from
+its newest update; the only difference from an uninterrupted run is that its envs start new episodes there.
+A run that starts from another's checkpoint (`init_from`) is restored after that one. Project tooling: the
 product never reads `carry/` (`scripts/history_weight.py` bounds what it may hold).
 """
 
@@ -21,9 +24,12 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
-STATE = "state"  # the compact checkpoint's folder
+STATE = "state"  # the newest checkpoint's folder
+OLDER = "checkpoints"  # the older checkpoints' folders, by their names in the run
 FILES = ("config.yaml", "metrics.jsonl", "metrics.csv", "eval/record.csv", "logs/resume_command")
-KEPT = ("params", "opt_state", "key", "update")
+KEPT = ("params", "opt_state", "key", "update")  # of the newest checkpoint of a run still training
+PARAMS_ONLY = ("params", "key", "update")  # of the others: what evaluating them needs
+FIELDS = "carried_fields"  # in a carried checkpoint's metadata: which of the state's fields it holds
 
 
 def _trainer(config: dict):  # noqa: ANN202 - a Trainer of the run's config
@@ -37,24 +43,30 @@ def _trainer(config: dict):  # noqa: ANN202 - a Trainer of the run's config
 def save(run: Path, out: Path) -> Path:
     from cec import checkpoints
 
-    latest = checkpoints.CheckpointStore(run, keep_last=1).latest()
-    if latest is None:
+    saved = checkpoints.CheckpointStore(run, keep_last=1).list()
+    if not saved:
         raise SystemExit(f"{run} has no checkpoint to carry")
-    meta = checkpoints.read_meta(latest.path)
-    template = _trainer(meta["config"]).state_template()
-    state, _ = checkpoints.load(latest.path, template)
-    compact = {name: getattr(state, name) for name in KEPT}
+    trainer = _trainer(checkpoints.read_meta(saved[-1].path)["config"])
+    template = trainer.state_template()
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
-    checkpoints.save(out / STATE, compact, update=meta["update"], env_steps=meta["env_steps"],
-                     config=meta["config"], metadata={**meta["metadata"], "carried_from": latest.path.name},
-                     milestone=bool(meta["milestone"]))  # fmt: skip
+    for i, info in enumerate(saved):
+        meta = checkpoints.read_meta(info.path)
+        newest = i == len(saved) - 1
+        fields = KEPT if newest and meta["update"] < trainer.config.num_updates else PARAMS_ONLY
+        state, _ = checkpoints.load(info.path, template)
+        metadata = {**meta["metadata"], "carried_from": info.path.name, FIELDS: list(fields)}
+        checkpoints.save(out / STATE if newest else out / OLDER / info.path.name,
+                         {name: getattr(state, name) for name in fields}, update=meta["update"],
+                         env_steps=meta["env_steps"], config=meta["config"], metadata=metadata,
+                         milestone=bool(meta["milestone"]))  # fmt: skip
     for name in FILES:
         if (run / name).is_file():
             target = out / (name.replace("/", "__") + ".gz")
             target.write_bytes(gzip.compress((run / name).read_bytes(), 9))
     size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
-    print(f"carried {latest.path.name} of {run} to {out} ({size / 1e6:.1f} MB)")
+    print(f"carried {len(saved)} checkpoint(s) of {run}, the newest {saved[-1].path.name}, to {out} "
+          f"({size / 1e6:.1f} MB)")  # fmt: skip
     return out
 
 
@@ -63,11 +75,8 @@ def restore(carried: Path, run_dir: Path) -> Path:
 
     from cec import checkpoints
 
-    meta = checkpoints.read_meta(carried / STATE)
-    trainer = _trainer(meta["config"])
+    trainer = _trainer(checkpoints.read_meta(carried / STATE)["config"])
     fresh = trainer.init()  # the run's shapes, with carries drawn afresh from its keys
-    kept, _ = checkpoints.load(carried / STATE, {name: getattr(fresh, name) for name in KEPT})
-    state = fresh._replace(**kept)
     run = run_dir / trainer.config.run_name
     for name in FILES:
         source = carried / (name.replace("/", "__") + ".gz")
@@ -75,11 +84,17 @@ def restore(carried: Path, run_dir: Path) -> Path:
             (run / name).parent.mkdir(parents=True, exist_ok=True)
             (run / name).write_bytes(gzip.decompress(source.read_bytes()))
     store = checkpoints.CheckpointStore(run, keep_last=1)
-    path = checkpoints.save(store.path(meta["update"]), jax.device_get(state), update=meta["update"],
-                            env_steps=meta["env_steps"], config=meta["config"], metadata=meta["metadata"],
-                            milestone=bool(meta["milestone"]))  # fmt: skip
-    print(f"restored update {meta['update']} of {run.name} to {path}; continue with its `--resume`")
-    return path
+    for path in [*sorted((carried / OLDER).glob("update_*")), carried / STATE]:  # oldest first
+        meta = checkpoints.read_meta(path)
+        metadata = dict(meta["metadata"])
+        fields = metadata.pop(FIELDS, KEPT)  # a carry from before older checkpoints were kept: all of KEPT
+        kept, _ = checkpoints.load(path, {name: getattr(fresh, name) for name in fields})
+        written = checkpoints.save(store.path(meta["update"]), jax.device_get(fresh._replace(**kept)),
+                                   update=meta["update"], env_steps=meta["env_steps"], config=meta["config"],
+                                   metadata=metadata, milestone=bool(meta["milestone"]))  # fmt: skip
+    print(f"restored {run.name} to {written.parent} (newest: update {meta['update']}); continue with its "
+          "`--resume`")  # fmt: skip
+    return written
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,6 +1,7 @@
-"""A run carried between sessions in compact form (`scripts/carry_run.py`): parameters, optimizer state,
-keys and counts kept, the envs' carries dropped; restored, `cec train --resume` continues from the carried
-update with the carried parameters."""
+"""A run carried between sessions in compact form (`scripts/carry_run.py`): the newest checkpoint's
+parameters, optimizer state, keys and counts kept, the envs' carries dropped, the older checkpoints (the
+milestones learning curves are played from) as parameters; restored, `cec train --resume` continues from the
+carried update with the carried parameters, and a finished run comes back with every checkpoint it had."""
 
 from __future__ import annotations
 
@@ -15,11 +16,33 @@ from cec import checkpoints
 
 REPO = Path(__file__).resolve().parents[2]
 PRESET = ["--config", "configs/train/dd_ippo_quick.yaml", "num_seeds=2", "num_envs=8", "num_steps=20",
-          "total_env_steps=1600", "updates_per_call=1", "checkpoint.every_updates=1", "--quiet"]  # fmt: skip
+          "total_env_steps=1600", "updates_per_call=1", "checkpoint.every_updates=1",
+          "checkpoint.keep_last=1", "checkpoint.milestones=[0.2,1.0]", "--quiet"]  # fmt: skip
 
 
 def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True, timeout=600)
+
+
+def _carry(run: Path, carried: Path, run_dir: Path) -> Path:
+    """`run` saved to `carried`, then restored into `run_dir`; the restored run's folder."""
+    saved = _run("scripts/carry_run.py", "save", str(run), "--out", str(carried))
+    assert saved.returncode == 0, saved.stderr[-2000:]
+    restored = _run("scripts/carry_run.py", "restore", str(carried), "--run-dir", str(run_dir))
+    assert restored.returncode == 0, restored.stderr[-2000:]
+    return run_dir / run.name
+
+
+def _checkpoints(run: Path) -> list[tuple[str, int, bool]]:
+    return [(c.path.name, c.update, c.milestone) for c in checkpoints.CheckpointStore(run, 1).list()]
+
+
+def _same_params(a: Path, b: Path) -> bool:
+    """Every checkpoint of run `a` and of run `b` holds the same parameters (the same checkpoints)."""
+    assert _checkpoints(a) == _checkpoints(b)
+    x = [np.asarray(v) for c in _checkpoints(a) for v in jax.tree.leaves(_params(a / "checkpoints" / c[0]))]
+    y = [np.asarray(v) for c in _checkpoints(b) for v in jax.tree.leaves(_params(b / "checkpoints" / c[0]))]
+    return all(np.array_equal(u, v) for u, v in zip(x, y, strict=True))
 
 
 def test_a_carried_run_resumes_from_its_update_with_its_parameters(tmp_path: Path) -> None:
@@ -27,30 +50,31 @@ def test_a_carried_run_resumes_from_its_update_with_its_parameters(tmp_path: Pat
         "-m", "apps.cli", "train", *PRESET, f"run_dir={tmp_path / 'a'}", "name=r", "--max-updates", "3"
     )
     assert first.returncode == 0, first.stderr[-2000:]
-    carried = tmp_path / "carry" / "r"
-    saved = _run("scripts/carry_run.py", "save", str(tmp_path / "a" / "r"), "--out", str(carried))
-    assert saved.returncode == 0, saved.stderr[-2000:]
-    original = checkpoints.read_meta(carried / "state")
-    assert original["update"] == 3 and not (carried / "state" / "carry").exists()
-    full = (tmp_path / "a" / "r" / "checkpoints" / "update_000000003" / "state.msgpack").stat().st_size
+    original, carried = tmp_path / "a" / "r", tmp_path / "carry" / "r"
+    assert [c[1:] for c in _checkpoints(original)] == [(2, True), (3, False)]
+    run = _carry(original, carried, tmp_path / "b")
+    newest = checkpoints.read_meta(carried / "state")
+    assert newest["update"] == 3 and not (carried / "state" / "carry").exists()
+    assert "opt_state" in newest["metadata"]["carried_fields"], "a run still training keeps its Adam state"
+    full = (original / "checkpoints" / "update_000000003" / "state.msgpack").stat().st_size
     assert (carried / "state" / "state.msgpack").stat().st_size < full, "the envs' carries are left out"
-    restored = _run("scripts/carry_run.py", "restore", str(carried), "--run-dir", str(tmp_path / "b"))
-    assert restored.returncode == 0, restored.stderr[-2000:]
-    run = tmp_path / "b" / "r"
-    assert (run / "metrics.jsonl").read_text() == (tmp_path / "a" / "r" / "metrics.jsonl").read_text()
+    assert (run / "metrics.jsonl").read_text() == (original / "metrics.jsonl").read_text()
     kept = checkpoints.read_meta(run / "checkpoints" / "update_000000003")
-    assert kept["config"] == original["config"]
-    a = [
-        np.asarray(x)
-        for x in jax.tree.leaves(_params(tmp_path / "a" / "r" / "checkpoints" / "update_000000003"))
-    ]
-    b = [np.asarray(x) for x in jax.tree.leaves(_params(run / "checkpoints" / "update_000000003"))]
-    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
-    more = _run("-m", "apps.cli", "train", "--resume", str(run), "--max-updates", "2", "--quiet")
+    assert kept["config"] == newest["config"] and "carried_fields" not in kept["metadata"]
+    assert _same_params(original, run), "the milestone and the newest checkpoint come back as they were"
+
+    more = _run("-m", "apps.cli", "train", "--resume", str(run), "--quiet")
     assert more.returncode == 0, more.stderr[-2000:]
     updates = sorted({int(line.split('"update": ')[1].split(",")[0]) for line in
                       (run / "metrics.jsonl").read_text().splitlines()})  # fmt: skip
-    assert updates == [1, 2, 3, 4, 5]
+    assert updates == list(range(1, 11))
+
+    again = _carry(run, tmp_path / "carry2" / "r", tmp_path / "c")  # finished: nothing continues from it
+    assert checkpoints.read_meta(tmp_path / "carry2" / "r" / "state")["metadata"]["carried_fields"] == [
+        "params", "key", "update"
+    ]  # fmt: skip
+    assert [c[1:] for c in _checkpoints(again)] == [(2, True), (9, False), (10, True)]
+    assert _same_params(run, again), "every checkpoint the finished run kept comes back as it was"
 
 
 def _params(path: Path) -> object:
