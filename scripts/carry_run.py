@@ -2,6 +2,8 @@
 
     python scripts/carry_run.py save runs/up-release       # -> carry/up-release/ (commit it, once a day)
     python scripts/carry_run.py restore carry/up-release   # -> runs/up-release/, then `cec up --resume`
+    python scripts/carry_run.py save runs/reproduce/overcooked-cpu/zoo/runs/* --into carry/repro
+    python scripts/carry_run.py restore carry/repro/* --run-dir runs/reproduce/overcooked-cpu/zoo/runs
 
 `save` keeps the newest checkpoint's parameters, optimizer state, keys and update count (not the envs'
 carries: the episodes in flight; a finished run's optimizer state neither, nothing continues from it), and
@@ -100,17 +102,22 @@ def restore(carried: Path, run_dir: Path) -> Path:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="what", required=True)
-    s = sub.add_parser("save", help="the run's newest checkpoint, compact, into carry/<run name>")
-    s.add_argument("run", type=Path)
-    s.add_argument("--out", type=Path, default=None, help="default: carry/<run name>")
-    r = sub.add_parser("restore", help="a carried run back into the runs folder")
-    r.add_argument("carried", type=Path)
+    s = sub.add_parser("save", help="runs' checkpoints, compact, each into <--into>/<run name>")
+    s.add_argument("runs", type=Path, nargs="+")
+    s.add_argument("--into", type=Path, default=ROOT / "carry", help="default: carry/")
+    s.add_argument("--out", type=Path, default=None, help="one run's folder (default: <--into>/<run name>)")
+    r = sub.add_parser("restore", help="carried runs back into the runs folder, in the order given")
+    r.add_argument("carried", type=Path, nargs="+")
     r.add_argument("--run-dir", type=Path, default=ROOT / "runs")
     args = ap.parse_args(argv)
     if args.what == "save":
-        save(args.run, args.out or ROOT / "carry" / args.run.name)
+        if args.out is not None and len(args.runs) > 1:
+            ap.error(f"--out names one run's folder; {len(args.runs)} runs were given: use --into")
+        for run in args.runs:
+            save(run, args.out or args.into / run.name)
     else:
-        restore(args.carried, args.run_dir)
+        for carried in args.carried:
+            restore(carried, args.run_dir)
     return 0
 
 
