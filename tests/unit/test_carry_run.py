@@ -24,9 +24,11 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, *args], cwd=REPO, capture_output=True, text=True, timeout=600)
 
 
-def _carry(run: Path, carried: Path, run_dir: Path) -> Path:
-    """`run` saved to `carried`, then restored into `run_dir`; the restored run's folder."""
-    saved = _run("scripts/carry_run.py", "save", str(run), "--out", str(carried))
+def _carry(run: Path, carried: Path, run_dir: Path, *, into: bool = False) -> Path:
+    """`run` saved to `carried` (`--out`, or `--into` its parent), then restored into `run_dir`; the restored
+    run's folder."""
+    where = ["--into", str(carried.parent)] if into else ["--out", str(carried)]
+    saved = _run("scripts/carry_run.py", "save", str(run), *where)
     assert saved.returncode == 0, saved.stderr[-2000:]
     restored = _run("scripts/carry_run.py", "restore", str(carried), "--run-dir", str(run_dir))
     assert restored.returncode == 0, restored.stderr[-2000:]
@@ -69,7 +71,7 @@ def test_a_carried_run_resumes_from_its_update_with_its_parameters(tmp_path: Pat
                       (run / "metrics.jsonl").read_text().splitlines()})  # fmt: skip
     assert updates == list(range(1, 11))
 
-    again = _carry(run, tmp_path / "carry2" / "r", tmp_path / "c")  # finished: nothing continues from it
+    again = _carry(run, tmp_path / "carry2" / "r", tmp_path / "c", into=True)  # finished: nothing goes on
     assert checkpoints.read_meta(tmp_path / "carry2" / "r" / "state")["metadata"]["carried_fields"] == [
         "params", "key", "update"
     ]  # fmt: skip
