@@ -3,7 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 
-.PHONY: install up demo test test-all test-fast lint typecheck unit bench clean
+.PHONY: install redis up demo test test-all test-fast lint typecheck unit bench clean
 
 # Not quiet: the install takes minutes on a fresh machine, and pip's lines show that it is moving.
 $(VENV)/.installed: pyproject.toml
@@ -14,11 +14,14 @@ $(VENV)/.installed: pyproject.toml
 
 install: $(VENV)/.installed
 
-## Main job: the whole service on this machine (local Redis, level server, Ray actors + learner, evaluator)
-## training the default preset until done or Ctrl-C; installs redis-server from Debian's packages if missing.
-up: install
+## redis-server from Debian's packages if missing: the main job and the control plane's tests run a real Redis
+redis:
 	@command -v redis-server >/dev/null || { SUDO=$$([ "$$(id -u)" = 0 ] || echo sudo); \
 	  $$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq redis-server; }
+
+## Main job: the whole service on this machine (local Redis, level server, Ray actors + learner, evaluator)
+## training the default preset until done or Ctrl-C.
+up: install redis
 # `cec up`, run by apps/make_up.py so that a Ctrl-C reaches it alone from its first line, not make ("make: ***
 # [up] Interrupt"); it exits 130 after a clean Ctrl-C (checkpointed, everything stopped): that is success
 # here, not make's "Error 130"; CEC_UP_VIA makes its resume hint read `make up ARGS=--resume`.
@@ -41,10 +44,10 @@ demo: install
 TEST_WORKERS ?= auto
 SUITE = $(BIN)/python -m pytest -q --durations=25 -n $(TEST_WORKERS) --dist loadgroup --max-worker-restart=0 \
 	tests/e2e tests/unit tests/parity tests/learning tests/services
-test: lint typecheck
+test: lint typecheck redis
 	$(SUITE) -m "not heavy"
 
-test-all: lint typecheck
+test-all: lint typecheck redis
 	$(SUITE)
 
 lint: install

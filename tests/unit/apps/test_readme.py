@@ -87,6 +87,16 @@ def test_the_install_step_of_make_is_not_quiet() -> None:
     assert install and all("--quiet" not in line and " -q" not in line for line in install), install
 
 
+def test_both_commands_of_a_fresh_machine_install_the_redis_server_their_work_runs() -> None:
+    """The README's two commands need only Python and make: the main job and the control plane's tests run a
+    real `redis-server`, so each installs it where it is missing (what `make` would run, printed by -n)."""
+    for target in ("up", "test"):
+        plan = subprocess.run(["make", "-n", target], cwd=ROOT, capture_output=True, text=True, timeout=60)
+        assert plan.returncode == 0, plan.stderr
+        assert "command -v redis-server" in plan.stdout, target
+        assert "apt-get install -y -qq redis-server" in plan.stdout, target
+
+
 #: Words of a session that borrows a machine for timed calls, which a user with their own machine cannot
 #: follow.
 LENT_MACHINE = re.compile(
