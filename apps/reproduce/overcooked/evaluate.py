@@ -241,7 +241,6 @@ def cached_evaluation(
     (`steps_folder`), the same games cut short."""
     folder = steps_folder(work, steps)
     folder.mkdir(parents=True, exist_ok=True)
-    from apps.reproduce.pipeline import PLAY_TIME_FILE
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
 
@@ -255,7 +254,7 @@ def cached_evaluation(
     def assemble(table: EpisodeTable) -> EpisodeTable:  # the line-ups' table, with their times and machine
         # the line-ups' own times, also those an interrupted invocation played
         seconds = sum(play_seconds(part) for part in parts.iterdir() if part.is_dir())
-        (folder / PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
+        (folder / pipeline.PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
         trained = {
             _short(read_meta(checkpoint)["metadata"].get("code_version", "unknown"))
             for _, _, checkpoint, _ in entries
