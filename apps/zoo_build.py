@@ -40,7 +40,7 @@ import dataclasses
 import itertools
 import sys
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -85,6 +85,17 @@ class PlannedRun:
     @property
     def run_dir(self) -> Path:
         return Path(self.config.run_dir) / self.config.run_name
+
+    @property
+    def levels(self) -> tuple[str, ...] | None:
+        """The levels its policies play in cross-play: a single-task agent its own kitchen, others every
+        level of the evaluation (None)."""
+        env = self.config.env
+        return (env.levels,) if env.game.single_task_own_level and not env.procedural else None
+
+    @property
+    def finished(self) -> bool:
+        return updates_done(self) >= self.config.num_updates
 
 
 @dataclass(frozen=True)
@@ -293,6 +304,7 @@ def build_zoo(
     log: TextIO = sys.stderr,
     poll_s: float = 30.0,
     wait: bool = True,
+    between: Callable[[list[PlannedRun]], object] | None = None,
 ) -> BuildResult:
     """Trains every run of the spec that has not finished (resuming interrupted ones), in spec order,
     then writes `out_dir/zoo.yaml`. Stops early (no manifest) when a run is interrupted (SIGINT/SIGTERM).
@@ -302,7 +314,9 @@ def build_zoo(
     `init_from` run is not finished yet, and both are come back to; with nothing left to start, the
     process waits (`poll_s`) for the others, or, with `wait=False`, returns without a manifest, naming the
     runs left to them (a process with other zoos to build goes on with those). Each process writes the
-    manifest once every run is done."""
+    manifest once every run is done. `between(plan)`, where given, runs after each run this process trains
+    and before each wait: work that needs only the runs finished so far (a reproduction playing the games
+    of the agents that are ready)."""
     from cec import checkpoints
     from cec.training.run import train
 
@@ -321,11 +335,11 @@ def build_zoo(
         deferred = []
         for k in pending:
             run, cfg = plan[k], plan[k].config
-            if _finished(run):
+            if run.finished:
                 say(k, "finished, skipping")
                 skipped.append(cfg.run_name)
                 continue
-            blocker = next((p for p in plan if _reads(run, p) and not _finished(p)), None)
+            blocker = next((p for p in plan if _reads(run, p) and not p.finished), None)
             if blocker is not None:
                 say(k, f"waits for {blocker.config.run_name} (not finished)")
                 deferred.append(k)
@@ -355,7 +369,11 @@ def build_zoo(
                     flush=True,
                 )
                 return BuildResult(None, tuple(trained), tuple(skipped), True)
+            if between is not None:
+                between(plan)
         if deferred and deferred == pending:  # nothing startable: the others are training what is left
+            if between is not None:
+                between(plan)
             if not wait:
                 left = tuple(plan[k].config.run_name for k in deferred)
                 return BuildResult(None, tuple(trained), tuple(skipped), False, left)
@@ -378,10 +396,6 @@ def done_fraction(runs: Sequence[PlannedRun]) -> float:
     """The share of `runs`' seed-updates checkpointed so far (1.0 when every run is finished)."""
     total = sum(r.config.num_updates * len(r.seeds) for r in runs)
     return sum(updates_done(r) * len(r.seeds) for r in runs) / total if total else 1.0
-
-
-def _finished(run: PlannedRun) -> bool:
-    return updates_done(run) >= run.config.num_updates
 
 
 def _reads(run: PlannedRun, other: PlannedRun) -> bool:
@@ -416,8 +430,8 @@ def manifest_entries(plan: list[PlannedRun], out_dir: str | Path) -> list[dict[s
                 "env_steps": int(meta["env_steps"]),
                 "sha256": meta["sha256"],
             }
-            if cfg.env.game.single_task_own_level and not cfg.env.procedural:
-                entry["levels"] = [cfg.env.levels]  # a single-task agent meets others on its own kitchen
+            if run.levels is not None:
+                entry["levels"] = list(run.levels)  # a single-task agent meets others on its own kitchen
             entries.append(entry)
     return entries
 

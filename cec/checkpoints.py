@@ -37,6 +37,10 @@ from cec.config import ConfigError, open_user_file, read_user_file
 FORMAT = "cec-checkpoint/1"
 STATE_FILE = "state.msgpack"
 META_FILE = "meta.json"
+#: In a checkpoint's metadata: why it is a record (its metadata: update, SHA-256, config) without its state
+#: (a finished run carried to another machine once its games were played). Such a checkpoint lists and
+#: counts as any other; loading it fails with the reason.
+RECORD_ONLY = "record_only"
 #: The largest checkpoint metadata read (`save` writes a few kB: the run's config and metadata).
 META_MAX_BYTES = 16 << 20
 #: The largest checkpoint state read (the paper's network with Adam's moments for four seeds is ~50 MB); the
@@ -297,6 +301,9 @@ def _read_state(path: Path, meta: dict) -> bytes:
     recorded SHA-256."""
     state_file = path / STATE_FILE
     if not state_file.exists():
+        why = meta.get("metadata", {}).get(RECORD_ONLY)
+        if why:  # its metadata kept on purpose, its state left behind
+            raise CorruptCheckpointError(f"checkpoint {path} is a record without its {STATE_FILE}: {why}")
         raise CorruptCheckpointError(f"checkpoint {path} has no {STATE_FILE}")
     limit = state_max_bytes()
     with open_user_file(state_file, "checkpoint state", error=CorruptCheckpointError) as f:

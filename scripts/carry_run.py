@@ -4,11 +4,14 @@
     python scripts/carry_run.py restore carry/up-release   # -> runs/up-release/, then `cec up --resume`
     python scripts/carry_run.py save runs/reproduce/overcooked-cpu/zoo/runs/* --into carry/repro
     python scripts/carry_run.py restore carry/repro/* --run-dir runs/reproduce/overcooked-cpu/zoo/runs
+    python scripts/carry_run.py save --record-only runs/reproduce/overcooked-cpu/zoo/runs/ippo_* --into ...
 
 `save` keeps the newest checkpoint's parameters, optimizer state, keys and update count (not the envs'
 carries: the episodes in flight; a finished run's optimizer state neither, nothing continues from it), and
 every older checkpoint the run kept (its milestones, which learning curves are played from) as parameters,
-keys and count, with the run's config, metrics and the evaluator's record (compressed). `restore` writes
+keys and count, with the run's config, metrics and the evaluator's record (compressed); `--record-only`
+keeps a finished run's config, metrics and checkpoints' metadata, no parameters (a reproduction's run
+whose games are played and cached: the record is what its report needs, at a few kB). `restore` writes
 them back as the run's checkpoints, the carries (and an older checkpoint's optimizer state) drawn afresh
 from the run's keys (`Trainer.init`), so `cec up --resume` (or `cec train --resume`) continues the run from
 its newest update; the only difference from an uninterrupted run is that its envs start new episodes there.
@@ -20,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import gzip
+import json
 import shutil
 import sys
 from pathlib import Path
@@ -32,6 +36,10 @@ FILES = ("config.yaml", "metrics.jsonl", "metrics.csv", "eval/record.csv", "logs
 KEPT = ("params", "opt_state", "key", "update")  # of the newest checkpoint of a run still training
 PARAMS_ONLY = ("params", "key", "update")  # of the others: what evaluating them needs
 FIELDS = "carried_fields"  # in a carried checkpoint's metadata: which of the state's fields it holds
+RECORD_WHY = (
+    "its run was carried (scripts/carry_run.py save --record-only) as its record, without parameters, once "
+    "its games were played and cached; train it again under another run name to play new games"
+)
 
 
 def _trainer(config: dict):  # noqa: ANN202 - a Trainer of the run's config
@@ -42,19 +50,27 @@ def _trainer(config: dict):  # noqa: ANN202 - a Trainer of the run's config
     return Trainer(from_dict(TrainConfig, config, where="the run's config"))
 
 
-def save(run: Path, out: Path) -> Path:
+def save(run: Path, out: Path, *, record_only: bool = False) -> Path:
     from cec import checkpoints
 
     saved = checkpoints.CheckpointStore(run, keep_last=1).list()
     if not saved:
         raise SystemExit(f"{run} has no checkpoint to carry")
     trainer = _trainer(checkpoints.read_meta(saved[-1].path)["config"])
+    if record_only and checkpoints.read_meta(saved[-1].path)["update"] < trainer.config.num_updates:
+        raise SystemExit(f"{run} has not finished: carry it whole (without --record-only) to train it on")
     template = trainer.state_template()
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
     for i, info in enumerate(saved):
         meta = checkpoints.read_meta(info.path)
         newest = i == len(saved) - 1
+        if record_only:  # its metadata as it is (the SHA-256 its cached games are keyed by), no state
+            metadata = {**meta["metadata"], checkpoints.RECORD_ONLY: RECORD_WHY}
+            target = out / STATE if newest else out / OLDER / info.path.name
+            target.mkdir(parents=True)
+            (target / checkpoints.META_FILE).write_text(json.dumps({**meta, "metadata": metadata}, indent=2))
+            continue
         fields = KEPT if newest and meta["update"] < trainer.config.num_updates else PARAMS_ONLY
         state, _ = checkpoints.load(info.path, template)
         metadata = {**meta["metadata"], "carried_from": info.path.name, FIELDS: list(fields)}
@@ -89,13 +105,22 @@ def restore(carried: Path, run_dir: Path) -> Path:
     for path in [*sorted((carried / OLDER).glob("update_*")), carried / STATE]:  # oldest first
         meta = checkpoints.read_meta(path)
         metadata = dict(meta["metadata"])
+        if checkpoints.RECORD_ONLY in metadata:  # a record: its metadata back, no state
+            written = store.path(meta["update"])
+            written.mkdir(parents=True, exist_ok=True)
+            shutil.copyfile(path / checkpoints.META_FILE, written / checkpoints.META_FILE)
+            continue
         fields = metadata.pop(FIELDS, KEPT)  # a carry from before older checkpoints were kept: all of KEPT
         kept, _ = checkpoints.load(path, {name: getattr(fresh, name) for name in fields})
         written = checkpoints.save(store.path(meta["update"]), jax.device_get(fresh._replace(**kept)),
                                    update=meta["update"], env_steps=meta["env_steps"], config=meta["config"],
                                    metadata=metadata, milestone=bool(meta["milestone"]))  # fmt: skip
-    print(f"restored {run.name} to {written.parent} (newest: update {meta['update']}); continue with its "
-          "`--resume`")  # fmt: skip
+    if checkpoints.RECORD_ONLY in meta["metadata"]:
+        print(f"restored {run.name}'s record to {written.parent} (finished at update {meta['update']}; "
+              "its checkpoints' metadata, no parameters)")  # fmt: skip
+    else:
+        print(f"restored {run.name} to {written.parent} (newest: update {meta['update']}); continue with "
+              "its `--resume`")  # fmt: skip
     return written
 
 
@@ -106,6 +131,11 @@ def main(argv: list[str] | None = None) -> int:
     s.add_argument("runs", type=Path, nargs="+")
     s.add_argument("--into", type=Path, default=ROOT / "carry", help="default: carry/")
     s.add_argument("--out", type=Path, default=None, help="one run's folder (default: <--into>/<run name>)")
+    s.add_argument(
+        "--record-only",
+        action="store_true",
+        help="finished runs whose games are played: config, metrics and checkpoints' metadata, no parameters",
+    )
     r = sub.add_parser("restore", help="carried runs back into the runs folder, in the order given")
     r.add_argument("carried", type=Path, nargs="+")
     r.add_argument("--run-dir", type=Path, default=ROOT / "runs")
@@ -114,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is not None and len(args.runs) > 1:
             ap.error(f"--out names one run's folder; {len(args.runs)} runs were given: use --into")
         for run in args.runs:
-            save(run, args.out or args.into / run.name)
+            save(run, args.out or args.into / run.name, record_only=args.record_only)
     else:
         for carried in args.carried:
             restore(carried, args.run_dir)

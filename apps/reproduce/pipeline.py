@@ -11,8 +11,8 @@ Every paper is a package `apps/reproduce/<paper>/` with the same modules (`PARTS
                spec entry (`PlanLine`: its estimate from measured seconds per update, the share done);
                training is `Zoo.build`: finished runs skipped, interrupted ones resumed
     evaluate   `load_zoo_policies` (every entry, or an error naming those that cannot load), cross-play on
-               `generated_levels` and the game's own, cached while the zoo is unchanged
-               (`cached_table`, keyed by `zoo_entries`); the zoo exported as parameter files
+               `generated_levels` and the game's own, cached while what it depends on is unchanged
+               (`cached_table`; several at once: `shared_tables`, `play_unclaimed`); the zoo exported as parameter files
                (`export_policies`), so that a work folder kept without its training states still
                reports (`played_table`, `--report-only`)
     summary    seeds as units: `cec.evaluation.seeds` (per seed XP and SP, the jackknife over seeds)
@@ -27,16 +27,15 @@ which levels, and what its report says beside the paper's numbers.
 from __future__ import annotations
 
 import contextlib
-import fcntl
+import io
 import json
 import math
-import os
 import shutil
 import time
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, TextIO
+from typing import TYPE_CHECKING, Any, NamedTuple, TextIO
 
 import numpy as np
 import yaml
@@ -50,6 +49,7 @@ from cec.training.metrics_file import read_rows
 if TYPE_CHECKING:
     from apps.zoo_build import BuildResult, PlannedRun
     from cec.agents.policy import Policy
+    from cec.agents.zoo import ZooEntry
     from cec.evaluation.results import EpisodeTable
 
 
@@ -73,6 +73,16 @@ def note(out: TextIO, msg: str) -> None:
 POLL_S = 10.0
 
 
+class Job(NamedTuple):
+    """One cached table of `shared_tables`: where it lives, what it depends on (`cached_table`'s key), its
+    log label and what plays it."""
+
+    folder: Path
+    key: Mapping[str, object]
+    label: str
+    play: Callable[[], EpisodeTable]
+
+
 def cached_table(
     folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], *, label: str, log: TextIO
 ) -> EpisodeTable:
@@ -82,30 +92,37 @@ def cached_table(
     The key is written last, so an invocation interrupted while playing plays again. Where another
     invocation is playing it (two builders of one work folder), this one waits for that table
     (`shared_tables`)."""
-    return shared_tables([(folder, label, play)], key, log=log)[0]
+    return shared_tables([Job(folder, key, label, play)], log=log)[0]
 
 
-def shared_tables(
-    jobs: Sequence[tuple[Path, str, Callable[[], EpisodeTable]]], key: Mapping[str, object], *, log: TextIO,
-    poll_s: float = POLL_S,
-) -> list[EpisodeTable]:  # fmt: skip
-    """Each job's (folder, label, play) cached table (`cached_table`), in order. Several invocations may
-    work on the same jobs at once (one per core): each plays the jobs no other has claimed (a job's folder
-    lock, `cec.checkpoints.RunLock`, which the kernel drops however its holder ends), then waits for the
-    others' tables, looking every `poll_s` seconds."""
+def shared_tables(jobs: Sequence[Job], *, log: TextIO, poll_s: float = POLL_S) -> list[EpisodeTable]:
+    """Each job's cached table (`cached_table`), in order. Several invocations may work on the same jobs at
+    once (one per core): each plays the jobs no other has claimed (a job's folder lock,
+    `cec.checkpoints.RunLock`, which the kernel drops however its holder ends), then waits for the others'
+    tables, looking every `poll_s` seconds."""
     tables: dict[int, EpisodeTable] = {}
     waiting: set[int] = set()
     while True:
-        for k, (folder, label, play) in enumerate(jobs):
-            if k not in tables and (table := _claimed_table(folder, key, play, label, log)) is not None:
+        for k, job in enumerate(jobs):
+            if k not in tables and (table := _claimed_table(job, log)) is not None:
                 tables[k] = table
         left = [k for k in range(len(jobs)) if k not in tables]
         if not left:
             return [tables[k] for k in range(len(jobs))]
         for k in sorted(set(left) - waiting):
-            log_line(log, "reproduce", f"{jobs[k][1]}played by another invocation; waiting for its table")
+            log_line(log, "reproduce", f"{jobs[k].label}played by another invocation; waiting for its table")
         waiting.update(left)
         time.sleep(poll_s)
+
+
+def play_unclaimed(jobs: Sequence[Job], *, log: TextIO) -> int:
+    """Plays each job's table that is neither stored nor claimed by another invocation, without waiting
+    for those others play (a builder playing what is ready between training runs); the number played."""
+    played = 0
+    for job in jobs:
+        if stored_table(job.folder, job.key, label=job.label, log=io.StringIO()) is None:
+            played += _claimed_table(job, log) is not None
+    return played
 
 
 def stored_table(folder: Path, key: Mapping[str, object], *, label: str, log: TextIO) -> EpisodeTable | None:
@@ -118,12 +135,11 @@ def stored_table(folder: Path, key: Mapping[str, object], *, label: str, log: Te
     return None
 
 
-def _claimed_table(
-    folder: Path, key: Mapping[str, object], play: Callable[[], EpisodeTable], label: str, log: TextIO
-) -> EpisodeTable | None:
-    """`cached_table`'s table, played under `folder`'s lock; None while another invocation holds it."""
+def _claimed_table(job: Job, log: TextIO) -> EpisodeTable | None:
+    """`cached_table`'s table, played under its folder's lock; None while another invocation holds it."""
     from cec.checkpoints import RunBusyError, RunLock
 
+    folder, key, label, play = job
     if (table := stored_table(folder, key, label=label, log=log)) is not None:
         return table
     try:
@@ -172,26 +188,6 @@ def held(folder: Path, *, what: str, log: TextIO, poll_s: float = POLL_S) -> Ite
         yield
     finally:
         lock.release()
-
-
-@contextlib.contextmanager
-def scratch(folder: Path) -> Iterator[None]:
-    """`folder` as scratch space that several invocations may use at once (`shared_tables`' parts), removed
-    when the block ends without an error and no other invocation is still in it (a shared flock on
-    `folder/.users` while in it; the last one out removes it). Kept after an error or interruption, for
-    the next invocation to go on from."""
-    folder.mkdir(parents=True, exist_ok=True)
-    fd = os.open(folder / ".users", os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        fcntl.flock(fd, fcntl.LOCK_SH)
-        yield
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return  # another invocation is still in it: it removes the folder when it leaves
-        shutil.rmtree(folder, ignore_errors=True)
-    finally:
-        os.close(fd)
 
 
 def results_file(folder: Path) -> Path:
@@ -265,11 +261,17 @@ class Zoo:
 
         return plan_zoo(self.write_spec(), self.zoo_dir)
 
-    def build(self, *, progress: bool, log: TextIO, wait: bool = True) -> BuildResult:
-        """Writes the spec and builds the zoo (resuming, skipping finished runs): `build_zoo`'s result."""
+    def build(
+        self, *, progress: bool, log: TextIO, wait: bool = True,
+        between: Callable[[list[PlannedRun]], object] | None = None,
+    ) -> BuildResult:  # fmt: skip
+        """Writes the spec and builds the zoo (resuming, skipping finished runs): `build_zoo`'s result
+        (`between`: its work between runs)."""
         from apps.zoo_build import build_zoo
 
-        return build_zoo(self.write_spec(), self.zoo_dir, progress=progress, log=log, wait=wait)
+        return build_zoo(
+            self.write_spec(), self.zoo_dir, progress=progress, log=log, wait=wait, between=between
+        )
 
 
 @dataclass(frozen=True)
@@ -310,10 +312,16 @@ def generated_levels(n: int) -> str:
 def load_zoo_policies(manifest: str | Path, where: str) -> list[Policy]:
     """Every policy of a zoo manifest; a `ConfigError` (`<where>: ...`) naming each entry that cannot be
     loaded."""
-    from cec.agents.policy import load_policies
     from cec.agents.zoo import load_zoo
 
-    policies, skipped = load_policies(load_zoo(manifest))
+    return load_entry_policies(load_zoo(manifest), where)
+
+
+def load_entry_policies(entries: Sequence[ZooEntry], where: str) -> list[Policy]:
+    """The policy of every zoo entry; a `ConfigError` (`<where>: ...`) naming each that cannot be loaded."""
+    from cec.agents.policy import load_policies
+
+    policies, skipped = load_policies(entries)
     if skipped:
         reasons = "; ".join(f"{s.name}: {s.reason}" for s in skipped)
         raise ConfigError(f"{where}: zoo entries could not be loaded: {reasons}")
@@ -337,8 +345,6 @@ def export_policies(zoo_manifest: Path, folder: Path, *, log: TextIO) -> Path:
     """The zoo as one-seed parameter files (`cec zoo export`: no Adam state, no rollout carry) in `folder`,
     with their manifest, which it returns. Exported again only when the zoo changed (the entries they came
     from, with their states' SHA-256, are kept in `folder/source.json`, written last)."""
-    import shutil
-
     from apps.zoo_build import MANIFEST, export_zoo
 
     source, manifest = folder / SOURCE, folder / MANIFEST

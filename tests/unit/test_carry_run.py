@@ -11,6 +11,7 @@ from pathlib import Path
 
 import jax
 import numpy as np
+import pytest
 
 from cec import checkpoints
 
@@ -77,6 +78,28 @@ def test_a_carried_run_resumes_from_its_update_with_its_parameters(tmp_path: Pat
     ]  # fmt: skip
     assert [c[1:] for c in _checkpoints(again)] == [(2, True), (9, False), (10, True)]
     assert _same_params(run, again), "every checkpoint the finished run kept comes back as it was"
+
+    # a finished run whose games are played, carried as its record: config, metrics, checkpoints' metadata
+    record = _run("scripts/carry_run.py", "save", "--record-only", str(run), "--out", str(tmp_path / "rec"))
+    assert record.returncode == 0, record.stderr[-2000:]
+    assert sum(p.stat().st_size for p in (tmp_path / "rec").rglob("*") if p.is_file()) < 60_000
+    restored = _run(
+        "scripts/carry_run.py", "restore", str(tmp_path / "rec"), "--run-dir", str(tmp_path / "d")
+    )
+    assert restored.returncode == 0 and "record" in restored.stdout, restored.stderr[-2000:]
+    kept = tmp_path / "d" / "r"
+    assert _checkpoints(kept) == _checkpoints(run)  # listed and finished as the run was: nothing retrains
+    for c in _checkpoints(run):  # the SHA-256 its cached games are keyed by
+        sha = checkpoints.read_meta(kept / "checkpoints" / c[0])["sha256"]
+        assert sha == checkpoints.read_meta(run / "checkpoints" / c[0])["sha256"]
+    with pytest.raises(
+        checkpoints.CorruptCheckpointError, match="a record without its state.msgpack: its run"
+    ):
+        _params(kept / "checkpoints" / _checkpoints(kept)[-1][0])
+    unfinished = _run(
+        "scripts/carry_run.py", "save", "--record-only", str(original), "--out", str(tmp_path / "u")
+    )
+    assert unfinished.returncode != 0 and "has not finished" in unfinished.stderr
 
 
 def _params(path: Path) -> object:

@@ -18,7 +18,8 @@
    also with the human proxies (`--proxies`, default the shipped `hp_<kitchen>`: behaviour-cloned from
    recorded human games, each in its own kitchen). A single-kitchen agent meets others on its own kitchen
    among the classic ones; on the held-out kitchens each kitchen's agents meet each other and the
-   generator-trained agents (`lineups`).
+   generator-trained agents (`lineups`). Each line-up is cached on its own under its players' checkpoints
+   and played between training runs as soon as they are trained (`play_ready`).
 3. **Report** `report.md` + `summary.json`: per level set and algorithm the mean team return over seeds
    (each seed's mean over its partners first: seeds are the independent units), SP beside XP beside the
    cook and the human proxies, the paper's values (`paper_overcooked.yaml`, read off its figures) and its

@@ -10,7 +10,7 @@ import dataclasses
 import json
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from apps.machine import duration, machine_info
 from apps.reproduce import pipeline
@@ -21,6 +21,7 @@ from apps.reproduce.overcooked.evaluate import (
     cached_short,
     level_spec,
     planned_episodes,
+    play_ready,
 )
 from apps.reproduce.overcooked.figures import write_figures
 from apps.reproduce.overcooked.modes import AUTHORS_STEPS, EVAL_STEPS, LEVEL_SETS, MACHINE_FILE, MODES, Mode
@@ -32,6 +33,9 @@ from apps.reproduce.pipeline import play_seconds, read_metrics, train_seconds
 from cec.agents.zoo import HUMAN_PROXY
 from cec.checkpoints import code_version
 from cec.config import ConfigError
+
+if TYPE_CHECKING:
+    from apps.zoo_build import PlannedRun
 
 
 def reproduce_overcooked(
@@ -52,7 +56,12 @@ def reproduce_overcooked(
         ran_on = json.loads((work / MACHINE_FILE).read_text())
         short = cached_short(work)
     else:
-        result = zoo(mode, work).build(progress=progress, log=log)
+        the_zoo = zoo(mode, work)
+
+        def between(plan: list[PlannedRun]) -> None:  # a line-up's games, once its agents are trained
+            play_ready(mode, plan, the_zoo.zoo_dir, work, log=log)
+
+        result = the_zoo.build(progress=progress, log=log, between=between)
         if result.interrupted or result.manifest is None:
             pipeline.note(log, "training interrupted; run the same command again to continue")
             return None

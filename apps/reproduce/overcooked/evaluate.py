@@ -34,8 +34,10 @@ from apps.reproduce.pipeline import play_seconds, results_file
 from cec.agents.zoo import HUMAN_PROXY
 
 if TYPE_CHECKING:
+    from apps.zoo_build import PlannedRun
     from cec.agents.policy import Policy
-    from cec.evaluation.crossplay import EvalConfig, EvalLevels
+    from cec.agents.zoo import ZooEntry
+    from cec.evaluation.crossplay import EvalConfig
     from cec.evaluation.results import EpisodeTable
     from cec.training.config import TrainConfig
 
@@ -79,82 +81,152 @@ def _eval_key(mode: Mode, steps: int = EVAL_STEPS) -> dict[str, object]:
     return {**settings, "steps": steps}
 
 
-def lineups(policies: Sequence[Policy], level_set: str) -> list[tuple[list[Policy], frozenset[str] | None]]:
-    """Who meets whom on a level set, as (line-up, the names whose games it adds; None: all of them). On
-    the classic kitchens one line-up of every agent, each on the kitchens it plays (a single-kitchen agent
-    on its own, so it meets that kitchen's agents and the generator-trained ones). On the held-out kitchens
+@dataclasses.dataclass(frozen=True)
+class Lineup:
+    """One part of the cross-play on a level set: `players` (zoo entries, policies or stand-ins: anything
+    with a name, seed and levels) on the kitchens of the level spec `levels`, the games that involve
+    `involving` (None: all of them). It is played and cached on its own (`part_jobs`), under a key of its
+    own players: it is played as soon as they are trained, and kept while they are unchanged, whatever
+    else the zoo holds (another kitchen's agents, a run trained later)."""
+
+    name: str
+    level_set: str
+    levels: str
+    players: tuple
+    involving: frozenset[str] | None = None
+
+    @property
+    def label(self) -> str:
+        return f"{self.level_set} line-up {self.name}: "
+
+
+def lineups(mode: Mode, players: Sequence, level_set: str) -> list[Lineup]:
+    """Who meets whom on a level set. On the classic kitchens one line-up per kitchen: the
+    generator-trained agents with that kitchen's single-kitchen agents, on that kitchen (each agent plays
+    the kitchens it plays; the common random numbers are drawn per kitchen and episode, so splitting the
+    kitchens changes no game). On the held-out kitchens the generator-trained agents with each other, then
     one line-up per training kitchen: that kitchen's agents, free of their kitchen, with the
-    generator-trained ones, whose games without a kitchen's agent the first line-up already has. A seed of
-    a single-kitchen algorithm is then, as on the classic kitchens, its agents of every kitchen: the
-    result table names a policy by algorithm and seed, and a pair's score averages its kitchens."""
-    if level_set == "classic":
-        return [(list(policies), None)]
-    generalists = [p for p in policies if p.levels is None]
-    by_kitchen: dict[tuple[str, ...], list[Policy]] = {}
-    for p in policies:
+    generator-trained ones (only the games that involve the kitchen's agents). A seed of a single-kitchen
+    algorithm is then, as on the classic kitchens, its agents of every kitchen: the result table names a
+    policy by algorithm and seed, and a pair's score averages its kitchens."""
+    generalists = tuple(p for p in players if p.levels is None)
+    by_kitchen: dict[str, list] = {}
+    for p in players:
         if p.levels is not None:
-            by_kitchen.setdefault(tuple(p.levels), []).append(dataclasses.replace(p, levels=None))
-    if not by_kitchen:
-        return [(generalists, None)]
-    return [
-        ([*generalists, *agents], None if i == 0 else frozenset(a.name for a in agents))
-        for i, agents in enumerate(by_kitchen.values())
-    ]
+            by_kitchen.setdefault(",".join(p.levels), []).append(p)
+    if level_set == "classic":
+        return [
+            Lineup(k, level_set, k, (*generalists, *by_kitchen.get(k, [])))
+            for k in mode.kitchens
+        ]  # fmt: skip
+    spec = level_spec(mode, level_set)
+    parts = [Lineup("generalists", level_set, spec, generalists)] if generalists else []
+    for kitchen, own in by_kitchen.items():
+        agents = tuple(dataclasses.replace(p, levels=None) for p in own)
+        parts.append(
+            Lineup(kitchen, level_set, spec, (*generalists, *agents), frozenset(a.name for a in agents))
+        )
+    return parts
+
+
+def part_jobs(
+    mode: Mode, entries: Sequence[ZooEntry], work: Path, *, log: TextIO, seed: int = 0,
+    steps: int = EVAL_STEPS,
+) -> list[pipeline.Job]:  # fmt: skip
+    """Every line-up of `entries` (`lineups`) on both level sets with the scripted cook (and on the classic
+    kitchens the human proxies of that kitchen), as cached tables in `<steps folder>/parts/<level
+    set>-<line-up>` (`steps_folder`), each keyed by the settings and its own players and partners (name,
+    seed, checkpoint state's SHA-256). Playing one loads only its players."""
+    from cec.agents.zoo import load_zoo
+
+    proxy_entries = load_zoo(mode.proxies) if mode.proxies else []
+    jobs = []
+    for level_set in LEVEL_SETS:
+        for lineup in lineups(mode, entries, level_set):
+            config = dataclasses.replace(eval_config(mode, level_set, seed, steps), levels=lineup.levels)
+            partners = [] if level_set == "heldout" else [
+                [e.name, e.sha256] for e in proxy_entries if e.levels is None or lineup.levels in e.levels
+            ]  # fmt: skip
+            key = {
+                **_eval_key(mode, steps), "level_set": level_set, "lineup": lineup.name,
+                "players": [[p.name, p.seed, p.sha256] for p in lineup.players], "proxies": partners,
+                "involving": None if lineup.involving is None else sorted(lineup.involving),
+            }  # fmt: skip
+            play = functools.partial(_play_lineup, mode, lineup, config, log=log)
+            jobs.append(pipeline.Job(steps_folder(work, steps) / PARTS / f"{level_set}-{lineup.name}",
+                                     key, lineup.label, play))  # fmt: skip
+    return jobs
+
+
+def _play_lineup(mode: Mode, lineup: Lineup, config: EvalConfig, *, log: TextIO) -> EpisodeTable:
+    """One line-up's cross-play with the cook (and on a classic kitchen its human proxies, both seat
+    orders), logged with how many episodes it played and how long it took. Proxies that cannot play with
+    the agents (another network) are the table's skipped entries, with the reason."""
+    from cec.agents.policy import scripted_policy
+    from cec.evaluation.crossplay import crossplay, eval_levels
+
+    t0 = time.perf_counter()
+    players = pipeline.load_entry_policies(lineup.players, f"{lineup.label}zoo")
+    cook = scripted_policy(COOK, COOK, env=players[0].env, algorithm=COOK)
+    partners = [cook]
+    if lineup.level_set == "classic":
+        partners += [p for p in human_proxies(mode) if p.levels is None or lineup.levels in p.levels]
+    levels = eval_levels("overcooked", config.levels)
+    table = crossplay([*players, *partners], levels, config, involving=lineup.involving)
+    with_whom = "the cook" + (f" and {len(partners) - 1} human proxies" if len(partners) > 1 else "")
+    where = f"{len(levels.names)} {lineup.level_set} kitchens"
+    what = f"{lineup.label}{len(players)} agents + {with_whom} on {where}"
+    pipeline.note(log, f"{what}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
+    return table
 
 
 def evaluate(
-    mode: Mode, manifest: Path, *, log: TextIO, parts: Path, key: dict[str, object], seed: int = 0,
+    mode: Mode, entries: Sequence[ZooEntry], work: Path, *, log: TextIO, seed: int = 0,
     steps: int = EVAL_STEPS,
 ) -> EpisodeTable:  # fmt: skip
-    """Per level set, every line-up (`lineups`) with the scripted cook, every pair (XP, SP, ad hoc, with
-    the cook), and on the classic kitchens the human proxies, both seat orders -> one `EpisodeTable`.
-    Proxies that cannot play with the agents (another network) are the table's skipped entries, with the
-    reason. Each line-up's table is kept in `parts/<level set>-<i>` under `key` (`cached_table`) until the
-    whole one is written: an interrupted evaluation (the CPU version's line-ups took 6 to 9 minutes
-    each on the 2-vCPU Xeon) resumes at the line-up it was playing; invocations side by side (two
-    builders of one work folder) share the line-ups out (`pipeline.shared_tables`). `steps`: the episodes'
-    length."""
-    from cec.agents.policy import scripted_policy
-    from cec.evaluation.crossplay import eval_levels
+    """Every line-up's table (`part_jobs`: every pair, XP, SP, ad hoc, with the cook, on the classic
+    kitchens with the human proxies, both seat orders) -> one `EpisodeTable`. A line-up an earlier
+    invocation played with the same players is read, not played (the CPU version's line-ups take minutes
+    each on the 2-vCPU Xeon); invocations side by side (two builders of one work folder) share the
+    line-ups out (`pipeline.shared_tables`). `steps`: the episodes' length."""
     from cec.evaluation.results import EpisodeTable
 
-    policies = pipeline.load_zoo_policies(manifest, str(manifest))
-    proxies = human_proxies(mode)
-    cook = scripted_policy(COOK, COOK, env=policies[0].env, algorithm=COOK)
-    jobs = []
-    for level_set in LEVEL_SETS:
-        config = eval_config(mode, level_set, seed, steps)
-        levels = eval_levels("overcooked", config.levels)
-        partners = [cook, *proxies] if level_set == "classic" else [cook]
-        with_whom = "the cook" + (f" and {len(proxies)} human proxies" if len(partners) > 1 else "")
-        where = f"{len(levels.names)} {level_set} kitchens"
-        everyone = lineups(policies, level_set)
-        for i, (lineup, adds) in enumerate(everyone):
-            what = f"{len(lineup)} agents + {with_whom} on {where}"
-            play = functools.partial(
-                _play_lineup, [*lineup, *partners], levels, config, adds, what=what, log=log
-            )
-            label = f"{level_set} line-up {i + 1} of {len(everyone)}: "
-            jobs.append((parts / f"{level_set}-{i}", label, play))
-    return EpisodeTable.concat(pipeline.shared_tables(jobs, key, log=log))
+    jobs = part_jobs(mode, entries, work, log=log, seed=seed, steps=steps)
+    return EpisodeTable.concat(pipeline.shared_tables(jobs, log=log))
 
 
-def _play_lineup(
-    players: list[Policy],
-    levels: EvalLevels,
-    config: EvalConfig,
-    adds: frozenset[str] | None,
-    *,
-    what: str,
-    log: TextIO,
-) -> EpisodeTable:
-    """One line-up's cross-play (`evaluate`), logged with how many episodes it played and how long it took."""
-    from cec.evaluation.crossplay import crossplay
+def play_ready(mode: Mode, plan: Sequence[PlannedRun], zoo_dir: Path, work: Path, *, log: TextIO) -> int:
+    """Between training runs (`Zoo.build`'s `between`): plays every line-up (`part_jobs`, at both episode
+    lengths) whose players are all trained, that no other invocation is playing, before the rest of the zoo
+    is trained; the number played. So a kitchen's games are in the work folder once its agents are: its
+    checkpoints are no longer needed for the report (a reproduction carried from machine to machine
+    keeps its runs' records, not their parameters: `scripts/carry_run.py`)."""
+    from apps.zoo_build import manifest_entries
+    from cec.agents.zoo import ZooEntry, parse_zoo
 
-    t0 = time.perf_counter()
-    table = crossplay(players, levels, config, involving=adds)
-    pipeline.note(log, f"{what}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
-    return table
+    finished = [r for r in plan if r.finished]
+    if not finished:
+        return 0
+    entries = parse_zoo({"policies": manifest_entries(finished, zoo_dir)}, zoo_dir, where=str(zoo_dir))
+    planned = [
+        ZooEntry(name, "", r.algorithm, seed, r.levels)
+        for r in plan for seed, name in zip(r.seeds, r.policy_names, strict=True)
+    ]  # fmt: skip
+    whole = {
+        (ls, part.name): {p.name for p in part.players}
+        for ls in LEVEL_SETS for part in lineups(mode, planned, ls)
+    }  # fmt: skip
+    ready = {
+        (ls, part.name) for ls in LEVEL_SETS for part in lineups(mode, entries, ls)
+        if whole.get((ls, part.name)) == {p.name for p in part.players}
+    }  # fmt: skip
+    played = 0
+    for steps in (EVAL_STEPS, AUTHORS_STEPS):
+        jobs = part_jobs(mode, entries, work, log=log, steps=steps)
+        played += pipeline.play_unclaimed(
+            [j for j in jobs if (j.key["level_set"], j.key["lineup"]) in ready], log=log
+        )
+    return played
 
 
 def cec_config(mode: Mode, work: Path) -> TrainConfig:
@@ -234,7 +306,8 @@ def cached_evaluation(
     mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str, steps: int = EVAL_STEPS
 ) -> EpisodeTable:
     """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
-    SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`). The invocation that plays it
+    SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`); its line-ups' own tables
+    (`part_jobs`) are kept beside it, for a zoo that changes in part. The invocation that assembles it
     writes `machine.json` beside it: this machine, `commit` and the commits that wrote the agents'
     checkpoints (a zoo trained over several invocations). `steps`: the episodes' length; the table of
     another length than `EVAL_STEPS` (the authors' 100, `AUTHORS_STEPS`) lives in `work/steps<steps>`
@@ -244,32 +317,29 @@ def cached_evaluation(
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
 
-    entries = sorted(pipeline.zoo_entries(manifest))
-    proxies = sorted([e.name, e.checkpoint, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
-    # `pairs`: what a table played with fewer pairs (each algorithm alone) lacks; such a table is played again
-    key = {**_eval_key(mode, steps), "zoo": entries, "proxies": proxies, "pairs": "every agent (lineups)"}
-    parts = folder / PARTS
+    entries = load_zoo(manifest)
+    proxies = sorted([e.name, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
+    zoo = sorted([e.name, e.seed, e.sha256] for e in entries)
+    # `pairs`: what a table played with other line-ups lacks (or holds twice); such a table is assembled again
+    key = {**_eval_key(mode, steps), "zoo": zoo, "proxies": proxies, "pairs": "line-ups by kitchen"}
     label = "" if steps == EVAL_STEPS else f"{steps}-step episodes: "
+    if (found := pipeline.stored_table(folder, key, label=label, log=log)) is not None:
+        return found
+    played = evaluate(mode, entries, work, log=log, steps=steps)
 
-    def assemble(table: EpisodeTable) -> EpisodeTable:  # the line-ups' table, with their times and machine
-        # the line-ups' own times, also those an interrupted invocation played
-        seconds = sum(play_seconds(part) for part in parts.iterdir() if part.is_dir())
+    def assemble() -> EpisodeTable:  # the line-ups' table, with their times and machine
+        jobs = part_jobs(mode, entries, work, log=log, steps=steps)
+        # the line-ups' own times, also those an earlier or interrupted invocation played
+        seconds = sum(play_seconds(job.folder) for job in jobs)
         (folder / pipeline.PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
         trained = {
-            _short(read_meta(checkpoint)["metadata"].get("code_version", "unknown"))
-            for _, _, checkpoint, _ in entries
+            _short(read_meta(e.checkpoint)["metadata"].get("code_version", "unknown")) for e in entries
         }
         ran_on = {"machine": machine_info(), "commit": commit, "trained_at": sorted(trained)}
         (folder / MACHINE_FILE).write_text(json.dumps(ran_on, indent=1) + "\n")
-        return table
+        return played
 
-    # line-ups first, outside the table's lock, so that invocations side by side share them out; the
-    # parts are removed by the last invocation out once the whole table is written
-    with pipeline.scratch(parts):
-        if (found := pipeline.stored_table(folder, key, label=label, log=log)) is not None:
-            return found
-        played = evaluate(mode, manifest, log=log, parts=parts, key=key, steps=steps)
-        return pipeline.cached_table(folder, key, functools.partial(assemble, played), label=label, log=log)
+    return pipeline.cached_table(folder, key, assemble, label=label, log=log)
 
 
 def steps_folder(work: Path, steps: int) -> Path:
@@ -295,7 +365,7 @@ def _short(version: str) -> str:
     return sha[:7] + dirty + rest
 
 
-PARTS = "parts"  # in the work folder: each line-up's games until the whole table is written (`evaluate`)
+PARTS = "parts"  # in the work folder (and `steps100/`): each line-up's games (`part_jobs`)
 
 CURVES = "curves"  # in the work folder: the milestone checkpoints' games (`cached_curves`)
 
@@ -346,10 +416,11 @@ def planned_episodes(mode: Mode) -> dict[str, int]:
     def stand_in(name: str, algorithm: str, levels: tuple[str, ...] | None = None) -> Policy:
         return Policy(name, algorithm, 0, None, None, None, levels)  # type: ignore[arg-type]
 
-    def episodes(lineup: Sequence[Policy], level_set: str, involving: frozenset[str] | None = None) -> int:
-        names = level_spec(mode, level_set).split(",")
+    def episodes(lineup: Sequence[Policy], levels: str, involving: frozenset[str] | None = None) -> int:
+        names = levels.split(",")
+        set_of = "classic" if names[0] in mode.kitchens else "heldout"
         games = plan_games(lineup, names, "all", involving)
-        return sum(len(g.levels) for g in games) * mode.episodes[level_set]
+        return sum(len(g.levels) for g in games) * mode.episodes[set_of]
 
     agents = [
         stand_in(f"{algo}-{kitchen}-s{s}", algo, (kitchen,) if kitchen else None)
@@ -364,16 +435,24 @@ def planned_episodes(mode: Mode) -> dict[str, int]:
     ]  # fmt: skip
     controls = [*(stand_in(f"{UNTRAINED}-s{s}", UNTRAINED) for s in mode.seeds["cec"]), stand_in(NOOP, NOOP)]
     partners = {"classic": [cook, *proxies], "heldout": [cook]}
+
+    def with_partners(lineup: Lineup) -> list[Policy]:
+        own = [p for p in partners[lineup.level_set] if p.levels is None or lineup.levels in p.levels]
+        return [*lineup.players, *own]
+
     counts = {
-        level_set: sum(episodes([*lineup, *partners[level_set]], level_set, adds)
-                       for lineup, adds in lineups(agents, level_set))
+        level_set: sum(episodes(with_partners(part), part.levels, part.involving)
+                       for part in lineups(mode, agents, level_set))
         for level_set in LEVEL_SETS
     }  # fmt: skip
     names = frozenset(c.name for c in controls)
-    counts["controls"] = sum(episodes([*controls, cook], level_set, names) for level_set in LEVEL_SETS)
+    counts["controls"] = sum(
+        episodes([*controls, cook], level_spec(mode, level_set), names) for level_set in LEVEL_SETS
+    )
     milestones = set(load_config(TrainConfig, str(ROOT / mode.preset)).checkpoint.milestones) | {1.0}
     counts["curves"] = sum(
-        len(milestones) * episodes([stand_in(f"{a}-s{s}", a) for s in mode.seeds[a]], "heldout")
+        len(milestones)
+        * episodes([stand_in(f"{a}-s{s}", a) for s in mode.seeds[a]], level_spec(mode, "heldout"))
         for a in GENERALISTS
     )
     return counts

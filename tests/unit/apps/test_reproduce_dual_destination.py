@@ -195,7 +195,7 @@ def test_train_only_goes_on_with_the_next_variant_while_others_train_the_rest(
 
     calls = []
 
-    def fake_build(spec, out, *, progress, log, wait):
+    def fake_build(spec, out, *, progress, log, wait, between=None):
         variant = Path(out).parent.name
         calls.append((variant, wait))
         if variant == "full_obs" and not wait:  # its CEC run is another process's

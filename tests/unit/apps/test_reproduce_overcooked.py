@@ -250,7 +250,7 @@ def test_collisions_are_also_given_per_soup_beside_the_untrained_control() -> No
     assert rows["| control: untrained CEC network"].endswith("| — | 2.0 |")  # 4 per 2 soups
 
 
-def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() -> None:
+def test_lineups_pair_each_kitchens_agents_with_the_generalists_once_kitchen_by_kitchen() -> None:
     from cec.agents.policy import scripted_policy
 
     def agent(algo: str, seed: int, kitchen: str | None = None) -> object:
@@ -258,22 +258,26 @@ def test_held_out_lineups_pair_each_kitchens_agents_with_the_generalists_once() 
         levels = (kitchen,) if kitchen else None
         return scripted_policy("noop", name, algorithm=algo, seed=seed, levels=levels)
 
+    mode = dataclasses.replace(TINY, kitchens=("cramped_room", "coord_ring"))
     zoo = [agent("cec", 200), agent("cec", 201)]
     zoo += [agent("ippo", s, k) for k in ("cramped_room", "coord_ring") for s in (0, 1)]
-    assert oc_evaluate.lineups(zoo, "classic") == [
-        (zoo, None)
-    ]  # each on its kitchens: a kitchen's agents meet
-    first, second = oc_evaluate.lineups(zoo, "heldout")
-    assert [p.name for p in first[0]] == [
+    cramped, ring = oc_evaluate.lineups(mode, zoo, "classic")  # a kitchen's agents and the generalists there
+    assert (cramped.name, cramped.levels, cramped.involving) == ("cramped_room", "cramped_room", None)
+    assert [p.name for p in cramped.players] == ["cec-s200", "cec-s201", "ippo_cramped_room-s0",
+                                                 "ippo_cramped_room-s1"]  # fmt: skip
+    assert [p.name for p in ring.players][2:] == ["ippo_coord_ring-s0", "ippo_coord_ring-s1"]
+    generalists, first, second = oc_evaluate.lineups(mode, zoo, "heldout")
+    assert [p.name for p in generalists.players] == ["cec-s200", "cec-s201"] and generalists.involving is None
+    assert [p.name for p in first.players] == [
         "cec-s200",
         "cec-s201",
         "ippo_cramped_room-s0",
         "ippo_cramped_room-s1",
     ]
-    assert first[1] is None  # the generalists' own games are kept once, from the first line-up
-    assert [p.name for p in second[0]] == ["cec-s200", "cec-s201", "ippo_coord_ring-s0", "ippo_coord_ring-s1"]
-    assert second[1] == {"ippo_coord_ring-s0", "ippo_coord_ring-s1"}
-    assert all(p.levels is None for lineup, _ in (first, second) for p in lineup)  # every held-out kitchen
+    assert first.involving == {"ippo_cramped_room-s0", "ippo_cramped_room-s1"}  # the generalists' games once
+    assert second.involving == {"ippo_coord_ring-s0", "ippo_coord_ring-s1"}
+    assert all(p.levels is None for part in (first, second) for p in part.players)  # every held-out kitchen
+    assert {first.levels, generalists.levels} == {oc_evaluate.level_spec(mode, "heldout")}
 
 
 def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_training(tmp_path: Path) -> None:
@@ -386,6 +390,10 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     report = oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert report is not None and report.exists()
     text = report.read_text()
+    # the generalists' games with each other were played between training runs, before the zoo was whole
+    trained = [m.start() for m in re.finditer(r"\): training \d+ updates", log.getvalue())]
+    played = log.getvalue().find("heldout line-up generalists: 3 agents + the cook")  # CEC 2 seeds, CEC-E3T 1
+    assert 0 <= played < trained[-1], log.getvalue()
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
                    "| FCP |", "| E3T |", "| CEC-Finetune |", "| CEC-E3T |", "130.51 (text)", "≈70 (figure)",
                    "28.21 (text)", "(seeds as units)", "## Cross-algorithm play",
@@ -455,15 +463,13 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     # the 400-step table, the 100-step one, the controls and the curves
     assert log.getvalue().count("not played again") == 4 and "finished, skipping" in log.getvalue()
-    assert not (
-        work / oc_evaluate.PARTS
-    ).exists()  # each line-up's table kept only until the whole one is written
     # an evaluation interrupted after its first line-up plays the others again, not that one: the same table
     first, manifest, real = (
         (work / "results.csv").read_bytes(),
         work / "zoo" / "zoo.yaml",
         oc_evaluate._play_lineup,
     )
+    shutil.rmtree(work / oc_evaluate.PARTS)
     (work / "results.key.json").unlink()
     calls: list[float] = []  # how long each line-up played
 
@@ -485,9 +491,26 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     log = io.StringIO()
     oc_evaluate.cached_evaluation(mode, manifest, work, log=log, commit="abc1234")
     monkeypatch.undo()
-    assert "classic line-up 1 of 1: cross-play results found" in log.getvalue(), log.getvalue()
+    assert "classic line-up cramped_room: cross-play results found" in log.getvalue(), log.getvalue()
     assert log.getvalue().count("not played again") == 1 and (work / "results.csv").read_bytes() == first
-    assert len(calls) == 2 and play_seconds(work) >= sum(calls)  # the time includes the interrupted one's
+    assert len(calls) == 3 and play_seconds(work) >= sum(calls)  # the time includes the interrupted one's
+    # a zoo whose single-kitchen runs are records (carried without parameters once their games were
+    # played: scripts/carry_run.py save --record-only): nothing trained, every line-up read from its table
+    for run in (work / "zoo" / "runs").glob("*_cramped_room-s*"):
+        for checkpoint in (run / "checkpoints").glob("update_*"):
+            (checkpoint / "state.msgpack").unlink()
+            meta = json.loads((checkpoint / "meta.json").read_text())
+            meta["metadata"]["record_only"] = "carried without parameters"
+            (checkpoint / "meta.json").write_text(json.dumps(meta))
+    for folder in (work, work / "steps100"):
+        (folder / "results.key.json").unlink()  # the whole tables assembled again, from the line-ups'
+    log = io.StringIO()
+    assert oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
+    assert "training" not in log.getvalue() and "agents + the cook" not in log.getvalue(), log.getvalue()
+    assert log.getvalue().count("cross-play results found") == 2 * 3 + 2  # 3 line-ups x 2 lengths; + 2
+    assert (work / "results.csv").read_bytes() == first
+    for section in ("## The 1 classic", "## Cross-algorithm play", "## At the authors' 100-step"):
+        assert _section((out / "report.md").read_text(), section) == _section(text, section), section
     # the work folder brought back without its checkpoints (from a GPU machine): the report from its table,
     # the GIF from the exported CEC seeds, the machine that trained and played named
     export_zoo(work / "zoo" / "zoo.yaml", tmp_path / "shipped", names=["cec-s200", "cec-s201"])
@@ -518,13 +541,15 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     for section in ("## The 1 classic", "## Cross-algorithm play", "## The held-out kitchens by training",
                     "## Cross-play learning curves", "## At the authors' 100-step"):  # fmt: skip
         assert _section(again.read_text(), section) == _section(text, section), section  # from the table
-    assert ran_on["commit"] == "abc1234"  # the invocation that finished the table, not one that read it
+    finished_at = code_version(short=True)  # the invocation that assembled the table from records' line-ups
+    assert ran_on["commit"] == finished_at  # the invocation that finished the table, not one that read it
     assert ran_on["trained_at"] == [
         oc_evaluate._short(code_version())
     ]  # as the agents' checkpoints record it
     assert f"Trained and played on: {ran_on['machine']['device']}" in again.read_text()
-    assert "cross-play finished at commit abc1234; the agents' last checkpoints written at 1 commit (" in (
-        again.read_text()
+    assert (
+        f"cross-play finished at commit {finished_at}; the agents' last checkpoints written at 1 commit ("
+        in (again.read_text())
     )
     assert row.group(0) in again.read_text()  # its metrics kept the recorded time (from metrics.csv.gz)
     assert (tmp_path / "again" / "curves_cec.png").exists()

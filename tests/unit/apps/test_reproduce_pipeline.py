@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import io
 import threading
-from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -29,7 +28,7 @@ def test_two_invocations_share_the_tables_out_and_each_table_is_played_once(tmp_
     played: list[tuple[str, int]] = []
     claimed, go_on = threading.Event(), threading.Event()
 
-    def jobs(who: str) -> list[tuple[Path, str, Callable[[], EpisodeTable]]]:
+    def jobs(who: str) -> list[pipeline.Job]:
         def play(k: int) -> EpisodeTable:
             played.append((who, k))
             if who == "other" and k == 0:
@@ -39,25 +38,28 @@ def test_two_invocations_share_the_tables_out_and_each_table_is_played_once(tmp_
                 go_on.set()
             return _table(float(k))
 
-        return [(tmp_path / f"part-{k}", f"line-up {k + 1} of 3: ", lambda k=k: play(k)) for k in range(3)]
+        return [
+            pipeline.Job(tmp_path / f"part-{k}", key, f"line-up {k + 1} of 3: ", lambda k=k: play(k))
+            for k in range(3)
+        ]
 
     results: dict[str, list[EpisodeTable]] = {}
 
     def other_invocation() -> None:
-        results["other"] = pipeline.shared_tables(jobs("other"), key, log=io.StringIO())
+        results["other"] = pipeline.shared_tables(jobs("other"), log=io.StringIO())
 
     other = threading.Thread(target=other_invocation)
     other.start()
     assert claimed.wait(30)
     log = io.StringIO()
-    results["this"] = pipeline.shared_tables(jobs("this"), key, log=log, poll_s=0.01)
+    results["this"] = pipeline.shared_tables(jobs("this"), log=log, poll_s=0.01)
     other.join(30)
     assert sorted(played) == [("other", 0), ("this", 1), ("this", 2)]  # each table played once
     for who in ("this", "other"):  # both have every table, in order
         assert [float(t.returns[0]) for t in results[who]] == [0.0, 1.0, 2.0]
     assert "line-up 1 of 3: played by another invocation; waiting for its table" in log.getvalue()
     # a later invocation plays nothing: every table is in its folder under the same key
-    again = pipeline.shared_tables(jobs("later"), key, log=io.StringIO())
+    again = pipeline.shared_tables(jobs("later"), log=io.StringIO())
     assert [float(t.returns[0]) for t in again] == [0.0, 1.0, 2.0] and len(played) == 3
     # another key (the zoo changed): played again
     changed = pipeline.cached_table(
@@ -78,19 +80,29 @@ def test_a_table_whose_play_failed_is_played_by_the_next_invocation(tmp_path: Pa
     assert float(table.returns[0]) == 3.0
 
 
-def test_the_scratch_folder_is_removed_by_the_last_invocation_out_and_kept_after_an_error(
-    tmp_path: Path,
-) -> None:
-    scratch = tmp_path / "parts"
-    with pipeline.scratch(scratch):
-        with pipeline.scratch(scratch):  # another invocation in it at once
-            (scratch / "line-up-0").mkdir()
-        assert (scratch / "line-up-0").is_dir()  # the first one out leaves it to the other
-    assert not scratch.exists()  # the last one out removes it
-    with pytest.raises(KeyboardInterrupt), pipeline.scratch(scratch):
-        (scratch / "line-up-0").mkdir()
-        raise KeyboardInterrupt
-    assert (scratch / "line-up-0").is_dir()  # interrupted: kept for the next invocation to go on from
+def test_a_builder_between_runs_plays_only_the_tables_nobody_else_plays(tmp_path: Path) -> None:
+    """`play_unclaimed`: a table stored under its key is read, not played; one another invocation holds
+    is left to it without waiting; the rest are played."""
+    from cec.checkpoints import RunLock
+
+    played: list[int] = []
+
+    def job(k: int, key: object = "same") -> pipeline.Job:
+        return pipeline.Job(tmp_path / f"part-{k}", {"k": key}, f"part {k}: ",
+                            lambda: played.append(k) or _table(float(k)))  # fmt: skip
+
+    pipeline.cached_table(
+        tmp_path / "part-0", {"k": "same"}, lambda: _table(0.0), label="", log=io.StringIO()
+    )
+    (tmp_path / "part-1").mkdir()
+    lock = RunLock(tmp_path / "part-1").acquire()  # another builder is playing it
+    try:
+        assert pipeline.play_unclaimed([job(0), job(1), job(2)], log=io.StringIO()) == 1
+    finally:
+        lock.release()
+    assert played == [2]
+    assert pipeline.play_unclaimed([job(0), job(1), job(2, key="changed")], log=io.StringIO()) == 2
+    assert played == [2, 1, 2]  # the one released, and the one whose key changed
 
 
 def test_two_invocations_write_the_report_one_after_the_other(tmp_path: Path) -> None:
