@@ -5,13 +5,16 @@
     python scripts/carry_run.py save runs/reproduce/overcooked-cpu/zoo/runs/* --into carry/repro
     python scripts/carry_run.py restore carry/repro/* --run-dir runs/reproduce/overcooked-cpu/zoo/runs
     python scripts/carry_run.py save --record-only runs/reproduce/overcooked-cpu/zoo/runs/ippo_* --into ...
+    python scripts/carry_run.py save-tables runs/reproduce/overcooked-cpu --out carry/repro-tables
+    python scripts/carry_run.py restore-tables carry/repro-tables --work runs/reproduce/overcooked-cpu
 
 `save` keeps the newest checkpoint's parameters, optimizer state, keys and update count (not the envs'
 carries: the episodes in flight; a finished run's optimizer state neither, nothing continues from it), and
 every older checkpoint the run kept (its milestones, which learning curves are played from) as parameters,
 keys and count, with the run's config, metrics and the evaluator's record (compressed); `--record-only`
 keeps a finished run's config, metrics and checkpoints' metadata, no parameters (a reproduction's run
-whose games are played and cached: the record is what its report needs, at a few kB). `restore` writes
+whose games are played and cached: the record is what its report needs, at a few kB), and `save-tables`
+those cached games (a reproduction's line-up tables, bzip2). `restore` writes
 them back as the run's checkpoints, the carries (and an older checkpoint's optimizer state) drawn afresh
 from the run's keys (`Trainer.init`), so `cec up --resume` (or `cec train --resume`) continues the run from
 its newest update; the only difference from an uninterrupted run is that its envs start new episodes there.
@@ -124,6 +127,47 @@ def restore(carried: Path, run_dir: Path) -> Path:
     return written
 
 
+TABLE_FILES = ("results.key.json", "results.time.json")  # beside a cached table's results.csv
+
+
+def save_tables(work: Path, out: Path) -> Path:
+    """Every finished line-up table of a reproduction's work folder (`parts/*/` and `steps*/parts/*/` with
+    their key: `apps.reproduce.pipeline.cached_table`) into `out`, `results.csv` compressed (bzip2, read as
+    it is), the key and the time as they are."""
+    import bz2
+
+    from cec.evaluation.results import stored
+
+    shutil.rmtree(out, ignore_errors=True)
+    tables = sorted(k.parent for k in work.glob("**/parts/*/results.key.json"))
+    for table in tables:
+        target = out / table.relative_to(work)
+        target.mkdir(parents=True)
+        source = stored(table / "results.csv")  # as an earlier restore left it: compressed
+        raw = gzip.decompress(source.read_bytes()) if source.suffix == ".gz" else source.read_bytes()
+        (target / "results.csv.bz2").write_bytes(raw if source.suffix == ".bz2" else bz2.compress(raw, 9))
+        for name in TABLE_FILES:
+            if (table / name).is_file():
+                shutil.copyfile(table / name, target / name)
+    size = sum(p.stat().st_size for p in out.rglob("*") if p.is_file()) if tables else 0
+    print(f"carried {len(tables)} line-up table(s) of {work} to {out} ({size / 1e6:.1f} MB)")
+    return out
+
+
+def restore_tables(carried: Path, work: Path) -> None:
+    """The tables of `save_tables` back into the work folder (compressed: read as they are); a table the
+    work folder has under the same key is left as it is."""
+    restored = 0
+    for key in sorted(carried.glob("**/parts/*/results.key.json")):
+        target = work / key.parent.relative_to(carried)
+        if (target / key.name).is_file() and (target / key.name).read_bytes() == key.read_bytes():
+            continue
+        shutil.rmtree(target, ignore_errors=True)
+        shutil.copytree(key.parent, target)
+        restored += 1
+    print(f"restored {restored} line-up table(s) into {work}")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     sub = ap.add_subparsers(dest="what", required=True)
@@ -139,8 +183,18 @@ def main(argv: list[str] | None = None) -> int:
     r = sub.add_parser("restore", help="carried runs back into the runs folder, in the order given")
     r.add_argument("carried", type=Path, nargs="+")
     r.add_argument("--run-dir", type=Path, default=ROOT / "runs")
+    t = sub.add_parser("save-tables", help="a reproduction work folder's played line-up tables, compressed")
+    t.add_argument("work", type=Path)
+    t.add_argument("--out", type=Path, required=True)
+    u = sub.add_parser("restore-tables", help="carried line-up tables back into a reproduction work folder")
+    u.add_argument("carried", type=Path)
+    u.add_argument("--work", type=Path, required=True)
     args = ap.parse_args(argv)
-    if args.what == "save":
+    if args.what == "save-tables":
+        save_tables(args.work, args.out)
+    elif args.what == "restore-tables":
+        restore_tables(args.carried, args.work)
+    elif args.what == "save":
         if args.out is not None and len(args.runs) > 1:
             ap.error(f"--out names one run's folder; {len(args.runs)} runs were given: use --into")
         for run in args.runs:

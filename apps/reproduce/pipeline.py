@@ -12,9 +12,9 @@ Every paper is a package `apps/reproduce/<paper>/` with the same modules (`PARTS
                training is `Zoo.build`: finished runs skipped, interrupted ones resumed
     evaluate   `load_zoo_policies` (every entry, or an error naming those that cannot load), cross-play on
                `generated_levels` and the game's own, cached while what it depends on is unchanged
-               (`cached_table`; several at once: `shared_tables`, `play_unclaimed`); the zoo exported as parameter files
-               (`export_policies`), so that a work folder kept without its training states still
-               reports (`played_table`, `--report-only`)
+               (`cached_table`; several at once: `shared_tables`, `play_unclaimed`); the zoo exported
+               as parameter files (`export_policies`), so that a work folder kept without its training
+               states still reports (`played_table`, `--report-only`)
     summary    seeds as units: `cec.evaluation.seeds` (per seed XP and SP, the jackknife over seeds)
     report     the paper's own report beside the paper's numbers, with the recorded times of this module
                (`train_seconds`, `play_seconds`)
@@ -27,7 +27,6 @@ which levels, and what its report says beside the paper's numbers.
 from __future__ import annotations
 
 import contextlib
-import io
 import json
 import math
 import shutil
@@ -120,16 +119,23 @@ def play_unclaimed(jobs: Sequence[Job], *, log: TextIO) -> int:
     for those others play (a builder playing what is ready between training runs); the number played."""
     played = 0
     for job in jobs:
-        if stored_table(job.folder, job.key, label=job.label, log=io.StringIO()) is None:
+        if not stored_key(job.folder, job.key):
             played += _claimed_table(job, log) is not None
     return played
 
 
+def stored_key(folder: Path, key: Mapping[str, object]) -> bool:
+    """Whether `folder` holds a table an earlier invocation wrote under `key` (`cached_table`)."""
+    key_file = folder / "results.key.json"
+    stored = json.loads(key_file.read_text()) if key_file.exists() else None
+    as_stored = json.loads(json.dumps(key))  # tuples as lists
+    return results_file(folder).exists() and stored == as_stored
+
+
 def stored_table(folder: Path, key: Mapping[str, object], *, label: str, log: TextIO) -> EpisodeTable | None:
     """The table an earlier invocation wrote in `folder` under `key` (`cached_table`), else None."""
-    results, key_file = results_file(folder), folder / "results.key.json"
-    stored_key = json.loads(key_file.read_text()) if key_file.exists() else None
-    if results.exists() and stored_key == json.loads(json.dumps(key)):  # as stored: tuples as lists
+    results = results_file(folder)
+    if stored_key(folder, key):
         log_line(log, "reproduce", f"{label}cross-play results found ({results}); not played again")
         return read_csv(results)
     return None

@@ -188,8 +188,10 @@ _MAGIC = {".gz": b"\x1f\x8b", ".bz2": b"BZh"}
 #: The environment's `CEC_RESULTS_MAX_BYTES` raises it (`cap`).
 RESULTS_MAX_BYTES = 128 << 20
 #: The most rows read of the tables one command reads (each costs 128 bytes parsed, `_Columns`, and a few
-#: hundred more in a report's analysis; the largest committed table holds 294,000); `CEC_RESULTS_MAX_ROWS`.
-RESULTS_MAX_ROWS = 500_000
+#: hundred more in a report's analysis: about half a GB at the cap; the largest committed table holds 294,000,
+#: the 6-seed CPU reproduction's plays about 646,000: `cec reproduce overcooked --plan`);
+#: `CEC_RESULTS_MAX_ROWS`.
+RESULTS_MAX_ROWS = 1_000_000
 #: The most policies ((algorithm, seed) pairs) of the tables one command reads: a report holds several
 #: policy x policy matrices and draws one heatmap per algorithm (a zoo holds at most 512 entries;
 #: the committed tables at most 48 policies); `CEC_RESULTS_MAX_POLICIES`.

@@ -110,3 +110,40 @@ def _params(path: Path) -> object:
         load_policy(ZooEntry("x", str(path), seed=s)).params
         for s in checkpoints.read_meta(path)["metadata"]["seeds"]
     ]
+
+
+def test_a_reproductions_played_line_ups_are_carried_compressed_and_read_back_as_they_were(
+    tmp_path: Path,
+) -> None:
+    """`save-tables`: every line-up table with its key (a finished one) of `parts/` and `steps100/parts/`,
+    bzip2; `restore-tables` puts them back, where a table with another key is replaced."""
+    from cec.evaluation.results import ARRAY_FIELDS, make_table, read_csv, stored, write_csv
+
+    def table(returns: float) -> object:
+        text = {"policy_a", "algorithm_a", "policy_b", "algorithm_b", "level", "env", "actions"}
+        return make_table({**{f: ["x"] if f in text else [0] for f in ARRAY_FIELDS}, "returns": [returns]})
+
+    work = tmp_path / "work"
+    played = {"parts/classic-cramped_room": 3.0, "steps100/parts/heldout-generalists": 5.0}
+    for folder, value in played.items():
+        (work / folder).mkdir(parents=True)
+        write_csv(table(value), work / folder / "results.csv")
+        (work / folder / "results.key.json").write_text(f'{{"lineup": "{folder}"}}\n')
+        (work / folder / "results.time.json").write_text('{"seconds": 60}\n')
+    (work / "parts" / "heldout-coord_ring").mkdir()  # being played: no key yet, not carried
+    write_csv(table(1.0), work / "parts" / "heldout-coord_ring" / "results.csv")
+    saved = _run("scripts/carry_run.py", "save-tables", str(work), "--out", str(tmp_path / "tables"))
+    assert saved.returncode == 0 and "carried 2 line-up table(s)" in saved.stdout, saved.stderr[-2000:]
+    assert sorted(p.name for p in (tmp_path / "tables").rglob("results.csv*")) == ["results.csv.bz2"] * 2
+    elsewhere = tmp_path / "elsewhere"
+    stale = elsewhere / "parts" / "classic-cramped_room"  # the same line-up played with other players
+    stale.mkdir(parents=True)
+    write_csv(table(9.0), stale / "results.csv")
+    (stale / "results.key.json").write_text('{"lineup": "other"}\n')
+    back = _run("scripts/carry_run.py", "restore-tables", str(tmp_path / "tables"), "--work", str(elsewhere))
+    assert back.returncode == 0 and "restored 2 line-up table(s)" in back.stdout, back.stderr[-2000:]
+    for folder, value in played.items():
+        table = read_csv(stored(elsewhere / folder / "results.csv"))
+        assert table.returns.tolist() == [value], folder
+        assert (elsewhere / folder / "results.key.json").read_text() == f'{{"lineup": "{folder}"}}\n'
+    assert not (elsewhere / "parts" / "heldout-coord_ring").exists()

@@ -22,6 +22,7 @@ from apps.reproduce.overcooked.evaluate import (
     level_spec,
     planned_episodes,
     play_ready,
+    played_lineups,
 )
 from apps.reproduce.overcooked.figures import write_figures
 from apps.reproduce.overcooked.modes import AUTHORS_STEPS, EVAL_STEPS, LEVEL_SETS, MACHINE_FILE, MODES, Mode
@@ -130,11 +131,13 @@ def _cmd(args: argparse.Namespace) -> int:
             seconds = sum(n / mode.episodes_per_s[part] for part, n in counts.items())
             rates = ", ".join(f"{part} {r:g}" for part, r in mode.episodes_per_s.items())
             rate = f"~{duration(seconds)} (episodes/s: {rates}; measured in {mode.eval_measured_on})"
+        done, lineups = played_lineups(mode, work)
         print(
             f"then cross-play: {played:,} episodes of {EVAL_STEPS} steps ({parts}), {rate}; the same "
             f"line-ups at the authors' {AUTHORS_STEPS} steps (about a quarter of that time); then the "
             "report (cached games are not played again)"
         )
+        print(f"line-ups played (each as soon as its agents are trained): {done} of {lineups}")
         return 0
     if args.proxies is not None:
         mode = dataclasses.replace(mode, proxies=args.proxies)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import io
 import json
 import time
 from collections.abc import Sequence
@@ -195,19 +196,14 @@ def evaluate(
     return EpisodeTable.concat(pipeline.shared_tables(jobs, log=log))
 
 
-def play_ready(mode: Mode, plan: Sequence[PlannedRun], zoo_dir: Path, work: Path, *, log: TextIO) -> int:
-    """Between training runs (`Zoo.build`'s `between`): plays every line-up (`part_jobs`, at both episode
-    lengths) whose players are all trained, that no other invocation is playing, before the rest of the zoo
-    is trained; the number played. So a kitchen's games are in the work folder once its agents are: its
-    checkpoints are no longer needed for the report (a reproduction carried from machine to machine
-    keeps its runs' records, not their parameters: `scripts/carry_run.py`)."""
+def ready_jobs(
+    mode: Mode, plan: Sequence[PlannedRun], zoo_dir: Path, work: Path, *, log: TextIO
+) -> tuple[list[pipeline.Job], int]:  # fmt: skip
+    """The line-ups (`part_jobs`, at both episode lengths) whose players are all trained, and how many
+    line-ups the whole zoo plays."""
     from apps.zoo_build import manifest_entries
     from cec.agents.zoo import ZooEntry, parse_zoo
 
-    finished = [r for r in plan if r.finished]
-    if not finished:
-        return 0
-    entries = parse_zoo({"policies": manifest_entries(finished, zoo_dir)}, zoo_dir, where=str(zoo_dir))
     planned = [
         ZooEntry(name, "", r.algorithm, seed, r.levels)
         for r in plan for seed, name in zip(r.seeds, r.policy_names, strict=True)
@@ -216,17 +212,40 @@ def play_ready(mode: Mode, plan: Sequence[PlannedRun], zoo_dir: Path, work: Path
         (ls, part.name): {p.name for p in part.players}
         for ls in LEVEL_SETS for part in lineups(mode, planned, ls)
     }  # fmt: skip
+    lengths = (EVAL_STEPS, AUTHORS_STEPS)
+    finished = [r for r in plan if r.finished]
+    if not finished:
+        return [], len(whole) * len(lengths)
+    entries = parse_zoo({"policies": manifest_entries(finished, zoo_dir)}, zoo_dir, where=str(zoo_dir))
     ready = {
         (ls, part.name) for ls in LEVEL_SETS for part in lineups(mode, entries, ls)
         if whole.get((ls, part.name)) == {p.name for p in part.players}
     }  # fmt: skip
-    played = 0
-    for steps in (EVAL_STEPS, AUTHORS_STEPS):
-        jobs = part_jobs(mode, entries, work, log=log, steps=steps)
-        played += pipeline.play_unclaimed(
-            [j for j in jobs if (j.key["level_set"], j.key["lineup"]) in ready], log=log
-        )
-    return played
+    jobs = [
+        j for steps in lengths for j in part_jobs(mode, entries, work, log=log, steps=steps)
+        if (j.key["level_set"], j.key["lineup"]) in ready
+    ]  # fmt: skip
+    return jobs, len(whole) * len(lengths)
+
+
+def play_ready(mode: Mode, plan: Sequence[PlannedRun], zoo_dir: Path, work: Path, *, log: TextIO) -> int:
+    """Between training runs (`Zoo.build`'s `between`): plays every line-up whose players are all trained
+    (`ready_jobs`) that no other invocation is playing, before the rest of the zoo is trained; the number
+    played. So a kitchen's games are in the work folder once its agents are: its checkpoints are no longer
+    needed for the report (a reproduction carried from machine to machine keeps its runs' records, not
+    their parameters: `scripts/carry_run.py`)."""
+    return pipeline.play_unclaimed(ready_jobs(mode, plan, zoo_dir, work, log=log)[0], log=log)
+
+
+def played_lineups(mode: Mode, work: Path) -> tuple[int, int]:
+    """For `--plan`: how many line-ups are played (in the work folder under their players' present
+    checkpoints), of how many the zoo plays."""
+    from apps.reproduce.overcooked.plan import zoo
+
+    the_zoo = zoo(mode, work)
+    jobs, total = ready_jobs(mode, the_zoo.plan(), the_zoo.zoo_dir, work, log=io.StringIO())
+    found = [j for j in jobs if pipeline.stored_key(j.folder, j.key)]
+    return len(found), total
 
 
 def cec_config(mode: Mode, work: Path) -> TrainConfig:

@@ -394,6 +394,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     trained = [m.start() for m in re.finditer(r"\): training \d+ updates", log.getvalue())]
     played = log.getvalue().find("heldout line-up generalists: 3 agents + the cook")  # CEC 2 seeds, CEC-E3T 1
     assert 0 <= played < trained[-1], log.getvalue()
+    assert oc_evaluate.played_lineups(mode, work) == (6, 6)  # `--plan`: 3 line-ups at 400 and 100 steps
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
                    "| FCP |", "| E3T |", "| CEC-Finetune |", "| CEC-E3T |", "130.51 (text)", "≈70 (figure)",
                    "28.21 (text)", "(seeds as units)", "## Cross-algorithm play",
@@ -593,6 +594,7 @@ def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], t
     assert "cec-s200" in printed and "ippo_cramped_room-s0" in printed and "training: ~" in printed
     assert "0% done" in printed and " left (" in printed
     assert "then cross-play: 3,358 episodes of 400 steps (classic 288, heldout 2,420" in printed
+    assert "line-ups played (each as soon as its agents are trained): 0 of 6" in printed
 
 
 def test_a_run_committed_with_its_metrics_gzipped_reads_the_same(tmp_path: Path) -> None:
