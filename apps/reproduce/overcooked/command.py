@@ -1,6 +1,7 @@
 """`cec reproduce overcooked`: its arguments, `--plan`'s lines, and `reproduce_overcooked`, which trains
-(`plan`), plays (`evaluate`), summarises (`summary`) and reports (`report`, `sections`, `figures`) in
-that order (see the package's docstring).
+(`plan`), plays (`evaluate`: each line-up between training runs once its agents are trained, the rest
+after), summarises (`summary`) and reports (`report`, `sections`, `figures`) in that order (see the
+package's docstring).
 """
 
 from __future__ import annotations

@@ -1,7 +1,8 @@
 """The cross-play of `cec reproduce overcooked`: who meets whom on which kitchens (`lineups`), the agents'
-games with the cook and the human proxies, the controls' and the learning curves' games, each cached
-while what it depends on is unchanged (`pipeline.cached_table`), and how many episodes that is
-(`planned_episodes`, for `--plan`).
+games with the cook and the human proxies line-up by line-up (`part_jobs`: each played once its agents
+are trained, `play_ready`, and assembled, `cached_evaluation`), the controls' and the learning curves'
+games, each cached while what it depends on is unchanged (`pipeline.cached_table`), and how many episodes
+and line-ups that is (`planned_episodes`, `played_lineups`, for `--plan`).
 """
 
 from __future__ import annotations
@@ -77,7 +78,7 @@ def eval_config(mode: Mode, level_set: str, seed: int = 0, steps: int = EVAL_STE
 
 
 def _eval_key(mode: Mode, steps: int = EVAL_STEPS) -> dict[str, object]:
-    """What a table of `evaluate` or `evaluate_controls` depends on besides its policies."""
+    """What a table of `part_jobs` or `evaluate_controls` depends on besides its policies."""
     settings = {"episodes": mode.episodes, "kitchens": mode.kitchens, "levels": mode.generated_levels}
     return {**settings, "steps": steps}
 
@@ -181,21 +182,6 @@ def _play_lineup(mode: Mode, lineup: Lineup, config: EvalConfig, *, log: TextIO)
     return table
 
 
-def evaluate(
-    mode: Mode, entries: Sequence[ZooEntry], work: Path, *, log: TextIO, seed: int = 0,
-    steps: int = EVAL_STEPS,
-) -> EpisodeTable:  # fmt: skip
-    """Every line-up's table (`part_jobs`: every pair, XP, SP, ad hoc, with the cook, on the classic
-    kitchens with the human proxies, both seat orders) -> one `EpisodeTable`. A line-up an earlier
-    invocation played with the same players is read, not played (the CPU version's line-ups take minutes
-    each on the 2-vCPU Xeon); invocations side by side (two builders of one work folder) share the
-    line-ups out (`pipeline.shared_tables`). `steps`: the episodes' length."""
-    from cec.evaluation.results import EpisodeTable
-
-    jobs = part_jobs(mode, entries, work, log=log, seed=seed, steps=steps)
-    return EpisodeTable.concat(pipeline.shared_tables(jobs, log=log))
-
-
 def ready_jobs(
     mode: Mode, plan: Sequence[PlannedRun], zoo_dir: Path, work: Path, *, log: TextIO
 ) -> tuple[list[pipeline.Job], int]:  # fmt: skip
@@ -279,7 +265,7 @@ def control_policies(mode: Mode, cfg: TrainConfig) -> list[Policy]:
 
 def evaluate_controls(mode: Mode, cfg: TrainConfig, *, log: TextIO, seed: int = 0) -> EpisodeTable:
     """The controls (`control_policies` of `cfg`) with each other and the cook on both level sets, as
-    `evaluate` plays the algorithms (the cook's own games left out: `evaluate` has them)."""
+    `part_jobs` plays the algorithms (the cook's own games left out: the line-ups have them)."""
     from cec.agents.policy import scripted_policy
     from cec.evaluation.crossplay import crossplay, eval_levels
     from cec.evaluation.results import EpisodeTable
@@ -324,9 +310,13 @@ def cached_controls(mode: Mode, work: Path, *, log: TextIO, commit: str) -> Epis
 def cached_evaluation(
     mode: Mode, manifest: Path, work: Path, *, log: TextIO, commit: str, steps: int = EVAL_STEPS
 ) -> EpisodeTable:
-    """`evaluate`, or the table an earlier invocation wrote when neither the zoo (checkpoints pinned by
-    SHA-256) nor the settings changed (`apps.reproduce.pipeline.cached_table`); its line-ups' own tables
-    (`part_jobs`) are kept beside it, for a zoo that changes in part. The invocation that assembles it
+    """Every line-up's table (`part_jobs`: every pair, XP, SP, ad hoc, with the cook, on the classic
+    kitchens with the human proxies, both seat orders) as one table, or the table an earlier invocation
+    wrote when neither the zoo (checkpoints pinned by SHA-256) nor the settings changed
+    (`apps.reproduce.pipeline.cached_table`). A line-up an earlier invocation played with the same players
+    is read, not played (the CPU version's take minutes each on the 2-vCPU Xeon); invocations side by side
+    (two builders of one work folder) share the line-ups out (`pipeline.shared_tables`). The invocation
+    that assembles it
     writes `machine.json` beside it: this machine, `commit` and the commits that wrote the agents'
     checkpoints (a zoo trained over several invocations). `steps`: the episodes' length; the table of
     another length than `EVAL_STEPS` (the authors' 100, `AUTHORS_STEPS`) lives in `work/steps<steps>`
@@ -335,6 +325,7 @@ def cached_evaluation(
     folder.mkdir(parents=True, exist_ok=True)
     from cec.agents.zoo import load_zoo
     from cec.checkpoints import read_meta
+    from cec.evaluation.results import EpisodeTable
 
     entries = load_zoo(manifest)
     proxies = sorted([e.name, e.sha256] for e in load_zoo(mode.proxies)) if mode.proxies else []
@@ -344,10 +335,10 @@ def cached_evaluation(
     label = "" if steps == EVAL_STEPS else f"{steps}-step episodes: "
     if (found := pipeline.stored_table(folder, key, label=label, log=log)) is not None:
         return found
-    played = evaluate(mode, entries, work, log=log, steps=steps)
+    jobs = part_jobs(mode, entries, work, log=log, steps=steps)
+    played = EpisodeTable.concat(pipeline.shared_tables(jobs, log=log))
 
     def assemble() -> EpisodeTable:  # the line-ups' table, with their times and machine
-        jobs = part_jobs(mode, entries, work, log=log, steps=steps)
         # the line-ups' own times, also those an earlier or interrupted invocation played
         seconds = sum(play_seconds(job.folder) for job in jobs)
         (folder / pipeline.PLAY_TIME_FILE).write_text(json.dumps({"seconds": seconds}) + "\n")
@@ -422,7 +413,7 @@ def cached_curves(mode: Mode, work: Path, *, log: TextIO, report_only: bool = Fa
 
 
 def planned_episodes(mode: Mode) -> dict[str, int]:
-    """The episodes the evaluation plays, by part: `evaluate`'s on each level set (every line-up with the
+    """The episodes the evaluation plays, by part: `part_jobs`' on each level set (every line-up with the
     cook, the human proxies on the classic kitchens), the controls' (`evaluate_controls`) and the learning
     curves' (`cached_curves`: every seed pair of each CEC and CEC-E3T checkpoint the preset saves), counted
     as they are played, from the mode alone (nothing loaded)."""
