@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import io
 import json
+import re
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -165,7 +166,7 @@ def _play_lineup(mode: Mode, lineup: Lineup, config: EvalConfig, *, log: TextIO)
     orders), logged with how many episodes it played and how long it took. Proxies that cannot play with
     the agents (another network) are the table's skipped entries, with the reason."""
     from cec.agents.policy import scripted_policy
-    from cec.evaluation.crossplay import crossplay, eval_levels
+    from cec.evaluation.crossplay import crossplay, eval_levels, plan_games
 
     t0 = time.perf_counter()
     players = pipeline.load_entry_policies(lineup.players, f"{lineup.label}zoo")
@@ -174,7 +175,21 @@ def _play_lineup(mode: Mode, lineup: Lineup, config: EvalConfig, *, log: TextIO)
     if lineup.level_set == "classic":
         partners += [p for p in human_proxies(mode) if p.levels is None or lineup.levels in p.levels]
     levels = eval_levels("overcooked", config.levels)
-    table = crossplay([*players, *partners], levels, config, involving=lineup.involving)
+    games = plan_games([*players, *partners], levels.names, config.pairs, lineup.involving)
+    planned = sum(len(g.levels) for g in games) * config.episodes
+    done, said = 0, t0
+
+    def progress(call: str) -> None:  # crossplay's line per call: "<n> game(s) x <m> episode(s) ..."
+        nonlocal done, said
+        counts = re.match(r"(\d+) game\(s\) x (\d+) episode", call)
+        done += int(counts[1]) * int(counts[2]) if counts else 0
+        if time.perf_counter() - said >= PROGRESS_S:
+            said = time.perf_counter()
+            rate = done / max(said - t0, 1e-9)
+            pipeline.note(log, f"{lineup.label}{done:,} of {planned:,} episodes ({done / planned:.0%}), "
+                               f"{rate:.0f} episodes/s")  # fmt: skip
+
+    table = crossplay([*players, *partners], levels, config, involving=lineup.involving, progress=progress)
     with_whom = "the cook" + (f" and {len(partners) - 1} human proxies" if len(partners) > 1 else "")
     where = f"{len(levels.names)} {lineup.level_set} kitchens"
     what = f"{lineup.label}{len(players)} agents + {with_whom} on {where}"
@@ -374,6 +389,8 @@ def _short(version: str) -> str:
     sha, dirty, rest = version.partition("+")
     return sha[:7] + dirty + rest
 
+
+PROGRESS_S = 120.0  # how often a line-up being played logs how far it is
 
 PARTS = "parts"  # in the work folder (and `steps100/`): each line-up's games (`part_jobs`)
 

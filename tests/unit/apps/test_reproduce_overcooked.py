@@ -387,13 +387,16 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     )  # fmt: skip
     mode = dataclasses.replace(TINY, proxies=str(proxies))
     work, out, log = tmp_path / "work", tmp_path / "out", io.StringIO()
+    monkeypatch.setattr(oc_evaluate, "PROGRESS_S", 0.0)  # every call of a line-up's play says how far it is
     report = oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
+    monkeypatch.undo()
     assert report is not None and report.exists()
     text = report.read_text()
     # the generalists' games with each other were played between training runs, before the zoo was whole
     trained = [m.start() for m in re.finditer(r"\): training \d+ updates", log.getvalue())]
     played = log.getvalue().find("heldout line-up generalists: 3 agents + the cook")  # CEC 2 seeds, CEC-E3T 1
     assert 0 <= played < trained[-1], log.getvalue()
+    assert re.search(r"classic line-up cramped_room: (\d+) of \1 episodes \(100%\)", log.getvalue())
     assert oc_evaluate.played_lineups(mode, work) == (6, 6)  # `--plan`: 3 line-ups at 400 and 100 steps
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
                    "| FCP |", "| E3T |", "| CEC-Finetune |", "| CEC-E3T |", "130.51 (text)", "≈70 (figure)",
