@@ -11,10 +11,11 @@
 `save` keeps the newest checkpoint's parameters, optimizer state, keys and update count (not the envs'
 carries: the episodes in flight; a finished run's optimizer state neither, nothing continues from it), and
 every older checkpoint the run kept (its milestones, which learning curves are played from) as parameters,
-keys and count, with the run's config, metrics and the evaluator's record (compressed); `--record-only`
-keeps a finished run's config, metrics and checkpoints' metadata, no parameters (a reproduction's run
-whose games are played and cached: the record is what its report needs, at a few kB), and `save-tables`
-those cached games (a reproduction's line-up tables, bzip2). `restore` writes
+keys and count, with the run's config, metrics and the evaluator's record (compressed). For a finished
+run of a reproduction, `--newest-only` keeps its last checkpoint alone, the one that plays (a run no other
+starts from, with no learning curve), and `--record-only` its config, metrics and checkpoints' metadata,
+no parameters, once its games are played and cached (the record is what its report needs, at a few kB);
+`save-tables` carries those cached games (a reproduction's line-up tables, bzip2). `restore` writes
 them back as the run's checkpoints, the carries (and an older checkpoint's optimizer state) drawn afresh
 from the run's keys (`Trainer.init`), so `cec up --resume` (or `cec train --resume`) continues the run from
 its newest update; the only difference from an uninterrupted run is that its envs start new episodes there.
@@ -53,15 +54,19 @@ def _trainer(config: dict):  # noqa: ANN202 - a Trainer of the run's config
     return Trainer(from_dict(TrainConfig, config, where="the run's config"))
 
 
-def save(run: Path, out: Path, *, record_only: bool = False) -> Path:
+def save(run: Path, out: Path, *, record_only: bool = False, newest_only: bool = False) -> Path:
     from cec import checkpoints
 
     saved = checkpoints.CheckpointStore(run, keep_last=1).list()
     if not saved:
         raise SystemExit(f"{run} has no checkpoint to carry")
     trainer = _trainer(checkpoints.read_meta(saved[-1].path)["config"])
-    if record_only and checkpoints.read_meta(saved[-1].path)["update"] < trainer.config.num_updates:
-        raise SystemExit(f"{run} has not finished: carry it whole (without --record-only) to train it on")
+    finished = checkpoints.read_meta(saved[-1].path)["update"] >= trainer.config.num_updates
+    if (record_only or newest_only) and not finished:
+        flag = "--record-only" if record_only else "--newest-only"
+        raise SystemExit(f"{run} has not finished: carry it whole (without {flag}) to train it on")
+    if newest_only:  # its last checkpoint, which plays: not the milestones others start from or curves read
+        saved = saved[-1:]
     template = trainer.state_template()
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
@@ -180,6 +185,11 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="finished runs whose games are played: config, metrics and checkpoints' metadata, no parameters",
     )
+    s.add_argument(
+        "--newest-only",
+        action="store_true",
+        help="finished runs that only play (no FCP population, no learning curve): the last checkpoint",
+    )
     r = sub.add_parser("restore", help="carried runs back into the runs folder, in the order given")
     r.add_argument("carried", type=Path, nargs="+")
     r.add_argument("--run-dir", type=Path, default=ROOT / "runs")
@@ -198,7 +208,8 @@ def main(argv: list[str] | None = None) -> int:
         if args.out is not None and len(args.runs) > 1:
             ap.error(f"--out names one run's folder; {len(args.runs)} runs were given: use --into")
         for run in args.runs:
-            save(run, args.out or args.into / run.name, record_only=args.record_only)
+            save(run, args.out or args.into / run.name, record_only=args.record_only,
+                 newest_only=args.newest_only)  # fmt: skip
     else:
         for carried in args.carried:
             restore(carried, args.run_dir)

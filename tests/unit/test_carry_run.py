@@ -96,6 +96,22 @@ def test_a_carried_run_resumes_from_its_update_with_its_parameters(tmp_path: Pat
         checkpoints.CorruptCheckpointError, match="a record without its state.msgpack: its run"
     ):
         _params(kept / "checkpoints" / _checkpoints(kept)[-1][0])
+    # ... or, to play elsewhere, its last checkpoint alone (no milestone: nothing starts from it there)
+    last = _run("scripts/carry_run.py", "save", "--newest-only", str(run), "--out", str(tmp_path / "last"))
+    assert last.returncode == 0, last.stderr[-2000:]
+    restored = _run(
+        "scripts/carry_run.py", "restore", str(tmp_path / "last"), "--run-dir", str(tmp_path / "e")
+    )
+    assert restored.returncode == 0, restored.stderr[-2000:]
+    assert _checkpoints(tmp_path / "e" / "r") == _checkpoints(run)[-1:]
+    assert all(
+        np.array_equal(u, v)
+        for u, v in zip(
+            jax.tree.leaves(_params(tmp_path / "e" / "r" / "checkpoints" / _checkpoints(run)[-1][0])),
+            jax.tree.leaves(_params(run / "checkpoints" / _checkpoints(run)[-1][0])),
+            strict=True,
+        )
+    )
     unfinished = _run(
         "scripts/carry_run.py", "save", "--record-only", str(original), "--out", str(tmp_path / "u")
     )
