@@ -63,13 +63,20 @@ def reproduce_overcooked(
         def between(plan: list[PlannedRun]) -> None:  # a line-up's games, once its agents are trained
             play_ready(mode, plan, the_zoo.zoo_dir, work, log=log)
 
-        result = the_zoo.build(progress=progress, log=log, between=between)
-        if result.interrupted or result.manifest is None:
-            pipeline.note(log, "training interrupted; run the same command again to continue")
+        try:
+            result = the_zoo.build(progress=progress, log=log, between=between)
+            if result.interrupted or result.manifest is None:
+                pipeline.note(log, "training interrupted; run the same command again to continue")
+                return None
+            table = cached_evaluation(mode, result.manifest, work, log=log, commit=commit)
+            # the authors' code's 100-step episodes, the same line-ups and draws (a quarter of the steps)
+            short = cached_evaluation(
+                mode, result.manifest, work, log=log, commit=commit, steps=AUTHORS_STEPS
+            )
+        except KeyboardInterrupt:  # Ctrl-C while a line-up played (training stops at its own checkpoint)
+            pipeline.note(log, "cross-play interrupted; the line-ups played are kept: run the same command "
+                               "again to continue")  # fmt: skip
             return None
-        table = cached_evaluation(mode, result.manifest, work, log=log, commit=commit)
-        # the authors' code's 100-step episodes, the same line-ups and draws (a quarter of the steps)
-        short = cached_evaluation(mode, result.manifest, work, log=log, commit=commit, steps=AUTHORS_STEPS)
         record = work / MACHINE_FILE  # where someone removed it: this machine, unknown training commits
         ran_on = (
             json.loads(record.read_text())
