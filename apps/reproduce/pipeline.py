@@ -115,8 +115,8 @@ def shared_tables(jobs: Sequence[Job], *, log: TextIO, poll_s: float = POLL_S) -
 
 
 def play_unclaimed(jobs: Sequence[Job], *, log: TextIO) -> int:
-    """Plays each job's table that is neither stored nor claimed by another invocation, without waiting
-    for those others play (a builder playing what is ready between training runs); the number played."""
+    """Plays each job's table that is neither stored nor claimed by another invocation, not waiting
+    for the ones others play (a builder playing what is ready between training runs); the number played."""
     played = 0
     for job in jobs:
         if not stored_key(job.folder, job.key):
