@@ -25,6 +25,7 @@ from apps.reproduce.overcooked.modes import (
     COOK,
     EVAL_STEPS,
     GENERALISTS,
+    KITCHEN_ORDER,
     LEVEL_SETS,
     MACHINE_FILE,
     NOOP,
@@ -104,31 +105,45 @@ class Lineup:
 
 
 def lineups(mode: Mode, players: Sequence, level_set: str) -> list[Lineup]:
-    """Who meets whom on a level set. On the classic kitchens one line-up per kitchen: the
-    generator-trained agents with that kitchen's single-kitchen agents, on that kitchen (each agent plays
-    the kitchens it plays; the common random numbers are drawn per kitchen and episode, so splitting the
-    kitchens changes no game). On the held-out kitchens the generator-trained agents with each other, then
-    one line-up per training kitchen: that kitchen's agents, free of their kitchen, with the
-    generator-trained ones (only the games that involve the kitchen's agents). A seed of a single-kitchen
-    algorithm is then, as on the classic kitchens, its agents of every kitchen: the result table names a
-    policy by algorithm and seed, and a pair's score averages its kitchens."""
+    """Who meets whom on a level set, in line-ups that can be played as soon as their players are trained.
+    On the classic kitchens, per kitchen, on that kitchen: the generator-trained agents with each other,
+    then the kitchen's agents one algorithm at a time (`KITCHEN_ORDER`), each with the generator-trained
+    agents and the kitchen's algorithms before it (only the games that involve the new algorithm). Each
+    agent plays the kitchens it plays, and the common random numbers are drawn per kitchen and episode, so
+    splitting the kitchens changes no game. On the held-out kitchens the same, every kitchen's agents free
+    of their kitchen: the generator-trained agents with each other, then per training kitchen its
+    algorithms one at a time. A seed of a single-kitchen algorithm is then, as on the classic kitchens,
+    its agents of every kitchen: the result table names a policy by algorithm and seed, and a pair's score
+    averages its kitchens."""
     generalists = tuple(p for p in players if p.levels is None)
     by_kitchen: dict[str, list] = {}
     for p in players:
         if p.levels is not None:
             by_kitchen.setdefault(",".join(p.levels), []).append(p)
+
+    def nested(prefix: str, levels: str, own: Sequence) -> list[Lineup]:
+        order = {a: i for i, a in enumerate(KITCHEN_ORDER)}
+        algorithms = sorted(dict.fromkeys(p.algorithm for p in own), key=lambda a: order.get(a, len(order)))
+        parts, before = [], generalists
+        for algorithm in algorithms:
+            agents = tuple(p for p in own if p.algorithm == algorithm)
+            names = frozenset(p.name for p in agents)
+            parts.append(Lineup(f"{prefix}{algorithm}", level_set, levels, (*before, *agents), names))
+            before = (*before, *agents)
+        return parts
+
     if level_set == "classic":
-        return [
-            Lineup(k, level_set, k, (*generalists, *by_kitchen.get(k, [])))
-            for k in mode.kitchens
-        ]  # fmt: skip
+        parts = []
+        for k in mode.kitchens:
+            parts += [
+                Lineup(f"{k}-generalists", level_set, k, generalists),
+                *nested(f"{k}-", k, by_kitchen.get(k, [])),
+            ]
+        return parts
     spec = level_spec(mode, level_set)
     parts = [Lineup("generalists", level_set, spec, generalists)] if generalists else []
     for kitchen, own in by_kitchen.items():
-        agents = tuple(dataclasses.replace(p, levels=None) for p in own)
-        parts.append(
-            Lineup(kitchen, level_set, spec, (*generalists, *agents), frozenset(a.name for a in agents))
-        )
+        parts += nested(f"{kitchen}-", spec, [dataclasses.replace(p, levels=None) for p in own])
     return parts
 
 

@@ -18,6 +18,12 @@ ALGORITHMS = ("cec", "cec_e3t", "cec_finetune", "e3t", "fcp", "ippo")
 # trained with themselves as the partner
 GENERALISTS = tuple(a for a in ALGORITHMS if TRAINING[a][1])
 SELF_PLAY = tuple(a for a in ALGORITHMS if TRAINING[a][0] == "self_play")
+# a kitchen's algorithms in the order their line-ups nest (`evaluate.lineups`: each adds one algorithm's
+# agents to those before it, so it plays once they are all trained): FCP, whose runs start from IPPO's
+# checkpoints and take longest, last
+KITCHEN_ORDER = tuple(
+    sorted((a for a in ALGORITHMS if a not in GENERALISTS), key=lambda a: TRAINING[a][0] == "fcp")
+)
 UNTRAINED, NOOP = "untrained", "noop"  # the controls: partners that learned nothing (`control_policies`)
 TITLES = {
     "cec": "CEC", "cec_e3t": "CEC-E3T", "cec_finetune": "CEC-Finetune", "e3t": "E3T", "fcp": "FCP",

@@ -250,8 +250,9 @@ def test_collisions_are_also_given_per_soup_beside_the_untrained_control() -> No
     assert rows["| control: untrained CEC network"].endswith("| — | 2.0 |")  # 4 per 2 soups
 
 
-def test_lineups_pair_each_kitchens_agents_with_the_generalists_once_kitchen_by_kitchen() -> None:
+def test_lineups_play_every_game_once_kitchen_by_kitchen_one_algorithm_at_a_time() -> None:
     from cec.agents.policy import scripted_policy
+    from cec.evaluation.crossplay import plan_games
 
     def agent(algo: str, seed: int, kitchen: str | None = None) -> object:
         name = f"{algo}_{kitchen}-s{seed}" if kitchen else f"{algo}-s{seed}"
@@ -260,24 +261,49 @@ def test_lineups_pair_each_kitchens_agents_with_the_generalists_once_kitchen_by_
 
     mode = dataclasses.replace(TINY, kitchens=("cramped_room", "coord_ring"))
     zoo = [agent("cec", 200), agent("cec", 201)]
-    zoo += [agent("ippo", s, k) for k in ("cramped_room", "coord_ring") for s in (0, 1)]
-    cramped, ring = oc_evaluate.lineups(mode, zoo, "classic")  # a kitchen's agents and the generalists there
-    assert (cramped.name, cramped.levels, cramped.involving) == ("cramped_room", "cramped_room", None)
-    assert [p.name for p in cramped.players] == ["cec-s200", "cec-s201", "ippo_cramped_room-s0",
-                                                 "ippo_cramped_room-s1"]  # fmt: skip
-    assert [p.name for p in ring.players][2:] == ["ippo_coord_ring-s0", "ippo_coord_ring-s1"]
-    generalists, first, second = oc_evaluate.lineups(mode, zoo, "heldout")
-    assert [p.name for p in generalists.players] == ["cec-s200", "cec-s201"] and generalists.involving is None
-    assert [p.name for p in first.players] == [
-        "cec-s200",
-        "cec-s201",
-        "ippo_cramped_room-s0",
-        "ippo_cramped_room-s1",
+    zoo += [agent(a, s, k) for k in ("cramped_room", "coord_ring") for a in ("fcp", "ippo") for s in (0, 1)]
+    classic = oc_evaluate.lineups(mode, zoo, "classic")
+    assert [p.name for p in classic] == [
+        "cramped_room-generalists", "cramped_room-ippo", "cramped_room-fcp",
+        "coord_ring-generalists", "coord_ring-ippo", "coord_ring-fcp",
+    ]  # fmt: skip  # FCP, trained from IPPO's checkpoints, after it
+    fcp = classic[2]
+    assert fcp.levels == "cramped_room" and fcp.involving == {"fcp_cramped_room-s0", "fcp_cramped_room-s1"}
+    assert [p.name for p in fcp.players] == ["cec-s200", "cec-s201", "ippo_cramped_room-s0",
+                                             "ippo_cramped_room-s1", "fcp_cramped_room-s0",
+                                             "fcp_cramped_room-s1"]  # fmt: skip
+    held = oc_evaluate.lineups(mode, zoo, "heldout")
+    assert [p.name for p in held] == [
+        "generalists",
+        "cramped_room-ippo",
+        "cramped_room-fcp",
+        "coord_ring-ippo",
+        "coord_ring-fcp",
     ]
-    assert first.involving == {"ippo_cramped_room-s0", "ippo_cramped_room-s1"}  # the generalists' games once
-    assert second.involving == {"ippo_coord_ring-s0", "ippo_coord_ring-s1"}
-    assert all(p.levels is None for part in (first, second) for p in part.players)  # every held-out kitchen
-    assert {first.levels, generalists.levels} == {oc_evaluate.level_spec(mode, "heldout")}
+    assert held[0].involving is None and all(p.levels is None for part in held for p in part.players)
+    assert {part.levels for part in held} == {oc_evaluate.level_spec(mode, "heldout")}
+
+    def seated(players: list, levels: list[str], involving: frozenset[str] | None = None) -> list:
+        """The games as (seat 0, seat 1, level), by names."""
+        return [
+            (players[g.a if g.seat == 0 else g.b].name, players[g.b if g.seat == 0 else g.a].name, levels[i])
+            for g in plan_games(players, levels, "all", involving) for i in g.levels
+        ]  # fmt: skip
+
+    # every game once: on the classic kitchens every game of the zoo (each agent on its kitchens), on the
+    # held-out ones the games of the generalists with each kitchen's agents (two kitchens' agents do not meet)
+    everyone = seated(zoo, list(mode.kitchens))
+    free = [dataclasses.replace(p, levels=None) for p in zoo]
+    names = oc_evaluate.level_spec(mode, "heldout").split(",")
+    by_kitchen = {
+        game for k in mode.kitchens
+        for game in seated([p for p in free if p.name.startswith("cec") or k in p.name], names)
+    }  # fmt: skip
+    for parts, games in ((classic, everyone), (held, by_kitchen)):
+        played = [
+            x for part in parts for x in seated(list(part.players), part.levels.split(","), part.involving)
+        ]
+        assert sorted(played) == sorted(games), parts[0].level_set
 
 
 def test_a_baseline_without_a_soup_in_its_own_kitchen_is_explained_from_its_training(tmp_path: Path) -> None:
@@ -396,8 +422,8 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     trained = [m.start() for m in re.finditer(r"\): training \d+ updates", log.getvalue())]
     played = log.getvalue().find("heldout line-up generalists: 3 agents + the cook")  # CEC 2 seeds, CEC-E3T 1
     assert 0 <= played < trained[-1], log.getvalue()
-    assert re.search(r"classic line-up cramped_room: (\d+) of \1 episodes \(100%\)", log.getvalue())
-    assert oc_evaluate.played_lineups(mode, work) == (6, 6)  # `--plan`: 3 line-ups at 400 and 100 steps
+    assert re.search(r"classic line-up cramped_room-fcp: (\d+) of \1 episodes \(100%\)", log.getvalue())
+    assert oc_evaluate.played_lineups(mode, work) == (20, 20)  # `--plan`: 10 line-ups at 400 and 100 steps
     for needle in ("## The 1 classic kitchens", "## The 1 held-out kitchens", "| CEC |", "| IPPO |",
                    "| FCP |", "| E3T |", "| CEC-Finetune |", "| CEC-E3T |", "130.51 (text)", "≈70 (figure)",
                    "28.21 (text)", "(seeds as units)", "## Cross-algorithm play",
@@ -496,9 +522,9 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     log = io.StringIO()
     oc_evaluate.cached_evaluation(mode, manifest, work, log=log, commit="abc1234")
     monkeypatch.undo()
-    assert "classic line-up cramped_room: cross-play results found" in log.getvalue(), log.getvalue()
+    assert "classic line-up cramped_room-generalists: cross-play results found" in log.getvalue()
     assert log.getvalue().count("not played again") == 1 and (work / "results.csv").read_bytes() == first
-    assert len(calls) == 3 and play_seconds(work) >= sum(calls)  # the time includes the interrupted one's
+    assert len(calls) == 10 and play_seconds(work) >= sum(calls)  # the time includes the interrupted one's
     # a zoo whose single-kitchen runs are records (carried without parameters once their games were
     # played: scripts/carry_run.py save --record-only): nothing trained, every line-up read from its table
     for run in (work / "zoo" / "runs").glob("*_cramped_room-s*"):
@@ -512,7 +538,7 @@ def test_the_pipeline_trains_evaluates_and_reports_then_resumes_from_its_results
     log = io.StringIO()
     assert oc_command.reproduce_overcooked(mode, work, out, progress=False, log=log, command="tiny")
     assert "training" not in log.getvalue() and "agents + the cook" not in log.getvalue(), log.getvalue()
-    assert log.getvalue().count("cross-play results found") == 2 * 3 + 2  # 3 line-ups x 2 lengths; + 2
+    assert log.getvalue().count("cross-play results found") == 2 * 10 + 2  # 10 line-ups x 2 lengths; + 2
     assert (work / "results.csv").read_bytes() == first
     for section in ("## The 1 classic", "## Cross-algorithm play", "## At the authors' 100-step"):
         assert _section((out / "report.md").read_text(), section) == _section(text, section), section
@@ -598,7 +624,7 @@ def test_plan_command_prints_runs_and_time(capsys: pytest.CaptureFixture[str], t
     assert "cec-s200" in printed and "ippo_cramped_room-s0" in printed and "training: ~" in printed
     assert "0% done" in printed and " left (" in printed
     assert "then cross-play: 3,358 episodes of 400 steps (classic 288, heldout 2,420" in printed
-    assert "line-ups played (each as soon as its agents are trained): 0 of 6" in printed
+    assert "line-ups played (each as soon as its agents are trained): 0 of 20" in printed
 
 
 def test_a_run_committed_with_its_metrics_gzipped_reads_the_same(tmp_path: Path) -> None:
