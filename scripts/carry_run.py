@@ -1,6 +1,6 @@
 """A training run carried from one working session to the next in git, compact (DESIGN rule 17).
 
-    python scripts/carry_run.py save runs/up-release       # -> carry/up-release/ (commit it, once a day)
+    python scripts/carry_run.py save runs/up-release       # -> carry/up-release/ (commit it, once a session)
     python scripts/carry_run.py restore carry/up-release   # -> runs/up-release/, then `cec up --resume`
     python scripts/carry_run.py save runs/reproduce/overcooked-cpu/zoo/runs/* --into carry/repro
     python scripts/carry_run.py restore carry/repro/* --run-dir runs/reproduce/overcooked-cpu/zoo/runs

@@ -1,8 +1,9 @@
 """History that stops growing (DESIGN rule 17): every file version committed since the round's base commit
 (594daee) is at most 1 MiB, outside the shipped policies (`cec/shipped/`), and outside one allowed place:
 
-    carry/    a run that must outlive a working day commits its state here in a compact form (parameters
-              and optimizer state only), at most once a day, and every version committed here since the
+    carry/    a run that must outlive a working session commits its state here in a compact form (parameters
+              and optimizer state only), at most once a session (carry commits at least `SESSION` apart: a
+              session lasts 3 hours), and every version committed here since the
               base counts against the round's budget of 120 MB in all.
 
 Everything else regenerable (training states, work folders, tables) stays out of git: a release goes out
@@ -18,6 +19,8 @@ what it has: the first nothing, the second every commit it holds.
 from __future__ import annotations
 
 import argparse
+import datetime
+import itertools
 import subprocess
 import sys
 from dataclasses import dataclass
@@ -28,6 +31,7 @@ BASE = "594daee"
 MAX_BLOB = 1 << 20
 SHIPPED = "cec/shipped/"
 CARRY, CARRY_BUDGET = "carry/", 120_000_000
+SESSION = datetime.timedelta(hours=3)  # a working session's length: two carries closer than this share one
 
 
 @dataclass(frozen=True)
@@ -37,7 +41,7 @@ class Blob:
     path: str
     size: int
     commit: str
-    day: str = ""  # the commit's date, YYYY-MM-DD
+    when: str = ""  # the commit's time, ISO 8601
 
 
 def _git(repo: Path, *args: str, stdin: str | None = None) -> str:
@@ -58,23 +62,23 @@ def new_blobs(repo: Path, base: str) -> list[Blob]:
     since = [f"^{base}"] if known.returncode == 0 else []
     log = _git(
         repo, "log", "--reverse", "--no-renames", "--raw", "--no-abbrev", "-c", "--diff-filter=AM",
-        "--format=commit %H %cs", "HEAD", *since,
+        "--format=commit %H %cI", "HEAD", *since,
     )  # fmt: skip
-    versions: list[tuple[str, str, str, str]] = []  # (object, path, commit, day)
-    commit = day = ""
+    versions: list[tuple[str, str, str, str]] = []  # (object, path, commit, time)
+    commit = when = ""
     for line in log.splitlines():
         if line.startswith("commit "):
-            _, commit, day = line.split()
+            _, commit, when = line.split()
         elif line.startswith(":") and "\t" in line:
             fields, path = line.split("\t", 1)
-            versions.append((fields.split()[-2], path, commit[:10], day))  # the version the commit made
+            versions.append((fields.split()[-2], path, commit[:10], when))  # the version the commit made
     if not versions:
         return []
     listing = _git(
         repo, "cat-file", "--batch-check=%(objectname) %(objectsize)", stdin="\n".join(v[0] for v in versions)
     )
     sizes = dict(line.split() for line in listing.splitlines())
-    return [Blob(path, int(sizes[name]), commit, day) for name, path, commit, day in versions]
+    return [Blob(path, int(sizes[name]), commit, when) for name, path, commit, when in versions]
 
 
 def problems(blobs: list[Blob]) -> list[str]:
@@ -90,13 +94,12 @@ def problems(blobs: list[Blob]) -> list[str]:
         out.append(
             f"{CARRY} took {total / 1e6:.1f} MB since the base (its budget: {CARRY_BUDGET / 1e6:.0f} MB)"
         )
-    days: dict[str, set[str]] = {}
-    for b in carried:
-        days.setdefault(b.day, set()).add(b.commit)
+    times = sorted({(datetime.datetime.fromisoformat(b.when), b.commit) for b in carried})
     out += [
-        f"{CARRY} committed {len(commits)} times on {day} ({', '.join(sorted(commits))}; once a day at most)"
-        for day, commits in sorted(days.items())
-        if len(commits) > 1
+        f"{CARRY} committed twice within {SESSION} ({a} at {ta:%Y-%m-%d %H:%M}, {b} at {tb:%H:%M}; once a "
+        "session at most)"
+        for (ta, a), (tb, b) in itertools.pairwise(times)
+        if tb - ta < SESSION
     ]
     return out
 
@@ -114,8 +117,8 @@ def main(argv: list[str] | None = None) -> int:
         print(
             f"history weight: since {args.base}, history keeps what it must not: {'; '.join(found)}.\n"
             f"Only the shipped policies ({SHIPPED}) may be over {MAX_BLOB >> 20} MiB. A run that must "
-            "outlive a working day commits a compact state (parameters and optimizer state only) under "
-            f"{CARRY}, at most once a day and {CARRY_BUDGET / 1e6:.0f} MB in all for the round; anything "
+            "outlive a working session commits a compact state (parameters and optimizer state only) under "
+            f"{CARRY}, at most once a session and {CARRY_BUDGET / 1e6:.0f} MB in all for the round; anything "
             "else regenerable stays out of git (a release: `cec zoo export`; a table: .csv.bz2). Take the "
             "file out of the commit that added it (amend it) before the commit is shared.",
             file=sys.stderr,

@@ -140,11 +140,11 @@ def test_a_commit_that_adds_a_2_mib_state_fails_the_history_check(tmp_path: Path
     assert hw.main(["--repo", str(repo), "--base", base.strip()]) == 1  # history keeps it: still refused
     err = capsys.readouterr().err
     assert f"runs/x/checkpoints/update_1/state.msgpack (2.0 MiB, commit {added[:10]})" in err
-    assert "carry/" in err and "120 MB" in err and "once a day" in err  # the rule says what is allowed
+    assert "carry/" in err and "120 MB" in err and "once a session" in err  # the rule says what is allowed
     assert hw.main(["--repo", str(repo), "--base", added]) == 0  # a base after it: not this round's
 
 
-def test_the_shipped_policies_and_one_compact_state_a_day_under_carry_pass(
+def test_the_shipped_policies_and_one_compact_state_a_session_under_carry_pass(
     tmp_path: Path, monkeypatch
 ) -> None:
     hw = _history()
@@ -158,9 +158,12 @@ def test_the_shipped_policies_and_one_compact_state_a_day_under_carry_pass(
     monkeypatch.setattr(hw, "CARRY_BUDGET", 3 << 20)  # two versions of 2 MiB: over a 3 MiB budget
     assert any("carry/ took 4.2 MB" in p for p in hw.problems(hw.new_blobs(repo, args[-1])))
     monkeypatch.undo()
-    _commit(repo, {"carry/run/state.msgpack": b"\4" * 10}, "again the same day", "2026-12-02T21:00:00")
+    _commit(repo, {"carry/run/state.msgpack": b"\4" * 10}, "the next session", "2026-12-02T23:05:00")
+    assert hw.main(args) == 0  # the same day, another session (3 hours on)
+    _commit(repo, {"carry/run/state.msgpack": b"\5" * 10}, "again, same session", "2026-12-03T01:00:00")
     found = hw.problems(hw.new_blobs(repo, args[-1]))
-    assert len(found) == 1 and "carry/ committed 2 times on 2026-12-02" in found[0]
+    assert len(found) == 1 and "carry/ committed twice within 3:00:00 (" in found[0], found
+    assert "at 2026-12-02 23:05, " in found[0] and "at 01:00; once a session at most)" in found[0]
 
 
 def test_without_the_base_every_commit_held_is_checked(tmp_path: Path) -> None:
