@@ -20,8 +20,10 @@ def run_name(algorithm: str, kitchen: str = "") -> str:
 
 def zoo_spec(mode: Mode) -> dict[str, Any]:
     """CEC first (the runs CEC-Finetune starts from) and CEC-E3T (the paper's appendix: CEC's kitchens with
-    E3T's partner, epsilon 0.5 as the paper sets it there), then per kitchen IPPO, FCP (its population: that
-    kitchen's IPPO run), E3T and CEC-Finetune (one run per CEC seed)."""
+    E3T's partner, epsilon 0.5 as the paper sets it there), then per kitchen IPPO, E3T, CEC-Finetune (one
+    run per CEC seed) and FCP (its population: that kitchen's IPPO run): a kitchen's line-ups are played
+    one algorithm at a time, FCP's last (`evaluate.lineups`), so a builder free before FCP can start takes
+    the runs the earlier line-ups wait for."""
     preset = str(ROOT / mode.preset)  # absolute: the spec works from any directory
     common = list(mode.overrides)
     cec_seeds = list(mode.seeds["cec"])
@@ -50,8 +52,6 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
         )
         entries += [
             entry("ippo", ippo, ["algorithm=ippo", *single, "checkpoint.milestones=[0.0,0.5,1.0]"], k),
-            entry("fcp", mode.seeds["fcp"], ["algorithm=fcp", *single, "partner.kind=fcp",
-                                             f"partner.population={population}"], k),
             entry("e3t", mode.seeds["e3t"], ["algorithm=e3t", *single, "partner.kind=e3t",
                                              "partner.epsilon=0.55", "partner.predict_partner=10"], k),
         ]  # fmt: skip
@@ -59,6 +59,8 @@ def zoo_spec(mode: Mode) -> dict[str, Any]:
             start = [f"init_from=runs/cec-s{cec_seeds[0]}", f"init_from_seed={cec_seed}"]
             finetune = ["algorithm=cec_finetune", *start, *single, *mode.finetune]
             entries.append(entry("cec_finetune", [ft_seed], finetune, k))
+        entries.append(entry("fcp", mode.seeds["fcp"], ["algorithm=fcp", *single, "partner.kind=fcp",
+                                                        f"partner.population={population}"], k))  # fmt: skip
     return {"entries": entries}
 
 
