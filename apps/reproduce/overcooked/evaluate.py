@@ -205,7 +205,8 @@ def _play_lineup(mode: Mode, lineup: Lineup, config: EvalConfig, *, log: TextIO)
                                f"{rate:.0f} episodes/s")  # fmt: skip
 
     table = crossplay([*players, *partners], levels, config, involving=lineup.involving, progress=progress)
-    with_whom = "the cook" + (f" and {len(partners) - 1} human proxies" if len(partners) > 1 else "")
+    proxies = len(partners) - 1
+    with_whom = "the cook" + (f" and {proxies} human prox{'y' if proxies == 1 else 'ies'}" if proxies else "")
     where = f"{len(levels.names)} {lineup.level_set} kitchens"
     what = f"{lineup.label}{len(players)} agents + {with_whom} on {where}"
     pipeline.note(log, f"{what}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
