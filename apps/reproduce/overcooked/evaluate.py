@@ -199,17 +199,14 @@ def _play_lineup(mode: Mode, lineup: Lineup, config: EvalConfig, *, log: TextIO)
         counts = re.match(r"(\d+) game\(s\) x (\d+) episode", call)
         done += int(counts[1]) * int(counts[2]) if counts else 0
         if time.perf_counter() - said >= PROGRESS_S:
-            said = time.perf_counter()
-            rate = done / max(said - t0, 1e-9)
-            pipeline.note(log, f"{lineup.label}{done:,} of {planned:,} episodes ({done / planned:.0%}), "
-                               f"{rate:.0f} episodes/s")  # fmt: skip
+            said, share = time.perf_counter(), f"{done:,} of {planned:,} episodes ({done / planned:.0%})"
+            pipeline.note(log, f"{lineup.label}{share}, {done / max(said - t0, 1e-9):.0f} episodes/s")
 
     table = crossplay([*players, *partners], levels, config, involving=lineup.involving, progress=progress)
-    proxies = len(partners) - 1
-    with_whom = "the cook" + (f" and {proxies} human prox{'y' if proxies == 1 else 'ies'}" if proxies else "")
-    where = f"{len(levels.names)} {lineup.level_set} kitchens"
-    what = f"{lineup.label}{len(players)} agents + {with_whom} on {where}"
-    pipeline.note(log, f"{what}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
+    n = len(partners) - 1
+    with_whom = "the cook" + (f" and {n} human prox{'y' if n == 1 else 'ies'}" if n else "")
+    where = f"{len(players)} agents + {with_whom} on {len(levels.names)} {lineup.level_set} kitchens"
+    pipeline.note(log, f"{lineup.label}{where}: {len(table)} episodes in {time.perf_counter() - t0:.0f}s")
     return table
 
 

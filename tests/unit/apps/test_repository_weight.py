@@ -7,7 +7,7 @@ Commit a policy's exported parameters (`cec zoo export`) instead of a training s
 (`.csv.bz2`, `.csv.gz`: read as they are).
 
 History too stops growing: every file version committed since the round's base obeys the same 1 MiB, but the
-shipped policies and one compact run state a day under `carry/` (120 MB in all for the round;
+shipped policies and one compact run state a session under `carry/` (120 MB in all for the round;
 `scripts/history_weight.py`, run by `make lint`), so a state added and then removed from the tree is still
 found."""
 
