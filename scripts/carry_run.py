@@ -101,8 +101,10 @@ def restore(carried: Path, run_dir: Path) -> Path:
 
     from cec import checkpoints
 
-    trainer = _trainer(checkpoints.read_meta(carried / STATE)["config"])
-    fresh = trainer.init()  # the run's shapes, with carries drawn afresh from its keys
+    newest = checkpoints.read_meta(carried / STATE)
+    trainer = _trainer(newest["config"])
+    # the run's shapes, with carries drawn afresh from its keys (a record has no state to fill)
+    fresh = None if checkpoints.RECORD_ONLY in newest["metadata"] else trainer.init()
     run = run_dir / trainer.config.run_name
     for name in FILES:
         source = carried / (name.replace("/", "__") + ".gz")
@@ -118,6 +120,8 @@ def restore(carried: Path, run_dir: Path) -> Path:
             written.mkdir(parents=True, exist_ok=True)
             shutil.copyfile(path / checkpoints.META_FILE, written / checkpoints.META_FILE)
             continue
+        if fresh is None:
+            raise SystemExit(f"{path} holds a state, its run's newest checkpoint a record: carry it again")
         fields = metadata.pop(FIELDS, KEPT)  # a carry from before older checkpoints were kept: all of KEPT
         kept, _ = checkpoints.load(path, {name: getattr(fresh, name) for name in fields})
         written = checkpoints.save(store.path(meta["update"]), jax.device_get(fresh._replace(**kept)),
