@@ -42,7 +42,7 @@ PARAMS_ONLY = ("params", "key", "update")  # of the others: what evaluating them
 FIELDS = "carried_fields"  # in a carried checkpoint's metadata: which of the state's fields it holds
 RECORD_WHY = (
     "its run was carried (scripts/carry_run.py save --record-only) as its record, without parameters, once "
-    "its games were played and cached; train it again under another run name to play new games"
+    "its games were played and cached; to play new games, remove the run's checkpoints and build again"
 )
 
 
