@@ -60,14 +60,15 @@ def save(run: Path, out: Path, *, record_only: bool = False, newest_only: bool =
     saved = checkpoints.CheckpointStore(run, keep_last=1).list()
     if not saved:
         raise SystemExit(f"{run} has no checkpoint to carry")
-    trainer = _trainer(checkpoints.read_meta(saved[-1].path)["config"])
-    finished = checkpoints.read_meta(saved[-1].path)["update"] >= trainer.config.num_updates
+    last = checkpoints.read_meta(saved[-1].path)
+    trainer = _trainer(last["config"])
+    finished = last["update"] >= trainer.config.num_updates
     if (record_only or newest_only) and not finished:
         flag = "--record-only" if record_only else "--newest-only"
         raise SystemExit(f"{run} has not finished: carry it whole (without {flag}) to train it on")
     if newest_only:  # its last checkpoint, which plays: not the milestones others start from or curves read
         saved = saved[-1:]
-    template = trainer.state_template()
+    template = None if record_only else trainer.state_template()  # a record loads no state
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
     for i, info in enumerate(saved):
@@ -79,7 +80,7 @@ def save(run: Path, out: Path, *, record_only: bool = False, newest_only: bool =
             target.mkdir(parents=True)
             (target / checkpoints.META_FILE).write_text(json.dumps({**meta, "metadata": metadata}, indent=2))
             continue
-        fields = KEPT if newest and meta["update"] < trainer.config.num_updates else PARAMS_ONLY
+        fields = KEPT if newest and not finished else PARAMS_ONLY
         state, _ = checkpoints.load(info.path, template)
         metadata = {**meta["metadata"], "carried_from": info.path.name, FIELDS: list(fields)}
         checkpoints.save(out / STATE if newest else out / OLDER / info.path.name,

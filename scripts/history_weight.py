@@ -3,8 +3,8 @@
 
     carry/    a run that must outlive a working session commits its state here in a compact form (parameters
               and optimizer state only), at most once a session (carry commits at least `SESSION` apart: a
-              session lasts 3 hours), and every version committed here since the
-              base counts against the round's budget of 120 MB in all.
+              session lasts 3 hours), and every version committed here since the base counts against
+              the round's budget of 120 MB in all.
 
 Everything else regenerable (training states, work folders, tables) stays out of git: a release goes out
 as a bundle (`cec zoo export`), a result table compressed (`.csv.bz2`). `make lint` runs this:

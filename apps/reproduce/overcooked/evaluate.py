@@ -344,11 +344,10 @@ def cached_evaluation(
     (`apps.reproduce.pipeline.cached_table`). A line-up an earlier invocation played with the same players
     is read, not played (the CPU version's take minutes each on the 2-vCPU Xeon); invocations side by side
     (two builders of one work folder) share the line-ups out (`pipeline.shared_tables`). The invocation
-    that assembles it
-    writes `machine.json` beside it: this machine, `commit` and the commits that wrote the agents'
-    checkpoints (a zoo trained over several invocations). `steps`: the episodes' length; the table of
-    another length than `EVAL_STEPS` (the authors' 100, `AUTHORS_STEPS`) lives in `work/steps<steps>`
-    (`steps_folder`), the same games cut short."""
+    that assembles it writes `machine.json` beside it: this machine, `commit` and the commits that wrote
+    the agents' checkpoints (a zoo trained over several invocations). `steps`: the episodes' length; the
+    table of another length than `EVAL_STEPS` (the authors' 100, `AUTHORS_STEPS`) lives in
+    `work/steps<steps>` (`steps_folder`), the same games cut short."""
     folder = steps_folder(work, steps)
     folder.mkdir(parents=True, exist_ok=True)
     from cec.agents.zoo import load_zoo
